@@ -1,0 +1,41 @@
+//! The backend abstraction: where stage buffers live.
+
+use bytemuck::Pod;
+
+use crate::error::Result;
+
+/// A place where stage buffers live and stages run: host memory for `crsh-cpu`, a wgpu device
+/// for `crsh-wgpu`.
+///
+/// The frame driver only creates, concatenates and (for statistics and accuracy) downloads
+/// buffers; everything else happens inside stages, which are implemented per backend. So a
+/// stage sequence written once against `B: Backend` runs unchanged on either backend.
+pub trait Backend: Send + Sync + 'static {
+    /// A typed buffer of `T`: `Vec<T>` on the CPU, a device buffer on the GPU.
+    type Buffer<T: Pod + Send + Sync>: Send + Sync;
+
+    /// Short backend name as it appears in stats (`cpu`, `wgpu`).
+    fn name(&self) -> &'static str;
+
+    /// A buffer holding a copy of `data`.
+    fn upload<T: Pod + Send + Sync>(&self, data: &[T]) -> Result<Self::Buffer<T>>;
+
+    /// A host copy of the buffer's contents.
+    fn download<T: Pod + Send + Sync>(&self, buf: &Self::Buffer<T>) -> Result<Vec<T>>;
+
+    /// Number of elements.
+    fn len<T: Pod + Send + Sync>(&self, buf: &Self::Buffer<T>) -> usize;
+
+    /// A buffer of `len` copies of `value`.
+    fn filled<T: Pod + Send + Sync>(&self, len: usize, value: T) -> Result<Self::Buffer<T>> {
+        self.upload(&vec![value; len])
+    }
+
+    /// The buffers' contents one after the other, in order.
+    fn concat<T: Pod + Send + Sync>(&self, parts: Vec<Self::Buffer<T>>) -> Result<Self::Buffer<T>>;
+
+    /// Blocks until all work submitted so far has finished (for wall-clock stage timings).
+    fn sync(&self) -> Result<()> {
+        Ok(())
+    }
+}

@@ -1,0 +1,160 @@
+//! Bounding volumes: spheres, cones, sphere-cone ray-space nodes and axis-aligned boxes.
+//!
+//! Construction algorithms (minimal spheres, cone unions) live with the stages that use them;
+//! these are the compact records (16 or 32 bytes) that stages store and upload.
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+
+/// A sphere (16 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable, Serialize, Deserialize)]
+pub struct Sphere {
+    /// Center.
+    pub center: Vec3,
+    /// Radius (0 for a point).
+    pub radius: f32,
+}
+
+impl Sphere {
+    /// A sphere from center and radius.
+    pub fn new(center: Vec3, radius: f32) -> Sphere {
+        Sphere { center, radius }
+    }
+
+    /// Whether `p` lies inside, allowing a relative tolerance `rel_eps` of the radius (plus an
+    /// absolute floor scaled by the magnitude of the coordinates, for float rounding).
+    pub fn contains(&self, p: Vec3, rel_eps: f32) -> bool {
+        let scale = self.center.abs().max_element().max(p.abs().max_element()).max(1.0);
+        self.center.distance(p) <= self.radius * (1.0 + rel_eps) + scale * 1e-6
+    }
+}
+
+/// A cone of directions: unit axis and half-angle in radians, in `[0, π]` (16 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable, Serialize, Deserialize)]
+pub struct Cone {
+    /// Unit axis.
+    pub axis: Vec3,
+    /// Half-angle (spread) in radians.
+    pub half_angle: f32,
+}
+
+impl Cone {
+    /// Whether the unit direction `d` lies within the cone (with an absolute angle tolerance).
+    pub fn contains_dir(&self, d: Vec3, eps: f32) -> bool {
+        let c = self.axis.dot(d.normalize()).clamp(-1.0, 1.0);
+        c.acos() <= self.half_angle + eps
+    }
+}
+
+/// A ray-space hierarchy node: the sphere bounds the ray origins, the cone the directions
+/// (seed 000 §3.2.7, figs 3.16-3.18; 32 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable, Serialize, Deserialize)]
+pub struct SphereCone {
+    /// Bounds the origins.
+    pub sphere: Sphere,
+    /// Bounds the directions.
+    pub cone: Cone,
+}
+
+/// An axis-aligned bounding box (24 bytes). The empty box has `min > max`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable, Serialize, Deserialize)]
+pub struct Aabb {
+    /// Minimum corner.
+    pub min: Vec3,
+    /// Maximum corner.
+    pub max: Vec3,
+}
+
+impl Aabb {
+    /// The empty box (identity of [`Aabb::union`]).
+    pub const EMPTY: Aabb = Aabb {
+        min: Vec3::splat(f32::INFINITY),
+        max: Vec3::splat(f32::NEG_INFINITY),
+    };
+
+    /// The smallest box containing `points`.
+    pub fn from_points(points: impl IntoIterator<Item = Vec3>) -> Aabb {
+        points.into_iter().fold(Aabb::EMPTY, |b, p| b.grow(p))
+    }
+
+    /// This box grown to contain `p`.
+    pub fn grow(self, p: Vec3) -> Aabb {
+        Aabb {
+            min: self.min.min(p),
+            max: self.max.max(p),
+        }
+    }
+
+    /// The smallest box containing both.
+    pub fn union(self, o: Aabb) -> Aabb {
+        Aabb {
+            min: self.min.min(o.min),
+            max: self.max.max(o.max),
+        }
+    }
+
+    /// Whether no point is inside.
+    pub fn is_empty(&self) -> bool {
+        self.min.cmpgt(self.max).any()
+    }
+
+    /// Extent per axis (zero for the empty box).
+    pub fn size(&self) -> Vec3 {
+        if self.is_empty() {
+            Vec3::ZERO
+        } else {
+            self.max - self.min
+        }
+    }
+
+    /// Center.
+    pub fn center(&self) -> Vec3 {
+        (self.min + self.max) * 0.5
+    }
+
+    /// Length of the diagonal (zero for the empty box).
+    pub fn diagonal(&self) -> f32 {
+        self.size().length()
+    }
+
+    /// Whether `p` is inside or on the boundary.
+    pub fn contains(&self, p: Vec3) -> bool {
+        p.cmpge(self.min).all() && p.cmple(self.max).all()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn aabb_union_and_contains() {
+        let b = Aabb::from_points([Vec3::ZERO, Vec3::new(1.0, 2.0, 3.0)]);
+        assert!(b.contains(Vec3::new(0.5, 1.0, 1.5)));
+        assert!(!b.contains(Vec3::new(1.5, 1.0, 1.5)));
+        assert!(Aabb::EMPTY.is_empty());
+        assert_eq!(Aabb::EMPTY.union(b), b);
+        assert_eq!(b.diagonal(), Vec3::new(1.0, 2.0, 3.0).length());
+    }
+
+    #[test]
+    fn cone_contains() {
+        let c = Cone {
+            axis: Vec3::Z,
+            half_angle: 0.5,
+        };
+        assert!(c.contains_dir(Vec3::new(0.0, 0.4, 1.0), 0.0));
+        assert!(!c.contains_dir(Vec3::new(0.0, 1.0, 1.0), 0.0));
+    }
+
+    #[test]
+    fn sizes() {
+        assert_eq!(std::mem::size_of::<SphereCone>(), 32);
+        assert_eq!(std::mem::size_of::<Aabb>(), 24);
+    }
+}

@@ -1,0 +1,43 @@
+//! Errors shared by stages and the frame driver.
+
+/// Result with [`CoreError`].
+pub type Result<T, E = CoreError> = std::result::Result<T, E>;
+
+/// What can go wrong while configuring or running a pipeline.
+#[derive(Debug, thiserror::Error)]
+pub enum CoreError {
+    /// The pipeline description names a stage variant that does not exist.
+    #[error("unknown {stage} variant `{name}` (known: {known})")]
+    UnknownVariant {
+        /// Stage slot (`intersect`, `raygen`, ...).
+        stage: String,
+        /// The name asked for.
+        name: String,
+        /// Comma-separated list of the variants that exist.
+        known: String,
+    },
+    /// A `--set` key or a parameter is not valid for the chosen variant.
+    #[error("invalid parameter `{key}`: {reason}")]
+    InvalidParam {
+        /// `stage.param` key.
+        key: String,
+        /// Why it was rejected.
+        reason: String,
+    },
+    /// A stage cannot answer this kind of query (e.g. a BVH asked for candidate pairs).
+    #[error("{stage} `{variant}` does not support {what}")]
+    Unsupported {
+        /// Stage slot.
+        stage: &'static str,
+        /// Variant name.
+        variant: String,
+        /// What was asked.
+        what: String,
+    },
+    /// Input that is out of range or inconsistent (sizes, NaN rays, ...).
+    #[error("invalid input: {0}")]
+    InvalidInput(String),
+    /// A backend (device, allocation, transfer) failed.
+    #[error("backend error: {0}")]
+    Backend(String),
+}

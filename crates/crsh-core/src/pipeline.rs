@@ -1,0 +1,327 @@
+//! The backend-generic frame driver: seed 000 fig. 3.1 as a loop over ray batches.
+//!
+//! ```text
+//! primary visibility ─► surfaces ─┬► shadow rays ─► trace (any hit) ─► shade direct light
+//!                                 └► reflection / refraction rays ─► trace (nearest) ─► resolve
+//!                                        └──────────── next surfaces, up to max_depth ──┘
+//! trace = [hash ─► sort ─► build hierarchy ─► traverse ─►] intersect
+//! ```
+//!
+//! Batches are processed one ray kind at a time. The driver times every stage (after
+//! [`Backend::sync`]), counts rays, attributes test counts to ray kinds, and, when a reference
+//! intersector is given, traces the very same rays with it to measure agreement.
+
+use std::time::Instant;
+
+use crate::backend::Backend;
+use crate::error::{CoreError, Result};
+use crate::ray::{Hit, HitMode, Ray, RayKind};
+use crate::stage::{
+    HierarchyBuilder, Hasher, Intersector, PrimaryVisibility, Query, RayGen, Shader, Sorter,
+    Traverser,
+};
+use crate::stats::{AccuracyCounts, Stats};
+
+/// The stage objects of one pipeline on backend `B`.
+pub struct Stages<B: Backend> {
+    /// Primary visibility.
+    pub primary: Box<dyn PrimaryVisibility<B>>,
+    /// Secondary ray creation.
+    pub raygen: Box<dyn RayGen<B>>,
+    /// Ray hashing (with `sorter`), optional.
+    pub hasher: Option<Box<dyn Hasher<B>>>,
+    /// Ray sorting (with `hasher`), optional.
+    pub sorter: Option<Box<dyn Sorter<B>>>,
+    /// Ray-space hierarchy creation (with `traverser`), optional.
+    pub hierarchy: Option<Box<dyn HierarchyBuilder<B>>>,
+    /// Hierarchy traversal (with `hierarchy`), optional.
+    pub traverser: Option<Box<dyn Traverser<B>>>,
+    /// Exact ray-triangle tests.
+    pub intersector: Box<dyn Intersector<B>>,
+    /// Shading.
+    pub shader: Box<dyn Shader<B>>,
+}
+
+/// Per-frame settings.
+#[derive(Clone, Debug)]
+pub struct FrameOptions {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Reflection / refraction bounces after the primary hit (0: direct light only).
+    pub max_depth: u32,
+    /// Triangles in the scene, for the brute-force test count.
+    pub triangles: u64,
+}
+
+/// A progress report, sent before each batch.
+#[derive(Clone, Debug)]
+pub struct Progress {
+    /// Steps done so far.
+    pub step: u32,
+    /// Steps in the frame, if every bounce runs.
+    pub total_steps: u32,
+    /// What is about to run (`primary`, `shadow d=1`, ...).
+    pub message: String,
+}
+
+/// A rendered frame.
+pub struct Frame<B: Backend> {
+    /// Linear HDR RGBA, row-major, `y = 0` the top row.
+    pub image: B::Buffer<[f32; 4]>,
+    /// What the frame measured.
+    pub stats: Stats,
+}
+
+/// Maximum image side the driver accepts (guards absurd sizes before allocation).
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+
+/// Renders one frame with `stages` on `backend`. With `reference`, every traced batch is also
+/// traced by the reference intersector (untimed) and [`Stats::accuracy`] is filled.
+pub fn render_frame<B: Backend>(
+    backend: &B,
+    stages: &Stages<B>,
+    opts: &FrameOptions,
+    reference: Option<&dyn Intersector<B>>,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<Frame<B>> {
+    if opts.width == 0 || opts.height == 0 || opts.width > MAX_IMAGE_SIDE || opts.height > MAX_IMAGE_SIDE {
+        return Err(CoreError::InvalidInput(format!(
+            "image size {}x{} is outside 1..={MAX_IMAGE_SIDE} per side",
+            opts.width, opts.height
+        )));
+    }
+    if stages.hierarchy.is_some() != stages.traverser.is_some() {
+        return Err(CoreError::InvalidInput(
+            "a ray-space hierarchy needs a traverser and vice versa".into(),
+        ));
+    }
+    if stages.hasher.is_some() != stages.sorter.is_some() {
+        return Err(CoreError::InvalidInput("a hasher needs a sorter and vice versa".into()));
+    }
+    if stages.hasher.is_some() && stages.hierarchy.is_none() {
+        return Err(CoreError::InvalidInput(
+            "hashing and sorting order the rays of a ray-space hierarchy; add one".into(),
+        ));
+    }
+    let mut driver = Driver {
+        backend,
+        stages,
+        opts,
+        reference,
+        stats: Stats::default(),
+        step: 0,
+        total_steps: 1 + (opts.max_depth + 1) + 2 * opts.max_depth,
+    };
+    if reference.is_some() {
+        driver.stats.accuracy = Some(AccuracyCounts::default());
+    }
+    let frame_start = Instant::now();
+    let pixels = opts.width as usize * opts.height as usize;
+    let mut image = backend.filled(pixels, [0.0f32; 4])?;
+
+    driver.report(progress, "primary visibility".into());
+    let mut surfaces = driver.timed("primary", |d| {
+        d.stages.primary.gbuffer(d.backend, d.opts.width, d.opts.height, &mut d.stats)
+    })?;
+    driver.stats.rays.add(RayKind::Primary, pixels as u64);
+    driver.stats.per_kind.entry("primary".into()).or_default().rays += pixels as u64;
+
+    for depth in 0..=opts.max_depth {
+        driver.report(progress, format!("shadow rays, bounce {depth}"));
+        let shadow = driver.timed("ray_creation", |d| {
+            d.stages.raygen.generate(d.backend, &surfaces, RayKind::Shadow, &mut d.stats)
+        })?;
+        let shadow_hits = driver.trace(RayKind::Shadow, &shadow)?;
+        driver.timed("shading", |d| {
+            d.stages
+                .shader
+                .shade_direct(d.backend, &surfaces, &shadow, &shadow_hits, &mut image, &mut d.stats)
+        })?;
+        if depth == opts.max_depth {
+            break;
+        }
+        let mut next = Vec::new();
+        for kind in [RayKind::Reflection, RayKind::Refraction] {
+            driver.report(progress, format!("{} rays, bounce {}", kind.name(), depth + 1));
+            let rays = driver.timed("ray_creation", |d| {
+                d.stages.raygen.generate(d.backend, &surfaces, kind, &mut d.stats)
+            })?;
+            if backend.len(&rays) == 0 {
+                continue;
+            }
+            let hits = driver.trace(kind, &rays)?;
+            next.push(driver.timed("shading", |d| {
+                d.stages.shader.resolve(d.backend, &rays, &hits, &mut d.stats)
+            })?);
+        }
+        surfaces = backend.concat(next)?;
+        if backend.len(&surfaces) == 0 {
+            break;
+        }
+    }
+    backend.sync()?;
+    let mut stats = driver.stats;
+    let reference_ms = stats.timings_ms.get("reference").copied().unwrap_or(0.0);
+    stats.timings_ms.insert(
+        "total".into(),
+        frame_start.elapsed().as_secs_f64() * 1e3 - reference_ms,
+    );
+    progress(Progress {
+        step: driver.total_steps,
+        total_steps: driver.total_steps,
+        message: "done".into(),
+    });
+    Ok(Frame { image, stats })
+}
+
+struct Driver<'a, B: Backend> {
+    backend: &'a B,
+    stages: &'a Stages<B>,
+    opts: &'a FrameOptions,
+    reference: Option<&'a dyn Intersector<B>>,
+    stats: Stats,
+    step: u32,
+    total_steps: u32,
+}
+
+impl<B: Backend> Driver<'_, B> {
+    fn report(&mut self, progress: &mut dyn FnMut(Progress), message: String) {
+        progress(Progress {
+            step: self.step,
+            total_steps: self.total_steps,
+            message,
+        });
+        self.step += 1;
+    }
+
+    /// Runs `f` and adds its wall time (after a backend sync) to stage `key`.
+    fn timed<T>(&mut self, key: &str, f: impl FnOnce(&mut Self) -> Result<T>) -> Result<T> {
+        let t0 = Instant::now();
+        let out = f(self)?;
+        self.backend.sync()?;
+        self.stats.add_time(key, t0.elapsed());
+        Ok(out)
+    }
+
+    /// Traces one batch of `kind` through the optional hierarchy stages and the intersector.
+    fn trace(&mut self, kind: RayKind, rays: &B::Buffer<Ray>) -> Result<B::Buffer<Hit>> {
+        let backend = self.backend;
+        let n = backend.len(rays);
+        let mode = kind.hit_mode();
+        let tests_before = self.stats.tests;
+        let t0 = Instant::now();
+        let mut hits = backend.filled(n, Hit::MISS)?;
+        if n > 0 {
+            if let (Some(builder), Some(traverser)) = (&self.stages.hierarchy, &self.stages.traverser) {
+                let order = match (&self.stages.hasher, &self.stages.sorter) {
+                    (Some(hasher), Some(sorter)) => {
+                        let keys = self.timed("hashing", |d| hasher.hash(backend, rays, &mut d.stats))?;
+                        self.timed("sorting", |d| sorter.sort(backend, &keys, hasher.key_bits(), &mut d.stats))?
+                    }
+                    _ => backend.upload(&(0..n as u32).collect::<Vec<u32>>())?,
+                };
+                let hierarchy = self.timed("hierarchy_creation", |d| {
+                    builder.build(backend, rays, order, &mut d.stats)
+                })?;
+                let intersector = &self.stages.intersector;
+                let mut final_tests = std::time::Duration::ZERO;
+                let t_trav = Instant::now();
+                traverser.traverse(
+                    backend,
+                    rays,
+                    kind,
+                    &hierarchy,
+                    &mut |batch, stats| {
+                        let t = Instant::now();
+                        let q = Query::Candidates {
+                            hierarchy: &hierarchy,
+                            batch: &batch,
+                        };
+                        intersector.intersect(backend, rays, q, mode, &mut hits, stats)?;
+                        backend.sync()?;
+                        final_tests += t.elapsed();
+                        Ok(())
+                    },
+                    &mut self.stats,
+                )?;
+                backend.sync()?;
+                self.stats.add_time("traversal", t_trav.elapsed().saturating_sub(final_tests));
+                self.stats.add_time("intersection", final_tests);
+            } else {
+                self.timed("intersection", |d| {
+                    d.stages.intersector.intersect(backend, rays, Query::Scene, mode, &mut hits, &mut d.stats)
+                })?;
+            }
+        }
+        let elapsed = t0.elapsed().as_secs_f64() * 1e3;
+        let after = self.stats.tests;
+        self.stats.rays.add(kind, n as u64);
+        self.stats.tests.brute_force += n as u64 * self.opts.triangles;
+        let ks = self.stats.per_kind.entry(kind.name().into()).or_default();
+        ks.rays += n as u64;
+        ks.bounds += after.bounds - tests_before.bounds;
+        ks.ray_triangle += after.ray_triangle - tests_before.ray_triangle;
+        ks.trace_ms += elapsed;
+
+        if let (Some(reference), true) = (self.reference, n > 0) {
+            let t = Instant::now();
+            let mut ref_hits = backend.filled(n, Hit::MISS)?;
+            let mut scratch = Stats::default();
+            reference.intersect(backend, rays, Query::Scene, mode, &mut ref_hits, &mut scratch)?;
+            let got = backend.download(&hits)?;
+            let want = backend.download(&ref_hits)?;
+            let acc = self.stats.accuracy.get_or_insert_with(AccuracyCounts::default);
+            compare_hits(&got, &want, mode, acc);
+            self.stats.add_time("reference", t.elapsed());
+        }
+        Ok(hits)
+    }
+}
+
+/// Adds the agreement of `got` with `want` (same rays) to `acc`: hit/miss must agree, and for
+/// closest-hit queries the triangle must match unless both `t` agree within 1e-6 relative.
+pub fn compare_hits(got: &[Hit], want: &[Hit], mode: HitMode, acc: &mut AccuracyCounts) {
+    for (a, b) in got.iter().zip(want) {
+        acc.rays += 1;
+        if a.is_hit() != b.is_hit() {
+            acc.hit_miss_mismatches += 1;
+        } else if mode == HitMode::Closest
+            && a.is_hit()
+            && a.tri != b.tri
+            && (a.t - b.t).abs() > 1e-6 * a.t.abs().max(b.t.abs())
+        {
+            acc.nearest_mismatches += 1;
+        } else {
+            acc.agreeing += 1;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hit(t: f32, tri: u32) -> Hit {
+        Hit { t, tri, u: 0.0, v: 0.0 }
+    }
+
+    #[test]
+    fn comparison_rules() {
+        let mut acc = AccuracyCounts::default();
+        compare_hits(
+            &[hit(1.0, 1), hit(1.0, 2), Hit::MISS, hit(2.0, 3)],
+            &[hit(1.0, 1), hit(1.0000001, 5), hit(1.0, 1), hit(3.0, 4)],
+            HitMode::Closest,
+            &mut acc,
+        );
+        assert_eq!(acc.rays, 4);
+        assert_eq!(acc.agreeing, 2);
+        assert_eq!(acc.hit_miss_mismatches, 1);
+        assert_eq!(acc.nearest_mismatches, 1);
+        let mut any = AccuracyCounts::default();
+        compare_hits(&[hit(2.0, 3)], &[hit(3.0, 4)], HitMode::Any, &mut any);
+        assert_eq!(any.hit_agreement(), 1.0);
+    }
+}

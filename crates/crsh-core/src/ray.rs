@@ -1,0 +1,245 @@
+//! Rays, hits and surface records: the data that flows between stages.
+//!
+//! All three are `#[repr(C)]` and [`bytemuck::Pod`] so they upload to device buffers as they
+//! are; every field is 4 bytes and each `Vec3` is followed by a scalar so the layouts match
+//! WGSL `vec3<f32>` + scalar packing (16-byte rows).
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+
+/// Triangle id of a miss (in [`Hit::tri`] and [`Surface::tri`]).
+pub const NO_HIT: u32 = u32::MAX;
+
+/// The kinds of rays a Whitted pipeline traces (seed 000 §3.2.3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+#[repr(u32)]
+pub enum RayKind {
+    /// Camera rays (only traced by the ray-cast primary variant).
+    Primary = 0,
+    /// Shadow rays between a shaded point and a light.
+    Shadow = 1,
+    /// Mirror reflection rays (eq. 3.3-3.4).
+    Reflection = 2,
+    /// Refraction rays (eq. 3.5-3.7).
+    Refraction = 3,
+}
+
+impl RayKind {
+    /// Every kind, in the order the driver processes batches.
+    pub const ALL: [RayKind; 4] = [
+        RayKind::Primary,
+        RayKind::Shadow,
+        RayKind::Reflection,
+        RayKind::Refraction,
+    ];
+
+    /// Lower-case name as used in stats keys.
+    pub fn name(self) -> &'static str {
+        match self {
+            RayKind::Primary => "primary",
+            RayKind::Shadow => "shadow",
+            RayKind::Reflection => "reflection",
+            RayKind::Refraction => "refraction",
+        }
+    }
+
+    /// The kind stored in [`Ray::kind`], if valid.
+    pub fn from_u32(v: u32) -> Option<RayKind> {
+        match v {
+            0 => Some(RayKind::Primary),
+            1 => Some(RayKind::Shadow),
+            2 => Some(RayKind::Reflection),
+            3 => Some(RayKind::Refraction),
+            _ => None,
+        }
+    }
+
+    /// The hit query this kind needs: any hit for shadows, nearest for the others.
+    pub fn hit_mode(self) -> HitMode {
+        match self {
+            RayKind::Shadow => HitMode::Any,
+            _ => HitMode::Closest,
+        }
+    }
+}
+
+/// Which hit an intersector must report.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum HitMode {
+    /// The nearest hit in `(t_min, t_max)`; ties on `t` go to the lowest triangle id.
+    Closest,
+    /// Any hit in `(t_min, t_max)` (occlusion); which triangle is unspecified.
+    Any,
+}
+
+/// A ray with its payload (64 bytes).
+///
+/// The valid interval is the open range `(t_min, t_max)` along `dir`. `dir` need not be unit
+/// length for intersection, but every ray generator in crsh emits unit directions so that `t`
+/// is a distance.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct Ray {
+    /// Origin. For shadow rays in the thesis convention this is the light position (eq. 3.1).
+    pub origin: Vec3,
+    /// Start of the valid interval.
+    pub t_min: f32,
+    /// Direction.
+    pub dir: Vec3,
+    /// End of the valid interval.
+    pub t_max: f32,
+    /// Radiance weight carried to the pixel (product of material weights along the path).
+    pub throughput: Vec3,
+    /// [`RayKind`] as `u32`.
+    pub kind: u32,
+    /// Pixel index (`y * width + x`) the ray contributes to.
+    pub pixel: u32,
+    /// Light index for shadow rays; [`u32::MAX`] for other kinds.
+    pub light: u32,
+    /// Bounce depth: 0 for primary rays and for rays spawned from primary hits' surfaces
+    /// counts as 1, and so on.
+    pub depth: u32,
+    /// Index of the [`Surface`] (in the batch that spawned this ray) the ray belongs to.
+    pub source: u32,
+}
+
+impl Ray {
+    /// The kind of this ray; panics only if the field was corrupted.
+    pub fn ray_kind(&self) -> RayKind {
+        RayKind::from_u32(self.kind).expect("corrupt ray kind")
+    }
+
+    /// Point at parameter `t`.
+    pub fn at(&self, t: f32) -> Vec3 {
+        self.origin + self.dir * t
+    }
+
+    /// True when origin, direction and interval are finite and the direction is non-zero.
+    pub fn is_valid(&self) -> bool {
+        self.origin.is_finite()
+            && self.dir.is_finite()
+            && self.dir.length_squared() > 0.0
+            && !self.t_min.is_nan()
+            && !self.t_max.is_nan()
+    }
+}
+
+/// The result of intersecting one ray (16 bytes).
+///
+/// Barycentrics follow Möller-Trumbore: the hit point is `(1-u-v)·a + u·b + v·c` for the
+/// triangle's vertices `a, b, c`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct Hit {
+    /// Ray parameter of the hit; `f32::INFINITY` for a miss.
+    pub t: f32,
+    /// Triangle id in the scene's triangle order, or [`NO_HIT`].
+    pub tri: u32,
+    /// Barycentric weight of vertex `b`.
+    pub u: f32,
+    /// Barycentric weight of vertex `c`.
+    pub v: f32,
+}
+
+impl Hit {
+    /// A miss.
+    pub const MISS: Hit = Hit {
+        t: f32::INFINITY,
+        tri: NO_HIT,
+        u: 0.0,
+        v: 0.0,
+    };
+
+    /// Whether this records a hit.
+    pub fn is_hit(&self) -> bool {
+        self.tri != NO_HIT
+    }
+
+    /// Whether `self` should replace `best` as the closest hit: smaller `t`, ties to the lower
+    /// triangle id. Every closest-hit intersector uses this rule so that results are identical.
+    pub fn closer_than(&self, best: &Hit) -> bool {
+        self.t < best.t || (self.t == best.t && self.tri < best.tri)
+    }
+}
+
+/// A shaded point: one G-buffer texel after the primary pass, or one path vertex found by a
+/// reflection / refraction ray (80 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct Surface {
+    /// World-space position of the hit.
+    pub position: Vec3,
+    /// Triangle id, or [`NO_HIT`] when the ray (or the pixel) saw the background.
+    pub tri: u32,
+    /// Interpolated shading normal (eq. 3.17-3.18), unit length, on the side the ray came from.
+    pub normal: Vec3,
+    /// Material index.
+    pub material: u32,
+    /// Unit direction of the ray that arrived here (camera → point for primaries).
+    pub incident: Vec3,
+    /// Pixel index (`y * width + x`).
+    pub pixel: u32,
+    /// Radiance weight of this vertex.
+    pub throughput: Vec3,
+    /// Bounce depth (0 for primary surfaces).
+    pub depth: u32,
+    /// Geometric (face) normal, unit length, on the side the ray came from.
+    pub geo_normal: Vec3,
+    /// Bit flags: [`Surface::FRONT_FACE`].
+    pub flags: u32,
+}
+
+impl Surface {
+    /// Set when the arriving ray hit the triangle's front face (entering a transparent
+    /// object); clear when it hit the back face (leaving it).
+    pub const FRONT_FACE: u32 = 1;
+
+    /// A background sample for `pixel`.
+    pub fn background(pixel: u32, incident: Vec3, throughput: Vec3, depth: u32) -> Surface {
+        Surface {
+            position: Vec3::ZERO,
+            tri: NO_HIT,
+            normal: Vec3::ZERO,
+            material: 0,
+            incident,
+            pixel,
+            throughput,
+            depth,
+            geo_normal: Vec3::ZERO,
+            flags: 0,
+        }
+    }
+
+    /// Whether this record holds a surface hit.
+    pub fn is_hit(&self) -> bool {
+        self.tri != NO_HIT
+    }
+
+    /// Whether the arriving ray hit the front face.
+    pub fn front_face(&self) -> bool {
+        self.flags & Self::FRONT_FACE != 0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn layouts_are_gpu_friendly() {
+        assert_eq!(std::mem::size_of::<Ray>(), 64);
+        assert_eq!(std::mem::size_of::<Hit>(), 16);
+        assert_eq!(std::mem::size_of::<Surface>(), 80);
+    }
+
+    #[test]
+    fn closest_tie_breaks_on_triangle_id() {
+        let a = Hit { t: 1.0, tri: 3, u: 0.0, v: 0.0 };
+        let b = Hit { t: 1.0, tri: 5, u: 0.0, v: 0.0 };
+        assert!(a.closer_than(&b));
+        assert!(!b.closer_than(&a));
+        assert!(a.closer_than(&Hit::MISS));
+    }
+}

@@ -1,0 +1,178 @@
+//! The stage traits of seed 000's pipeline (fig. 3.1).
+//!
+//! Each trait is generic over a [`Backend`] so a stage variant is written once per backend
+//! and the frame driver ([`crate::render_frame`]) never sees where the data lives. Stage
+//! objects are built by a backend from a [`crate::PipelineConfig`] and the scene they work on
+//! (a stage keeps what it needs of the scene: triangles, BVH, materials, camera, lights), so
+//! the methods take only the per-batch buffers. Every method feeds [`Stats`] with the work it
+//! did (tests, levels); the driver records wall time per stage.
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::backend::Backend;
+use crate::bounds::SphereCone;
+use crate::error::Result;
+use crate::ray::{Hit, HitMode, Ray, RayKind, Surface};
+use crate::stats::Stats;
+
+/// Stage 1: primary visibility. Rasterization in the thesis (§3.1), or ray casting.
+///
+/// Writes the G-buffer: one [`Surface`] per pixel in row-major order (`y * width + x`, `y = 0`
+/// the top row), with [`crate::NO_HIT`] where the background is seen.
+pub trait PrimaryVisibility<B: Backend>: Send + Sync {
+    /// Variant name (`raster`, `raycast`).
+    fn name(&self) -> &str;
+    /// Renders the G-buffer at `width × height`.
+    fn gbuffer(&self, backend: &B, width: u32, height: u32, stats: &mut Stats) -> Result<B::Buffer<Surface>>;
+}
+
+/// Secondary ray creation (seed 000 §3.2.3, eq. 3.1-3.7).
+pub trait RayGen<B: Backend>: Send + Sync {
+    /// Variant name.
+    fn name(&self) -> &str;
+    /// The rays of one `kind` spawned by `surfaces`, compacted (no empty slots), in surface
+    /// order (and light order within a surface for shadow rays). `Ray::source` indexes
+    /// `surfaces`.
+    fn generate(
+        &self,
+        backend: &B,
+        surfaces: &B::Buffer<Surface>,
+        kind: RayKind,
+        stats: &mut Stats,
+    ) -> Result<B::Buffer<Ray>>;
+}
+
+/// Ray indexing (seed 000 §3.2.3, figs 3.8-3.9): one sort key per ray.
+pub trait Hasher<B: Backend>: Send + Sync {
+    /// Variant name.
+    fn name(&self) -> &str;
+    /// Significant low bits of the keys this hasher writes (≤ 64); sorters may sort only these.
+    fn key_bits(&self) -> u32;
+    /// One key per ray, same order as `rays`.
+    fn hash(&self, backend: &B, rays: &B::Buffer<Ray>, stats: &mut Stats) -> Result<B::Buffer<u64>>;
+}
+
+/// Ray sorting (compress / sort / decompress, seed 000 §3.2.4-3.2.6).
+pub trait Sorter<B: Backend>: Send + Sync {
+    /// Variant name.
+    fn name(&self) -> &str;
+    /// The permutation that orders rays by key, stably: `order[i]` is the index of the ray
+    /// that goes to position `i`.
+    fn sort(&self, backend: &B, keys: &B::Buffer<u64>, key_bits: u32, stats: &mut Stats) -> Result<B::Buffer<u32>>;
+}
+
+/// A bottom-up ray-space hierarchy over one batch of rays (seed 000 §3.2.7).
+pub struct RayHierarchy<B: Backend> {
+    /// Rays in hierarchy order: leaf `i` is ray `order[i]` of the batch.
+    pub order: B::Buffer<u32>,
+    /// Node levels, lowest first: `levels[0]` groups `subdivision` rays per node, each higher
+    /// level groups `subdivision` nodes of the level below. The last entry is the top level.
+    pub levels: Vec<B::Buffer<SphereCone>>,
+    /// Children per node.
+    pub subdivision: u32,
+}
+
+/// Hierarchy creation (seed 000 §3.2.7, eq. 3.8-3.15).
+pub trait HierarchyBuilder<B: Backend>: Send + Sync {
+    /// Variant name.
+    fn name(&self) -> &str;
+    /// Builds the hierarchy over `rays` taken in `order`.
+    fn build(&self, backend: &B, rays: &B::Buffer<Ray>, order: B::Buffer<u32>, stats: &mut Stats) -> Result<RayHierarchy<B>>;
+}
+
+/// A (lowest-level node, triangle) pair that survived traversal (8 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Pod, Zeroable)]
+pub struct Candidate {
+    /// Node index in `levels[0]`.
+    pub node: u32,
+    /// Triangle id in scene order.
+    pub tri: u32,
+}
+
+/// One batch of candidates; a traverser may emit several (triangle batching under a memory
+/// budget, §3.2.8) and the intersector merges their hits.
+pub struct CandidateBatch<B: Backend> {
+    /// The surviving pairs.
+    pub pairs: B::Buffer<Candidate>,
+}
+
+/// Top-down hierarchy traversal against mesh and triangle bounding spheres (§3.2.8, eq. 3.16).
+pub trait Traverser<B: Backend>: Send + Sync {
+    /// Variant name.
+    fn name(&self) -> &str;
+    /// Traverses `hierarchy` over `rays` of `kind`, handing each candidate batch to `sink`
+    /// (with the stats, so the final tests can count) as soon as it is complete, so that memory
+    /// stays within the variant's budget.
+    fn traverse(
+        &self,
+        backend: &B,
+        rays: &B::Buffer<Ray>,
+        kind: RayKind,
+        hierarchy: &RayHierarchy<B>,
+        sink: &mut dyn FnMut(CandidateBatch<B>, &mut Stats) -> Result<()>,
+        stats: &mut Stats,
+    ) -> Result<()>;
+}
+
+/// What an intersector tests each ray against.
+pub enum Query<'a, B: Backend> {
+    /// The whole scene (brute force, object BVH).
+    Scene,
+    /// Only the triangles paired with each ray's lowest hierarchy node (§3.2.9).
+    Candidates {
+        /// The hierarchy whose `levels[0]` the candidate nodes index.
+        hierarchy: &'a RayHierarchy<B>,
+        /// The pairs to test.
+        batch: &'a CandidateBatch<B>,
+    },
+}
+
+/// Exact ray-triangle intersection (§3.2.9).
+pub trait Intersector<B: Backend>: Send + Sync {
+    /// Variant name (`brute`, `bvh`, ...).
+    fn name(&self) -> &str;
+    /// Tests `rays` as `query` says and merges the results into `hits` (one per ray, same
+    /// order; pass a buffer of [`Hit::MISS`] to start): for [`HitMode::Closest`] a hit replaces
+    /// the stored one when [`Hit::closer_than`] says so; for [`HitMode::Any`] any hit may be
+    /// stored. Merging lets candidate batches arrive one at a time.
+    fn intersect(
+        &self,
+        backend: &B,
+        rays: &B::Buffer<Ray>,
+        query: Query<'_, B>,
+        mode: HitMode,
+        hits: &mut B::Buffer<Hit>,
+        stats: &mut Stats,
+    ) -> Result<()>;
+}
+
+/// Shading (seed 000 eq. 3.17-3.19): Phong direct light and path-vertex resolution.
+///
+/// The image is linear HDR RGBA, one `[f32; 4]` per pixel, accumulated across batches.
+pub trait Shader<B: Backend>: Send + Sync {
+    /// Variant name.
+    fn name(&self) -> &str;
+    /// Adds the direct light at `surfaces` (and the background where a surface is a miss) to
+    /// `image`, with each light's visibility taken from the shadow rays and their hits
+    /// (`shadow_rays[i].source` indexes `surfaces`).
+    fn shade_direct(
+        &self,
+        backend: &B,
+        surfaces: &B::Buffer<Surface>,
+        shadow_rays: &B::Buffer<Ray>,
+        shadow_hits: &B::Buffer<Hit>,
+        image: &mut B::Buffer<[f32; 4]>,
+        stats: &mut Stats,
+    ) -> Result<()>;
+    /// Turns the reflection or refraction `rays` and their nearest `hits` into the next path
+    /// vertices (barycentric normal interpolation, eq. 3.17-3.18); misses become background
+    /// records that [`Shader::shade_direct`] shades.
+    fn resolve(
+        &self,
+        backend: &B,
+        rays: &B::Buffer<Ray>,
+        hits: &B::Buffer<Hit>,
+        stats: &mut Stats,
+    ) -> Result<B::Buffer<Surface>>;
+}

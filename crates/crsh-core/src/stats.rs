@@ -1,0 +1,202 @@
+//! Counters and timings that every stage feeds.
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+
+use crate::ray::RayKind;
+
+/// Rays traced per kind.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RayCounts {
+    /// Camera rays (pixels, for raster primaries too).
+    pub primary: u64,
+    /// Shadow rays.
+    pub shadow: u64,
+    /// Reflection rays.
+    pub reflection: u64,
+    /// Refraction rays.
+    pub refraction: u64,
+}
+
+impl RayCounts {
+    /// Adds `n` rays of `kind`.
+    pub fn add(&mut self, kind: RayKind, n: u64) {
+        *self.get_mut(kind) += n;
+    }
+
+    /// Count for `kind`.
+    pub fn get(&self, kind: RayKind) -> u64 {
+        match kind {
+            RayKind::Primary => self.primary,
+            RayKind::Shadow => self.shadow,
+            RayKind::Reflection => self.reflection,
+            RayKind::Refraction => self.refraction,
+        }
+    }
+
+    fn get_mut(&mut self, kind: RayKind) -> &mut u64 {
+        match kind {
+            RayKind::Primary => &mut self.primary,
+            RayKind::Shadow => &mut self.shadow,
+            RayKind::Reflection => &mut self.reflection,
+            RayKind::Refraction => &mut self.refraction,
+        }
+    }
+
+    /// Sum over kinds.
+    pub fn total(&self) -> u64 {
+        self.primary + self.shadow + self.reflection + self.refraction
+    }
+}
+
+/// Intersection-test counters.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TestCounts {
+    /// Bounding-volume tests (BVH node boxes, hierarchy node vs sphere, ...).
+    pub bounds: u64,
+    /// Exact ray-triangle tests.
+    pub ray_triangle: u64,
+    /// `bounds + ray_triangle`.
+    pub total: u64,
+    /// What brute force would need: Σ over traced rays × scene triangles.
+    pub brute_force: u64,
+}
+
+/// Per hierarchy level counters (tables 4.1-4.24 of seed 000).
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LevelStats {
+    /// Ray kind of the batch.
+    pub ray_kind: String,
+    /// Level number as in the thesis: the highest level first, 1 the lowest node level;
+    /// 0 stands for the final ray-triangle tests.
+    pub level: u32,
+    /// Node-triangle (or ray-triangle) tests.
+    pub tests: u64,
+    /// Tests that found an overlap (hit).
+    pub hits: u64,
+    /// Tests that did not.
+    pub misses: u64,
+}
+
+/// Per-kind work: rays, tests and time in the tracing stages.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct KindStats {
+    /// Rays traced.
+    pub rays: u64,
+    /// Bounding-volume tests.
+    pub bounds: u64,
+    /// Ray-triangle tests.
+    pub ray_triangle: u64,
+    /// Wall time of the tracing stages (hash to final tests) for this kind, ms.
+    pub trace_ms: f64,
+}
+
+/// Agreement of the traced rays with a reference intersector tracing the very same rays.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct AccuracyCounts {
+    /// Rays compared.
+    pub rays: u64,
+    /// Rays whose hit/miss agrees and, for closest-hit rays, whose nearest triangle matches
+    /// (a different triangle at a `t` equal within 1e-6 relative counts as a match).
+    pub agreeing: u64,
+    /// Rays whose hit/miss differs.
+    pub hit_miss_mismatches: u64,
+    /// Closest-hit rays that hit different triangles at different `t`.
+    pub nearest_mismatches: u64,
+}
+
+impl AccuracyCounts {
+    /// `agreeing / rays` (1.0 when nothing was compared).
+    pub fn hit_agreement(&self) -> f64 {
+        if self.rays == 0 {
+            1.0
+        } else {
+            self.agreeing as f64 / self.rays as f64
+        }
+    }
+}
+
+/// Everything a frame measured. Stages add to it; the driver times them.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Stats {
+    /// Rays per kind.
+    pub rays: RayCounts,
+    /// Test totals.
+    pub tests: TestCounts,
+    /// Per kind breakdown, keyed by [`RayKind::name`].
+    pub per_kind: BTreeMap<String, KindStats>,
+    /// Per hierarchy level counters (empty when no hierarchy is used).
+    pub levels: Vec<LevelStats>,
+    /// Wall time per stage in milliseconds, plus `total`.
+    pub timings_ms: BTreeMap<String, f64>,
+    /// Agreement with a reference, when one was given.
+    pub accuracy: Option<AccuracyCounts>,
+}
+
+impl Stats {
+    /// Adds `n` bounding-volume tests.
+    pub fn add_bounds(&mut self, n: u64) {
+        self.tests.bounds += n;
+        self.tests.total += n;
+    }
+
+    /// Adds `n` ray-triangle tests.
+    pub fn add_ray_triangle(&mut self, n: u64) {
+        self.tests.ray_triangle += n;
+        self.tests.total += n;
+    }
+
+    /// Adds `d` to the stage timer `key`.
+    pub fn add_time(&mut self, key: &str, d: Duration) {
+        *self.timings_ms.entry(key.to_string()).or_insert(0.0) += d.as_secs_f64() * 1e3;
+    }
+
+    /// Adds level counters, merging with an existing entry of the same kind and level.
+    pub fn add_level(&mut self, kind: RayKind, level: u32, tests: u64, hits: u64) {
+        let name = kind.name();
+        let misses = tests - hits.min(tests);
+        if let Some(l) = self
+            .levels
+            .iter_mut()
+            .find(|l| l.ray_kind == name && l.level == level)
+        {
+            l.tests += tests;
+            l.hits += hits;
+            l.misses += misses;
+        } else {
+            self.levels.push(LevelStats {
+                ray_kind: name.to_string(),
+                level,
+                tests,
+                hits,
+                misses,
+            });
+        }
+    }
+
+    /// Wall time of stage `key` in ms (0 if it never ran).
+    pub fn time_ms(&self, key: &str) -> f64 {
+        self.timings_ms.get(key).copied().unwrap_or(0.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn counters_add_up() {
+        let mut s = Stats::default();
+        s.add_bounds(3);
+        s.add_ray_triangle(4);
+        assert_eq!(s.tests.total, 7);
+        s.add_level(RayKind::Shadow, 2, 10, 4);
+        s.add_level(RayKind::Shadow, 2, 5, 1);
+        assert_eq!(s.levels.len(), 1);
+        assert_eq!(s.levels[0].misses, 10);
+        s.rays.add(RayKind::Reflection, 5);
+        assert_eq!(s.rays.total(), 5);
+    }
+}

@@ -1,0 +1,1 @@
+//! crsh-cpu (in progress)

@@ -1,0 +1,1 @@
+//! crsh-wgpu (in progress)

@@ -1,0 +1,34 @@
+//! Helpers shared by the workspace-level tests in `tests/`.
+
+#![warn(missing_docs)]
+
+use std::path::PathBuf;
+
+/// The shared scenes directory: `CRSH_SCENES` if set, else `../shared/scenes` next to the
+/// workspace. `None` (after printing why) when it does not exist, so tests can skip.
+pub fn scenes_dir() -> Option<PathBuf> {
+    let dir = std::env::var_os("CRSH_SCENES")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes"));
+    if dir.is_dir() {
+        Some(dir)
+    } else {
+        eprintln!(
+            "SKIP: scenes directory {} not found (set CRSH_SCENES to run these checks)",
+            dir.display()
+        );
+        None
+    }
+}
+
+/// A manifest under the shared scenes directory, e.g. `cornell/cornell-mirror.toml`; `None`
+/// (after printing why) when absent.
+pub fn shared_scene(rel: &str) -> Option<PathBuf> {
+    let p = scenes_dir()?.join(rel);
+    if p.is_file() {
+        Some(p)
+    } else {
+        eprintln!("SKIP: {} not found", p.display());
+        None
+    }
+}
