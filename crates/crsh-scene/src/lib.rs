@@ -10,6 +10,7 @@
 pub mod bounding;
 pub mod error;
 pub mod model;
+mod rng;
 
 pub use error::SceneError;
 pub use model::{Camera, Light, Material, Mesh, Scene, SceneBuilder};
