@@ -26,7 +26,12 @@ impl Sphere {
     /// Whether `p` lies inside, allowing a relative tolerance `rel_eps` of the radius (plus an
     /// absolute floor scaled by the magnitude of the coordinates, for float rounding).
     pub fn contains(&self, p: Vec3, rel_eps: f32) -> bool {
-        let scale = self.center.abs().max_element().max(p.abs().max_element()).max(1.0);
+        let scale = self
+            .center
+            .abs()
+            .max_element()
+            .max(p.abs().max_element())
+            .max(1.0);
         self.center.distance(p) <= self.radius * (1.0 + rel_eps) + scale * 1e-6
     }
 }

@@ -382,7 +382,9 @@ impl PipelineConfig {
                 }
                 None => Err(CoreError::InvalidParam {
                     key: key.into(),
-                    reason: format!("stage `{stage}` is off in this pipeline; set `{stage}.kind` first"),
+                    reason: format!(
+                        "stage `{stage}` is off in this pipeline; set `{stage}.kind` first"
+                    ),
                 }),
             },
         }
@@ -421,15 +423,25 @@ impl PipelineConfig {
                             if info.params.is_empty() {
                                 "none".to_string()
                             } else {
-                                info.params.iter().map(|p| p.name).collect::<Vec<_>>().join(", ")
+                                info.params
+                                    .iter()
+                                    .map(|p| p.name)
+                                    .collect::<Vec<_>>()
+                                    .join(", ")
                             }
                         ),
                     }
                 })?;
-                *v = v.coerce_like(&p.default).ok_or_else(|| CoreError::InvalidParam {
-                    key: format!("{slot}.{k}"),
-                    reason: format!("expected {}, got {} `{v}`", p.default.type_name(), v.type_name()),
-                })?;
+                *v = v
+                    .coerce_like(&p.default)
+                    .ok_or_else(|| CoreError::InvalidParam {
+                        key: format!("{slot}.{k}"),
+                        reason: format!(
+                            "expected {}, got {} `{v}`",
+                            p.default.type_name(),
+                            v.type_name()
+                        ),
+                    })?;
                 if let ParamValue::Str(s) = v {
                     if !p.choices.is_empty() && !p.choices.contains(&s.as_str()) {
                         return Err(CoreError::InvalidParam {
@@ -510,7 +522,10 @@ mod tests {
     #[test]
     fn resolve_rejects_bad_input() {
         let mut c = PipelineConfig::whitted("x", "kdtree");
-        assert!(matches!(c.resolve(&catalogue()), Err(CoreError::UnknownVariant { .. })));
+        assert!(matches!(
+            c.resolve(&catalogue()),
+            Err(CoreError::UnknownVariant { .. })
+        ));
         let mut c = PipelineConfig::whitted("x", "brute");
         c.set("shade.ambiant=0").unwrap();
         assert!(c.resolve(&catalogue()).is_err());

@@ -30,7 +30,7 @@ pub use error::{CoreError, Result};
 pub use pipeline::{render_frame, Frame, FrameOptions, Progress, Stages};
 pub use ray::{Hit, HitMode, Ray, RayKind, Surface, NO_HIT};
 pub use stage::{
-    Candidate, CandidateBatch, HierarchyBuilder, Hasher, Intersector, PrimaryVisibility, Query,
+    Candidate, CandidateBatch, Hasher, HierarchyBuilder, Intersector, PrimaryVisibility, Query,
     RayGen, RayHierarchy, Shader, Sorter, Traverser,
 };
 pub use stats::{AccuracyCounts, KindStats, LevelStats, RayCounts, Stats, TestCounts};

@@ -15,7 +15,11 @@ pub fn to_rgba8(image: &[[f32; 4]]) -> Vec<u8> {
 
 /// sRGB-encodes one linear channel value (NaN → 0) to 8 bits.
 pub fn encode_srgb(linear: f32) -> u8 {
-    let x = if linear.is_nan() { 0.0 } else { linear.clamp(0.0, 1.0) };
+    let x = if linear.is_nan() {
+        0.0
+    } else {
+        linear.clamp(0.0, 1.0)
+    };
     let s = if x <= 0.003_130_8 {
         12.92 * x
     } else {

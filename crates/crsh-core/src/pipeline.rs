@@ -17,7 +17,7 @@ use crate::backend::Backend;
 use crate::error::{CoreError, Result};
 use crate::ray::{Hit, HitMode, Ray, RayKind};
 use crate::stage::{
-    HierarchyBuilder, Hasher, Intersector, PrimaryVisibility, Query, RayGen, Shader, Sorter,
+    Hasher, HierarchyBuilder, Intersector, PrimaryVisibility, Query, RayGen, Shader, Sorter,
     Traverser,
 };
 use crate::stats::{AccuracyCounts, Stats};
@@ -86,7 +86,11 @@ pub fn render_frame<B: Backend>(
     reference: Option<&dyn Intersector<B>>,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Frame<B>> {
-    if opts.width == 0 || opts.height == 0 || opts.width > MAX_IMAGE_SIDE || opts.height > MAX_IMAGE_SIDE {
+    if opts.width == 0
+        || opts.height == 0
+        || opts.width > MAX_IMAGE_SIDE
+        || opts.height > MAX_IMAGE_SIDE
+    {
         return Err(CoreError::InvalidInput(format!(
             "image size {}x{} is outside 1..={MAX_IMAGE_SIDE} per side",
             opts.width, opts.height
@@ -98,7 +102,9 @@ pub fn render_frame<B: Backend>(
         ));
     }
     if stages.hasher.is_some() != stages.sorter.is_some() {
-        return Err(CoreError::InvalidInput("a hasher needs a sorter and vice versa".into()));
+        return Err(CoreError::InvalidInput(
+            "a hasher needs a sorter and vice versa".into(),
+        ));
     }
     if stages.hasher.is_some() && stages.hierarchy.is_none() {
         return Err(CoreError::InvalidInput(
@@ -123,37 +129,58 @@ pub fn render_frame<B: Backend>(
 
     driver.report(progress, "primary visibility".into());
     let mut surfaces = driver.timed("primary", |d| {
-        d.stages.primary.gbuffer(d.backend, d.opts.width, d.opts.height, &mut d.stats)
+        d.stages
+            .primary
+            .gbuffer(d.backend, d.opts.width, d.opts.height, &mut d.stats)
     })?;
     driver.stats.rays.add(RayKind::Primary, pixels as u64);
-    driver.stats.per_kind.entry("primary".into()).or_default().rays += pixels as u64;
+    driver
+        .stats
+        .per_kind
+        .entry("primary".into())
+        .or_default()
+        .rays += pixels as u64;
 
     for depth in 0..=opts.max_depth {
         driver.report(progress, format!("shadow rays, bounce {depth}"));
         let shadow = driver.timed("ray_creation", |d| {
-            d.stages.raygen.generate(d.backend, &surfaces, RayKind::Shadow, &mut d.stats)
+            d.stages
+                .raygen
+                .generate(d.backend, &surfaces, RayKind::Shadow, &mut d.stats)
         })?;
         let shadow_hits = driver.trace(RayKind::Shadow, &shadow)?;
         driver.timed("shading", |d| {
-            d.stages
-                .shader
-                .shade_direct(d.backend, &surfaces, &shadow, &shadow_hits, &mut image, &mut d.stats)
+            d.stages.shader.shade_direct(
+                d.backend,
+                &surfaces,
+                &shadow,
+                &shadow_hits,
+                &mut image,
+                &mut d.stats,
+            )
         })?;
         if depth == opts.max_depth {
             break;
         }
         let mut next = Vec::new();
         for kind in [RayKind::Reflection, RayKind::Refraction] {
-            driver.report(progress, format!("{} rays, bounce {}", kind.name(), depth + 1));
+            driver.report(
+                progress,
+                format!("{} rays, bounce {}", kind.name(), depth + 1),
+            );
             let rays = driver.timed("ray_creation", |d| {
-                d.stages.raygen.generate(d.backend, &surfaces, kind, &mut d.stats)
+                d.stages
+                    .raygen
+                    .generate(d.backend, &surfaces, kind, &mut d.stats)
             })?;
             if backend.len(&rays) == 0 {
                 continue;
             }
             let hits = driver.trace(kind, &rays)?;
             next.push(driver.timed("shading", |d| {
-                d.stages.shader.resolve(d.backend, &rays, &hits, &mut d.stats)
+                d.stages
+                    .shader
+                    .resolve(d.backend, &rays, &hits, &mut d.stats)
             })?);
         }
         surfaces = backend.concat(next)?;
@@ -214,11 +241,16 @@ impl<B: Backend> Driver<'_, B> {
         let t0 = Instant::now();
         let mut hits = backend.filled(n, Hit::MISS)?;
         if n > 0 {
-            if let (Some(builder), Some(traverser)) = (&self.stages.hierarchy, &self.stages.traverser) {
+            if let (Some(builder), Some(traverser)) =
+                (&self.stages.hierarchy, &self.stages.traverser)
+            {
                 let order = match (&self.stages.hasher, &self.stages.sorter) {
                     (Some(hasher), Some(sorter)) => {
-                        let keys = self.timed("hashing", |d| hasher.hash(backend, rays, &mut d.stats))?;
-                        self.timed("sorting", |d| sorter.sort(backend, &keys, hasher.key_bits(), &mut d.stats))?
+                        let keys =
+                            self.timed("hashing", |d| hasher.hash(backend, rays, &mut d.stats))?;
+                        self.timed("sorting", |d| {
+                            sorter.sort(backend, &keys, hasher.key_bits(), &mut d.stats)
+                        })?
                     }
                     _ => backend.upload(&(0..n as u32).collect::<Vec<u32>>())?,
                 };
@@ -247,11 +279,19 @@ impl<B: Backend> Driver<'_, B> {
                     &mut self.stats,
                 )?;
                 backend.sync()?;
-                self.stats.add_time("traversal", t_trav.elapsed().saturating_sub(final_tests));
+                self.stats
+                    .add_time("traversal", t_trav.elapsed().saturating_sub(final_tests));
                 self.stats.add_time("intersection", final_tests);
             } else {
                 self.timed("intersection", |d| {
-                    d.stages.intersector.intersect(backend, rays, Query::Scene, mode, &mut hits, &mut d.stats)
+                    d.stages.intersector.intersect(
+                        backend,
+                        rays,
+                        Query::Scene,
+                        mode,
+                        &mut hits,
+                        &mut d.stats,
+                    )
                 })?;
             }
         }
@@ -269,10 +309,20 @@ impl<B: Backend> Driver<'_, B> {
             let t = Instant::now();
             let mut ref_hits = backend.filled(n, Hit::MISS)?;
             let mut scratch = Stats::default();
-            reference.intersect(backend, rays, Query::Scene, mode, &mut ref_hits, &mut scratch)?;
+            reference.intersect(
+                backend,
+                rays,
+                Query::Scene,
+                mode,
+                &mut ref_hits,
+                &mut scratch,
+            )?;
             let got = backend.download(&hits)?;
             let want = backend.download(&ref_hits)?;
-            let acc = self.stats.accuracy.get_or_insert_with(AccuracyCounts::default);
+            let acc = self
+                .stats
+                .accuracy
+                .get_or_insert_with(AccuracyCounts::default);
             compare_hits(&got, &want, mode, acc);
             self.stats.add_time("reference", t.elapsed());
         }
@@ -304,7 +354,12 @@ mod tests {
     use super::*;
 
     fn hit(t: f32, tri: u32) -> Hit {
-        Hit { t, tri, u: 0.0, v: 0.0 }
+        Hit {
+            t,
+            tri,
+            u: 0.0,
+            v: 0.0,
+        }
     }
 
     #[test]

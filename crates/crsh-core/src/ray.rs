@@ -236,8 +236,18 @@ mod tests {
 
     #[test]
     fn closest_tie_breaks_on_triangle_id() {
-        let a = Hit { t: 1.0, tri: 3, u: 0.0, v: 0.0 };
-        let b = Hit { t: 1.0, tri: 5, u: 0.0, v: 0.0 };
+        let a = Hit {
+            t: 1.0,
+            tri: 3,
+            u: 0.0,
+            v: 0.0,
+        };
+        let b = Hit {
+            t: 1.0,
+            tri: 5,
+            u: 0.0,
+            v: 0.0,
+        };
         assert!(a.closer_than(&b));
         assert!(!b.closer_than(&a));
         assert!(a.closer_than(&Hit::MISS));

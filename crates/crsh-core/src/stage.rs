@@ -23,7 +23,13 @@ pub trait PrimaryVisibility<B: Backend>: Send + Sync {
     /// Variant name (`raster`, `raycast`).
     fn name(&self) -> &str;
     /// Renders the G-buffer at `width × height`.
-    fn gbuffer(&self, backend: &B, width: u32, height: u32, stats: &mut Stats) -> Result<B::Buffer<Surface>>;
+    fn gbuffer(
+        &self,
+        backend: &B,
+        width: u32,
+        height: u32,
+        stats: &mut Stats,
+    ) -> Result<B::Buffer<Surface>>;
 }
 
 /// Secondary ray creation (seed 000 §3.2.3, eq. 3.1-3.7).
@@ -49,7 +55,8 @@ pub trait Hasher<B: Backend>: Send + Sync {
     /// Significant low bits of the keys this hasher writes (≤ 64); sorters may sort only these.
     fn key_bits(&self) -> u32;
     /// One key per ray, same order as `rays`.
-    fn hash(&self, backend: &B, rays: &B::Buffer<Ray>, stats: &mut Stats) -> Result<B::Buffer<u64>>;
+    fn hash(&self, backend: &B, rays: &B::Buffer<Ray>, stats: &mut Stats)
+        -> Result<B::Buffer<u64>>;
 }
 
 /// Ray sorting (compress / sort / decompress, seed 000 §3.2.4-3.2.6).
@@ -58,7 +65,13 @@ pub trait Sorter<B: Backend>: Send + Sync {
     fn name(&self) -> &str;
     /// The permutation that orders rays by key, stably: `order[i]` is the index of the ray
     /// that goes to position `i`.
-    fn sort(&self, backend: &B, keys: &B::Buffer<u64>, key_bits: u32, stats: &mut Stats) -> Result<B::Buffer<u32>>;
+    fn sort(
+        &self,
+        backend: &B,
+        keys: &B::Buffer<u64>,
+        key_bits: u32,
+        stats: &mut Stats,
+    ) -> Result<B::Buffer<u32>>;
 }
 
 /// A bottom-up ray-space hierarchy over one batch of rays (seed 000 §3.2.7).
@@ -77,7 +90,13 @@ pub trait HierarchyBuilder<B: Backend>: Send + Sync {
     /// Variant name.
     fn name(&self) -> &str;
     /// Builds the hierarchy over `rays` taken in `order`.
-    fn build(&self, backend: &B, rays: &B::Buffer<Ray>, order: B::Buffer<u32>, stats: &mut Stats) -> Result<RayHierarchy<B>>;
+    fn build(
+        &self,
+        backend: &B,
+        rays: &B::Buffer<Ray>,
+        order: B::Buffer<u32>,
+        stats: &mut Stats,
+    ) -> Result<RayHierarchy<B>>;
 }
 
 /// A (lowest-level node, triangle) pair that survived traversal (8 bytes).
