@@ -1,0 +1,268 @@
+//! The CPU backend's stage catalogue, pipeline presets and stage factory.
+//!
+//! [`catalogue`] lists every CPU stage variant with its parameters (what `crsh pipelines`
+//! prints and what [`PipelineConfig::resolve`] checks configs against); [`preset`] gives the
+//! named pipelines of `--pipeline`; [`build_stages`] turns a config and a scene into runnable
+//! [`Stages`]; [`build_intersector`] makes the `--reference` intersector; [`render`] does all of
+//! it and renders a frame.
+
+use std::sync::Arc;
+
+use crsh_core::{
+    render_frame, CoreError, Frame, FrameOptions, Intersector, ParamInfo, ParamValue,
+    PipelineConfig, Progress, Result, StageKind, StageSpec, StageVariantInfo, Stages,
+};
+use crsh_scene::Scene;
+
+use crate::backend::Cpu;
+use crate::intersect::brute::BruteForce;
+use crate::intersect::bvh::CwBvh;
+use crate::primary::raster::Raster;
+use crate::primary::raycast::RayCast;
+use crate::raygen::whitted::Whitted;
+use crate::shade::phong::Phong;
+
+/// Names of the pipelines [`preset`] knows (the CLI's `--pipeline`).
+pub const PRESETS: &[&str] = &["brute", "bvh"];
+
+/// Every stage variant the CPU backend offers, with parameters, defaults and choices.
+pub fn catalogue() -> Vec<StageVariantInfo> {
+    vec![
+        StageVariantInfo {
+            stage: StageKind::Primary,
+            name: "raster",
+            doc: "z-buffer rasterizer writing the G-buffer (position, normals, material, \
+                  triangle id), seed 000 §3.1",
+            params: vec![],
+        },
+        StageVariantInfo {
+            stage: StageKind::Primary,
+            name: "raycast",
+            doc: "the same G-buffer by casting one camera ray per pixel centre",
+            params: vec![ParamInfo {
+                name: "accel",
+                default: ParamValue::Str("bvh".into()),
+                choices: &["bvh", "brute"],
+                doc: "what traces the camera rays: the obvhs CWBVH or every triangle",
+            }],
+        },
+        StageVariantInfo {
+            stage: StageKind::Raygen,
+            name: "whitted",
+            doc: "shadow, reflection and refraction rays with total internal reflection, \
+                  seed 000 §3.2.3 eq. 3.1-3.7",
+            params: vec![
+                ParamInfo {
+                    name: "shadow_origin",
+                    default: ParamValue::Str("light".into()),
+                    choices: &["light", "surface"],
+                    doc: "shadow rays start at the light (thesis, eq. 3.1-3.2) or at the surface",
+                },
+                ParamInfo {
+                    name: "cull_backfacing",
+                    default: ParamValue::Bool(true),
+                    choices: &[],
+                    doc: "no shadow ray to a light behind the geometric normal (it lights nothing)",
+                },
+                ParamInfo {
+                    name: "min_throughput",
+                    default: ParamValue::Float(1e-3),
+                    choices: &[],
+                    doc: "rays whose largest throughput component is below this are not spawned",
+                },
+                ParamInfo {
+                    name: "epsilon",
+                    default: ParamValue::Float(1e-5),
+                    choices: &[],
+                    doc: "origin offset along the geometric normal and t_min, as a fraction of \
+                          the scene's bounding-box diagonal",
+                },
+            ],
+        },
+        StageVariantInfo {
+            stage: StageKind::Intersect,
+            name: "brute",
+            doc: "every ray against every triangle: the exact reference, N×M tests (§3.2.9)",
+            params: vec![],
+        },
+        StageVariantInfo {
+            stage: StageKind::Intersect,
+            name: "bvh",
+            doc: "obvhs compressed-wide BVH (CWBVH), closest and any hit, node and triangle \
+                  tests counted",
+            params: vec![ParamInfo {
+                name: "build_quality",
+                default: ParamValue::Str("medium".into()),
+                choices: &["fast", "medium", "slow"],
+                doc: "obvhs build preset: faster builds or better trees",
+            }],
+        },
+        StageVariantInfo {
+            stage: StageKind::Shade,
+            name: "phong",
+            doc: "Phong with attenuation and shadows, barycentric normals, reflection and \
+                  refraction weighted by the material, seed 000 eq. 3.17-3.19",
+            params: vec![
+                ParamInfo {
+                    name: "ambient",
+                    default: ParamValue::Float(0.05),
+                    choices: &[],
+                    doc: "ambient fill as a fraction of the diffuse colour (0: the thesis exactly)",
+                },
+                ParamInfo {
+                    name: "background",
+                    default: ParamValue::Float(0.0),
+                    choices: &[],
+                    doc: "grey level that rays missing the scene see",
+                },
+            ],
+        },
+    ]
+}
+
+/// The named pipeline `name` (one of [`PRESETS`]), unresolved: Whitted pipelines with raster
+/// primaries, Whitted ray generation and Phong shading, tracing with brute force (`brute`) or
+/// the obvhs BVH (`bvh`).
+pub fn preset(name: &str) -> Option<PipelineConfig> {
+    match name {
+        "brute" => Some(PipelineConfig::whitted("brute", "brute")),
+        "bvh" => Some(PipelineConfig::whitted("bvh", "bvh")),
+        _ => None,
+    }
+}
+
+fn no_cpu_variant(slot: StageKind, spec: &StageSpec) -> CoreError {
+    CoreError::UnknownVariant {
+        stage: slot.key().into(),
+        name: spec.kind.clone(),
+        known: "none on the cpu backend yet".into(),
+    }
+}
+
+/// Builds the stages of `cfg` for `scene`. A clone of `cfg` is resolved against [`catalogue`]
+/// first (unknown variants or parameters are errors; defaults are filled in). A filled
+/// optional slot (hash, sort, hierarchy, traverse) gives [`CoreError::UnknownVariant`] while
+/// the CPU backend has no variant for it.
+pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<Scene>) -> Result<Stages<Cpu>> {
+    let mut cfg = cfg.clone();
+    cfg.resolve(&catalogue())?;
+    for slot in [
+        StageKind::Hash,
+        StageKind::Sort,
+        StageKind::Hierarchy,
+        StageKind::Traverse,
+    ] {
+        if let Some(spec) = cfg.slot(slot) {
+            return Err(no_cpu_variant(slot, spec));
+        }
+    }
+    let primary: Box<dyn crsh_core::PrimaryVisibility<Cpu>> = match cfg.primary.kind.as_str() {
+        "raster" => Box::new(Raster::new(scene, &cfg.primary)?),
+        "raycast" => Box::new(RayCast::new(scene, &cfg.primary)?),
+        _ => return Err(no_cpu_variant(StageKind::Primary, &cfg.primary)),
+    };
+    let raygen: Box<dyn crsh_core::RayGen<Cpu>> = match cfg.raygen.kind.as_str() {
+        "whitted" => Box::new(Whitted::new(scene, &cfg.raygen)?),
+        _ => return Err(no_cpu_variant(StageKind::Raygen, &cfg.raygen)),
+    };
+    let shader: Box<dyn crsh_core::Shader<Cpu>> = match cfg.shade.kind.as_str() {
+        "phong" => Box::new(Phong::new(scene, &cfg.shade)?),
+        _ => return Err(no_cpu_variant(StageKind::Shade, &cfg.shade)),
+    };
+    Ok(Stages {
+        primary,
+        raygen,
+        hasher: None,
+        sorter: None,
+        hierarchy: None,
+        traverser: None,
+        intersector: make_intersector(&cfg.intersect, scene)?,
+        shader,
+    })
+}
+
+fn make_intersector(spec: &StageSpec, scene: &Arc<Scene>) -> Result<Box<dyn Intersector<Cpu>>> {
+    Ok(match spec.kind.as_str() {
+        "brute" => Box::new(BruteForce::new(scene, spec)?),
+        "bvh" => Box::new(CwBvh::new(scene, spec)?),
+        _ => return Err(no_cpu_variant(StageKind::Intersect, spec)),
+    })
+}
+
+/// Builds the intersector `spec` (resolved against [`catalogue`] first), e.g. the reference of
+/// `--reference brute|bvh`.
+pub fn build_intersector(
+    spec: &StageSpec,
+    scene: &Arc<Scene>,
+) -> Result<Box<dyn Intersector<Cpu>>> {
+    let mut cfg = PipelineConfig::whitted("reference", &spec.kind);
+    cfg.intersect = spec.clone();
+    cfg.resolve(&catalogue())?;
+    make_intersector(&cfg.intersect, scene)
+}
+
+/// Renders one frame of `scene` with pipeline `cfg` on the CPU: builds the stages (and the
+/// `reference` intersector, if given, whose agreement lands in [`crsh_core::Stats::accuracy`])
+/// and runs [`render_frame`]. `opts.triangles` is taken from the scene, whatever the caller
+/// put there. `progress` receives a report before every batch.
+pub fn render(
+    scene: &Arc<Scene>,
+    cfg: &PipelineConfig,
+    opts: &FrameOptions,
+    reference: Option<&StageSpec>,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<Frame<Cpu>> {
+    let stages = build_stages(cfg, scene)?;
+    let reference = reference.map(|r| build_intersector(r, scene)).transpose()?;
+    let opts = FrameOptions {
+        triangles: scene.triangle_count() as u64,
+        ..opts.clone()
+    };
+    render_frame(&Cpu, &stages, &opts, reference.as_deref(), progress)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_resolve_against_the_catalogue() {
+        for name in PRESETS {
+            let mut cfg = preset(name).expect("listed preset exists");
+            cfg.resolve(&catalogue()).unwrap();
+            assert_eq!(cfg.intersect.kind, *name);
+            assert_eq!(cfg.raygen.str("shadow_origin").unwrap(), "light");
+            assert_eq!(cfg.shade.f64("ambient").unwrap(), 0.05);
+        }
+        assert!(preset("kdtree").is_none());
+    }
+
+    #[test]
+    fn catalogue_is_well_formed() {
+        let cat = catalogue();
+        for (i, v) in cat.iter().enumerate() {
+            assert!(!v.doc.is_empty(), "{} has no doc", v.name);
+            assert!(
+                cat[..i]
+                    .iter()
+                    .all(|w| (w.stage, w.name) != (v.stage, v.name)),
+                "{} listed twice",
+                v.name
+            );
+            for p in &v.params {
+                assert!(!p.doc.is_empty());
+                if let ParamValue::Str(s) = &p.default {
+                    assert!(p.choices.is_empty() || p.choices.contains(&s.as_str()));
+                }
+            }
+        }
+        for slot in [
+            StageKind::Primary,
+            StageKind::Raygen,
+            StageKind::Intersect,
+            StageKind::Shade,
+        ] {
+            assert!(cat.iter().any(|v| v.stage == slot), "no variant for {slot}");
+        }
+    }
+}

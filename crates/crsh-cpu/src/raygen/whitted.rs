@@ -1,0 +1,354 @@
+//! Whitted secondary rays: shadow, reflection and refraction (seed 000 §3.2.3, eq. 3.1-3.7).
+//!
+//! Rays are created from the [`Surface`] records of the previous pass (the G-buffer after
+//! primary visibility, or the path vertices found by the last reflection / refraction batch).
+//! Background records spawn nothing. The output is compacted and in surface order (light order
+//! within a surface for shadow rays), and [`Ray::source`] indexes the surface buffer, so the
+//! shader can find the surface each ray belongs to.
+//!
+//! # Ray kinds
+//!
+//! - **Shadow** (eq. 3.1-3.2): one ray per light for every shaded point. With
+//!   `shadow_origin = light` (the thesis's convention, the default) the ray starts at the light
+//!   and points at the surface (`o = l`, `d = (p − o)/|p − o|`), so all shadow rays of a light
+//!   share their origin, which is what the thesis's shadow-ray hash exploits. With
+//!   `shadow_origin = surface` it starts at the (offset) surface point and points at the light.
+//!   Both conventions test the same segment, so the image is the same; only coherence differs.
+//!   With `cull_backfacing = true` (default) no ray is made when the light lies on or behind
+//!   the plane of the surface's geometric normal: the shader gives such a light no contribution
+//!   whatever the ray finds (see [`crate::shade::phong`]), so culling changes no pixel.
+//!   [`Ray::light`] holds the light index.
+//! - **Reflection** (eq. 3.3-3.4): `d = i − 2 n (n · i)` with the incident direction `i` and the
+//!   interpolated shading normal `n`, for materials with reflectivity > 0; throughput is the
+//!   surface's throughput × reflectivity.
+//! - **Refraction** (eq. 3.5-3.7): `k = 1 − ri² (1 − (i · n)²)`,
+//!   `d = ri i − n (ri (i · n) + √k)`, for materials with transparency > 0; `ri = 1 / ior` when
+//!   the arriving ray hit the front face ([`Surface::FRONT_FACE`], entering the object) and
+//!   `ri = ior` when it hit the back face (leaving it). When `k < 0` the ray is totally
+//!   internally reflected: it takes the mirror direction of eq. 3.4 but **keeps the kind
+//!   Refraction** (it carries the transparency weight and counts as a refraction ray);
+//!   throughput is the surface's throughput × transparency.
+//!
+//! Every ray's depth is the surface's depth + 1, its pixel the surface's pixel.
+//!
+//! # Throughput culling
+//!
+//! A ray whose throughput's largest component is below `min_throughput` (default 1e-3) is not
+//! spawned. A shadow ray's throughput is the weight its light's contribution gets in the image:
+//! the surface's throughput × the material's local weight `max(0, 1 − reflectivity −
+//! transparency)`, so a perfect mirror or a perfectly clear surface casts no shadow rays (the
+//! shader gives them no direct light anyway).
+//!
+//! # Epsilon policy
+//!
+//! A secondary ray must not find the surface it leaves. With `off = epsilon × |scene bounding
+//! box diagonal|` (param `epsilon`, default 1e-5, relative so that it scales with the scene):
+//! - the origin of a reflection or refraction ray is the hit point moved by `off` along the
+//!   geometric normal, to the side the ray leaves into (the sign of `d · n_geo`), and its
+//!   interval starts at `t_min = off`;
+//! - a shadow ray's surface end point is the hit point moved by `off` along the geometric
+//!   normal towards the light; the interval is `(off, |segment| − off)`, so it excludes both the
+//!   light and the surface by the same distance (a light sitting on a wall does not shadow
+//!   itself). When the light is closer than `2 off` the interval is empty and the light is
+//!   seen.
+//!
+//! The policy lives in one function, [`offset_point`], plus the two interval rules above.
+
+use std::sync::Arc;
+
+use crsh_core::glam::Vec3;
+use crsh_core::{CoreError, Ray, RayGen, RayKind, Result, StageSpec, Stats, Surface};
+use crsh_scene::Scene;
+use rayon::prelude::*;
+
+use crate::backend::Cpu;
+
+/// Where shadow rays start.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ShadowOrigin {
+    /// At the light, pointing at the surface (the thesis's convention, eq. 3.1-3.2).
+    Light,
+    /// At the surface point, pointing at the light.
+    Surface,
+}
+
+/// The per-material data ray generation needs.
+#[derive(Clone, Copy, Debug)]
+struct MatRays {
+    reflectivity: f32,
+    transparency: f32,
+    ior: f32,
+}
+
+impl MatRays {
+    fn local_weight(&self) -> f32 {
+        (1.0 - self.reflectivity - self.transparency).max(0.0)
+    }
+}
+
+/// The Whitted ray generator (seed 000 §3.2.3, eq. 3.1-3.7). See the module docs for the
+/// conventions and the epsilon policy.
+#[derive(Clone, Debug)]
+pub struct Whitted {
+    lights: Vec<Vec3>,
+    materials: Vec<MatRays>,
+    shadow_origin: ShadowOrigin,
+    cull_backfacing: bool,
+    min_throughput: f32,
+    offset: f32,
+}
+
+/// The ray-origin offset of the epsilon policy: `p` moved by `off` along the geometric normal
+/// `geo_normal`, to the side that `dir` points into (the front side when `dir` is parallel to
+/// the surface).
+pub fn offset_point(p: Vec3, geo_normal: Vec3, dir: Vec3, off: f32) -> Vec3 {
+    if dir.dot(geo_normal) < 0.0 {
+        p - geo_normal * off
+    } else {
+        p + geo_normal * off
+    }
+}
+
+/// Mirror reflection of the incident direction `i` about the normal `n` (eq. 3.4):
+/// `i − 2 n (n · i)`.
+pub fn reflect(i: Vec3, n: Vec3) -> Vec3 {
+    i - 2.0 * n * n.dot(i)
+}
+
+/// Refraction of the unit incident direction `i` through the unit normal `n` (on the incident
+/// side, `n · i ≤ 0`) with the ratio of indices `ri = η_from / η_to` (eq. 3.6-3.7):
+/// `k = 1 − ri² (1 − (i · n)²)`, `d = ri i − n (ri (i · n) + √k)`. `None` when `k < 0` (total
+/// internal reflection).
+pub fn refract(i: Vec3, n: Vec3, ri: f32) -> Option<Vec3> {
+    let cos_i = i.dot(n);
+    let k = 1.0 - ri * ri * (1.0 - cos_i * cos_i);
+    if k < 0.0 {
+        None
+    } else {
+        Some(i * ri - n * (ri * cos_i + k.sqrt()))
+    }
+}
+
+/// The refraction direction of a Whitted refraction ray: eq. 3.7 with `ri = 1 / ior` through a
+/// front face and `ri = ior` through a back face, or the mirror direction (eq. 3.4) under total
+/// internal reflection. The result is unit length (or zero for degenerate input).
+pub fn refraction_direction(incident: Vec3, normal: Vec3, ior: f32, front_face: bool) -> Vec3 {
+    let ri = if front_face { 1.0 / ior } else { ior };
+    refract(incident, normal, ri)
+        .unwrap_or_else(|| reflect(incident, normal))
+        .normalize_or_zero()
+}
+
+impl Whitted {
+    /// A generator for `scene` with the parameters of a resolved `spec`: `shadow_origin`
+    /// (`light`|`surface`), `cull_backfacing` (bool), `min_throughput` (≥ 0) and `epsilon`
+    /// (relative to the scene's bounding-box diagonal, in `[0, 0.1]`).
+    pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<Self> {
+        let shadow_origin = match spec.str("shadow_origin")? {
+            "light" => ShadowOrigin::Light,
+            "surface" => ShadowOrigin::Surface,
+            other => {
+                return Err(CoreError::InvalidParam {
+                    key: "raygen.shadow_origin".into(),
+                    reason: format!("`{other}` is not one of light, surface"),
+                })
+            }
+        };
+        let cull_backfacing = spec.bool("cull_backfacing")?;
+        let min_throughput = spec.f64("min_throughput")?;
+        if !min_throughput.is_finite() || min_throughput < 0.0 {
+            return Err(CoreError::InvalidParam {
+                key: "raygen.min_throughput".into(),
+                reason: format!("{min_throughput} must be a finite number ≥ 0"),
+            });
+        }
+        let epsilon = spec.f64("epsilon")?;
+        if !epsilon.is_finite() || !(0.0..=0.1).contains(&epsilon) {
+            return Err(CoreError::InvalidParam {
+                key: "raygen.epsilon".into(),
+                reason: format!("{epsilon} is outside 0..=0.1 (a fraction of the scene diagonal)"),
+            });
+        }
+        let diagonal = scene.bounds.diagonal();
+        if !diagonal.is_finite() {
+            return Err(CoreError::InvalidInput(format!(
+                "scene `{}` has non-finite bounds",
+                scene.name
+            )));
+        }
+        let mut materials = Vec::with_capacity(scene.materials.len());
+        for m in &scene.materials {
+            if m.transparency > 0.0 && !(m.ior.is_finite() && m.ior > 0.0) {
+                return Err(CoreError::InvalidInput(format!(
+                    "material `{}` is transparent with index of refraction {}",
+                    m.name, m.ior
+                )));
+            }
+            if !(m.reflectivity.is_finite() && m.transparency.is_finite()) {
+                return Err(CoreError::InvalidInput(format!(
+                    "material `{}` has non-finite reflectivity or transparency",
+                    m.name
+                )));
+            }
+            materials.push(MatRays {
+                reflectivity: m.reflectivity,
+                transparency: m.transparency,
+                ior: m.ior,
+            });
+        }
+        let lights = scene.lights.iter().map(|l| l.position).collect::<Vec<_>>();
+        if let Some(l) = lights.iter().find(|p| !p.is_finite()) {
+            return Err(CoreError::InvalidInput(format!(
+                "light at {l} is not finite"
+            )));
+        }
+        Ok(Whitted {
+            lights,
+            materials,
+            shadow_origin,
+            cull_backfacing,
+            min_throughput: min_throughput as f32,
+            offset: (epsilon * diagonal as f64) as f32,
+        })
+    }
+
+    /// The absolute offset distance of the epsilon policy (`epsilon × scene diagonal`).
+    pub fn offset(&self) -> f32 {
+        self.offset
+    }
+
+    fn keeps(&self, throughput: Vec3) -> bool {
+        throughput.max_element() >= self.min_throughput && throughput.is_finite()
+    }
+
+    /// The shadow ray from surface `s` (index `source`) to light `light`, if one is needed.
+    fn shadow_ray(&self, source: u32, s: &Surface, m: &MatRays, light: u32) -> Option<Ray> {
+        let l = self.lights[light as usize];
+        let to_light = l - s.position;
+        if self.cull_backfacing && to_light.dot(s.geo_normal) <= 0.0 {
+            return None;
+        }
+        let throughput = s.throughput * m.local_weight();
+        if !self.keeps(throughput) {
+            return None;
+        }
+        let p = offset_point(s.position, s.geo_normal, to_light, self.offset);
+        let (origin, seg) = match self.shadow_origin {
+            ShadowOrigin::Light => (l, p - l),
+            ShadowOrigin::Surface => (p, l - p),
+        };
+        let len = seg.length();
+        let dir = seg.normalize_or_zero();
+        if dir == Vec3::ZERO || !len.is_finite() {
+            // The light sits on the (offset) point: nothing can lie in between.
+            return None;
+        }
+        let t_min = self.offset;
+        Some(Ray {
+            origin,
+            t_min,
+            dir,
+            t_max: (len - self.offset).max(t_min),
+            throughput,
+            kind: RayKind::Shadow as u32,
+            pixel: s.pixel,
+            light,
+            depth: s.depth + 1,
+            source,
+        })
+    }
+
+    /// The reflection (eq. 3.3-3.4) or refraction (eq. 3.5-3.7) ray from surface `s`.
+    fn bounce_ray(&self, source: u32, s: &Surface, m: &MatRays, kind: RayKind) -> Option<Ray> {
+        let (weight, dir) = match kind {
+            RayKind::Reflection if m.reflectivity > 0.0 => (
+                m.reflectivity,
+                reflect(s.incident, s.normal).normalize_or_zero(),
+            ),
+            RayKind::Refraction if m.transparency > 0.0 => (
+                m.transparency,
+                refraction_direction(s.incident, s.normal, m.ior, s.front_face()),
+            ),
+            _ => return None,
+        };
+        let throughput = s.throughput * weight;
+        if !self.keeps(throughput) || dir == Vec3::ZERO || !dir.is_finite() {
+            return None;
+        }
+        Some(Ray {
+            origin: offset_point(s.position, s.geo_normal, dir, self.offset),
+            t_min: self.offset,
+            dir,
+            t_max: f32::INFINITY,
+            throughput,
+            kind: kind as u32,
+            pixel: s.pixel,
+            light: u32::MAX,
+            depth: s.depth + 1,
+            source,
+        })
+    }
+
+    /// The rays of `kind` spawned by `surfaces`, compacted, in surface order (see the module
+    /// docs). Primary rays are not made here: asking for them is an error.
+    pub fn rays(&self, surfaces: &[Surface], kind: RayKind) -> Result<Vec<Ray>> {
+        if surfaces.len() > u32::MAX as usize {
+            return Err(CoreError::InvalidInput(format!(
+                "{} surfaces do not fit 32-bit ray sources",
+                surfaces.len()
+            )));
+        }
+        if let Some(s) = surfaces
+            .par_iter()
+            .find_first(|s| s.is_hit() && s.material as usize >= self.materials.len())
+        {
+            return Err(CoreError::InvalidInput(format!(
+                "surface of pixel {} has material {} but the scene has {}",
+                s.pixel,
+                s.material,
+                self.materials.len()
+            )));
+        }
+        let hits = surfaces
+            .par_iter()
+            .enumerate()
+            .filter(|(_, s)| s.is_hit())
+            .map(|(i, s)| (i as u32, s, &self.materials[s.material as usize]));
+        let rays = match kind {
+            RayKind::Primary => {
+                return Err(CoreError::Unsupported {
+                    stage: "raygen",
+                    variant: "whitted".into(),
+                    what: "primary rays (primary visibility makes those)".into(),
+                })
+            }
+            RayKind::Shadow => {
+                let nl = self.lights.len() as u32;
+                hits.flat_map_iter(|(i, s, m)| {
+                    (0..nl).filter_map(move |l| self.shadow_ray(i, s, m, l))
+                })
+                .collect()
+            }
+            RayKind::Reflection | RayKind::Refraction => hits
+                .filter_map(|(i, s, m)| self.bounce_ray(i, s, m, kind))
+                .collect(),
+        };
+        Ok(rays)
+    }
+}
+
+impl RayGen<Cpu> for Whitted {
+    fn name(&self) -> &str {
+        "whitted"
+    }
+
+    fn generate(
+        &self,
+        _backend: &Cpu,
+        surfaces: &Vec<Surface>,
+        kind: RayKind,
+        _stats: &mut Stats,
+    ) -> Result<Vec<Ray>> {
+        self.rays(surfaces, kind)
+    }
+}

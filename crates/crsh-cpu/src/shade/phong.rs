@@ -1,0 +1,365 @@
+//! Phong shading with attenuation and shadows (seed 000 eq. 3.17-3.19), and path-vertex
+//! resolution.
+//!
+//! # Direct light ([`Phong::shade_direct`])
+//!
+//! For every surface record that holds a hit, and every light whose shadow ray found no
+//! occluder (a light without a shadow ray, because ray generation culled it, contributes
+//! nothing), eq. 3.19:
+//!
+//! ```text
+//! l     = (light − p) / |light − p|                        (3.19a)
+//! dist  = |light − p|                                      (3.19b)
+//! att   = 1 / (c + dist · lin + dist² · quad)              (3.19c)
+//! v     = incident direction of the ray that found p       (3.19d)
+//! h     = (l − v) / |l − v|                                (3.19e)
+//! fd    = clamp(l · n, 0, 1)                               (3.19f)
+//! fs    = clamp(max(0, h · n)^shininess, 0, 1)             (3.19g)
+//! color += diffuse  · light_color · fd · intensity · att   (3.19h)
+//! color += specular · light_color · fs · intensity · att   (3.19i)
+//! ```
+//!
+//! with `n` the interpolated shading normal (eq. 3.17-3.18, facing the incoming ray). For a
+//! primary surface the incident direction is the camera ray, so `v` is exactly eq. 3.19d; for
+//! deeper path vertices it is the reflection / refraction ray that arrived.
+//!
+//! Two conventions the thesis leaves open, both standard:
+//! - A light on or behind the plane of the **geometric** normal lights nothing (it would be
+//!   self-shadowed by the triangle itself). This makes the ray generator's `cull_backfacing`
+//!   a pure optimisation: culled or not, the image is the same.
+//! - The specular term is zero when `fd = 0` (Blinn-Phong convention: no highlight from a light
+//!   below the shading horizon).
+//!
+//! The local colour is then `ambient · diffuse + Σ lights`, where `ambient` is a parameter
+//! (default 0.05: a little fill light so that shadowed regions are not black; set it to 0 for
+//! the thesis's formula exactly). It is weighted by the record's throughput and the material's
+//! local weight `max(0, 1 − reflectivity − transparency)`: the rest of the energy is carried
+//! by the reflection and refraction rays, whose throughput holds those weights. A background
+//! record (a pixel or ray that saw nothing) adds `background` (a grey level, default 0) × its
+//! throughput.
+//!
+//! # Accumulation
+//!
+//! The image is linear HDR RGBA; alpha is set to 1 for every pixel any record (hit or
+//! background) was shaded for. Contributions are computed in parallel, one per record, and
+//! then added to their pixels sequentially in record order, so the result does not depend on
+//! the thread count.
+//!
+//! # Resolution ([`Phong::resolve`])
+//!
+//! A reflection or refraction ray and its nearest hit become the next path vertex through
+//! [`crate::surface::surface_from_hit`] (barycentric normal interpolation, eq. 3.17-3.18), with
+//! the ray's pixel, throughput and depth; a miss becomes a background record.
+
+use std::sync::Arc;
+
+use crsh_core::glam::Vec3;
+use crsh_core::{CoreError, Hit, Ray, Result, Shader, StageSpec, Stats, Surface};
+use crsh_scene::Scene;
+use rayon::prelude::*;
+
+use crate::backend::Cpu;
+use crate::surface::surface_from_hit;
+
+/// The per-material data shading needs.
+#[derive(Clone, Copy, Debug)]
+struct MatShade {
+    diffuse: Vec3,
+    specular: Vec3,
+    shininess: f32,
+    local_weight: f32,
+}
+
+/// The per-light data shading needs.
+#[derive(Clone, Copy, Debug)]
+struct LightShade {
+    position: Vec3,
+    /// `color × intensity`.
+    radiance: Vec3,
+    attenuation: [f32; 3],
+}
+
+/// The light one point light adds at a surface point (eq. 3.19a-i), before the throughput and
+/// local weights: `diffuse · light_color · fd · intensity · att + specular · light_color · fs ·
+/// intensity · att`, or zero when the light is on or behind the geometric normal's plane.
+///
+/// `incident` is the unit direction of the ray that arrived at `p` (the view vector of eq.
+/// 3.19d), `normal` the unit shading normal and `geo_normal` the unit face normal, both on the
+/// side the ray came from.
+#[allow(clippy::too_many_arguments)]
+pub fn phong_light(
+    p: Vec3,
+    normal: Vec3,
+    geo_normal: Vec3,
+    incident: Vec3,
+    diffuse: Vec3,
+    specular: Vec3,
+    shininess: f32,
+    light: &crsh_scene::Light,
+) -> Vec3 {
+    let l = LightShade {
+        position: light.position,
+        radiance: light.color * light.intensity,
+        attenuation: light.attenuation,
+    };
+    let m = MatShade {
+        diffuse,
+        specular,
+        shininess,
+        local_weight: 1.0,
+    };
+    light_term(p, normal, geo_normal, incident, &m, &l)
+}
+
+/// The attenuation factor of eq. 3.19c, `1 / (c + d·lin + d²·quad)`; zero when it would not be
+/// finite (a light with all-zero coefficients at its own position).
+fn attenuation(coeffs: [f32; 3], d: f32) -> f32 {
+    let [c, lin, quad] = coeffs;
+    let a = 1.0 / (c + d * lin + d * d * quad);
+    if a.is_finite() {
+        a
+    } else {
+        0.0
+    }
+}
+
+fn light_term(p: Vec3, n: Vec3, n_geo: Vec3, incident: Vec3, m: &MatShade, l: &LightShade) -> Vec3 {
+    let to_light = l.position - p;
+    let dist = to_light.length(); // 3.19b
+    if dist <= 0.0 || !dist.is_finite() {
+        return Vec3::ZERO;
+    }
+    let ldir = to_light / dist; // 3.19a
+    if ldir.dot(n_geo) <= 0.0 {
+        return Vec3::ZERO;
+    }
+    let att = attenuation(l.attenuation, dist); // 3.19c
+    let fd = ldir.dot(n).clamp(0.0, 1.0); // 3.19f
+    let fs = if fd > 0.0 {
+        let h = (ldir - incident).normalize_or_zero(); // 3.19d-e
+        h.dot(n).max(0.0).powf(m.shininess).clamp(0.0, 1.0) // 3.19g
+    } else {
+        0.0
+    };
+    (m.diffuse * fd + m.specular * fs) * l.radiance * att // 3.19h-i
+}
+
+/// The Phong shader (seed 000 eq. 3.17-3.19). See the module docs.
+#[derive(Clone, Debug)]
+pub struct Phong {
+    scene: Arc<Scene>,
+    materials: Vec<MatShade>,
+    lights: Vec<LightShade>,
+    ambient: f32,
+    background: f32,
+}
+
+impl Phong {
+    /// A shader for `scene` with the parameters of a resolved `spec`: `ambient` (≥ 0, fraction
+    /// of the diffuse colour added everywhere) and `background` (≥ 0, grey level of what rays
+    /// that miss everything see).
+    pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<Self> {
+        let nonneg = |key: &str| -> Result<f32> {
+            let v = spec.f64(key)?;
+            if v.is_finite() && v >= 0.0 {
+                Ok(v as f32)
+            } else {
+                Err(CoreError::InvalidParam {
+                    key: format!("shade.{key}"),
+                    reason: format!("{v} must be a finite number ≥ 0"),
+                })
+            }
+        };
+        let ambient = nonneg("ambient")?;
+        let background = nonneg("background")?;
+        let mut materials = Vec::with_capacity(scene.materials.len());
+        for m in &scene.materials {
+            if !(m.diffuse.is_finite() && m.specular.is_finite() && m.shininess.is_finite()) {
+                return Err(CoreError::InvalidInput(format!(
+                    "material `{}` has non-finite colours or shininess",
+                    m.name
+                )));
+            }
+            materials.push(MatShade {
+                diffuse: m.diffuse,
+                specular: m.specular,
+                shininess: m.shininess,
+                local_weight: (1.0 - m.reflectivity - m.transparency).max(0.0),
+            });
+        }
+        let mut lights = Vec::with_capacity(scene.lights.len());
+        for (i, l) in scene.lights.iter().enumerate() {
+            let ok = l.position.is_finite()
+                && l.color.is_finite()
+                && l.intensity.is_finite()
+                && l.attenuation.iter().all(|a| a.is_finite() && *a >= 0.0);
+            if !ok {
+                return Err(CoreError::InvalidInput(format!(
+                    "light {i} has non-finite values or negative attenuation coefficients"
+                )));
+            }
+            lights.push(LightShade {
+                position: l.position,
+                radiance: l.color * l.intensity,
+                attenuation: l.attenuation,
+            });
+        }
+        Ok(Phong {
+            scene: scene.clone(),
+            materials,
+            lights,
+            ambient,
+            background,
+        })
+    }
+
+    /// The radiance record `s` adds to its pixel, given which lights are visible from it.
+    fn contribution(&self, s: &Surface, visible: impl Fn(usize) -> bool) -> Vec3 {
+        if !s.is_hit() {
+            return s.throughput * self.background;
+        }
+        let m = &self.materials[s.material as usize];
+        if m.local_weight <= 0.0 {
+            return Vec3::ZERO;
+        }
+        let mut color = m.diffuse * self.ambient;
+        for (li, l) in self.lights.iter().enumerate() {
+            if visible(li) {
+                color += light_term(s.position, s.normal, s.geo_normal, s.incident, m, l);
+            }
+        }
+        color * m.local_weight * s.throughput
+    }
+
+    /// Adds the direct light of `surfaces` to `image` (see the module docs). `visible` rays are
+    /// the shadow rays with their hits; an unoccluded ray makes its light visible from its
+    /// source surface.
+    pub fn shade(
+        &self,
+        surfaces: &[Surface],
+        shadow_rays: &[Ray],
+        shadow_hits: &[Hit],
+        image: &mut [[f32; 4]],
+    ) -> Result<()> {
+        if shadow_rays.len() != shadow_hits.len() {
+            return Err(CoreError::InvalidInput(format!(
+                "{} shadow rays but {} hits",
+                shadow_rays.len(),
+                shadow_hits.len()
+            )));
+        }
+        if let Some(s) = surfaces.par_iter().find_first(|s| {
+            s.pixel as usize >= image.len()
+                || (s.is_hit() && s.material as usize >= self.materials.len())
+        }) {
+            return Err(CoreError::InvalidInput(format!(
+                "surface record for pixel {} (material {}) does not fit an image of {} pixels \
+                 and {} materials",
+                s.pixel,
+                s.material,
+                image.len(),
+                self.materials.len()
+            )));
+        }
+        // Visibility bit per (surface, light).
+        let nl = self.lights.len();
+        let mut visible = vec![0u64; (surfaces.len() * nl).div_ceil(64)];
+        for (r, h) in shadow_rays.iter().zip(shadow_hits) {
+            let (src, li) = (r.source as usize, r.light as usize);
+            if src >= surfaces.len() || li >= nl {
+                return Err(CoreError::InvalidInput(format!(
+                    "shadow ray for surface {src} and light {li} does not match {} surfaces and \
+                     {nl} lights",
+                    surfaces.len()
+                )));
+            }
+            if !h.is_hit() {
+                let bit = src * nl + li;
+                visible[bit / 64] |= 1 << (bit % 64);
+            }
+        }
+        let contributions: Vec<Vec3> = surfaces
+            .par_iter()
+            .enumerate()
+            .map(|(i, s)| {
+                self.contribution(s, |li| {
+                    let bit = i * nl + li;
+                    visible[bit / 64] & (1 << (bit % 64)) != 0
+                })
+            })
+            .collect();
+        for (s, c) in surfaces.iter().zip(&contributions) {
+            let px = &mut image[s.pixel as usize];
+            px[0] += c.x;
+            px[1] += c.y;
+            px[2] += c.z;
+            px[3] = 1.0;
+        }
+        Ok(())
+    }
+
+    /// The next path vertices for reflection / refraction `rays` and their nearest `hits`
+    /// (one per ray, same order).
+    pub fn next_surfaces(&self, rays: &[Ray], hits: &[Hit]) -> Result<Vec<Surface>> {
+        if rays.len() != hits.len() {
+            return Err(CoreError::InvalidInput(format!(
+                "{} rays but {} hits",
+                rays.len(),
+                hits.len()
+            )));
+        }
+        let ntri = self.scene.triangle_count();
+        if let Some(h) = hits
+            .par_iter()
+            .find_first(|h| h.is_hit() && h.tri as usize >= ntri)
+        {
+            return Err(CoreError::InvalidInput(format!(
+                "hit on triangle {} but the scene has {ntri}",
+                h.tri
+            )));
+        }
+        Ok(rays
+            .par_iter()
+            .zip(hits)
+            .map(|(r, h)| {
+                surface_from_hit(
+                    &self.scene,
+                    r.origin,
+                    r.dir,
+                    h,
+                    r.pixel,
+                    r.throughput,
+                    r.depth,
+                )
+            })
+            .collect())
+    }
+}
+
+impl Shader<Cpu> for Phong {
+    fn name(&self) -> &str {
+        "phong"
+    }
+
+    fn shade_direct(
+        &self,
+        _backend: &Cpu,
+        surfaces: &Vec<Surface>,
+        shadow_rays: &Vec<Ray>,
+        shadow_hits: &Vec<Hit>,
+        image: &mut Vec<[f32; 4]>,
+        _stats: &mut Stats,
+    ) -> Result<()> {
+        self.shade(surfaces, shadow_rays, shadow_hits, image)
+    }
+
+    fn resolve(
+        &self,
+        _backend: &Cpu,
+        rays: &Vec<Ray>,
+        hits: &Vec<Hit>,
+        _stats: &mut Stats,
+    ) -> Result<Vec<Surface>> {
+        self.next_surfaces(rays, hits)
+    }
+}
