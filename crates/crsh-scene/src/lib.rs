@@ -8,9 +8,95 @@
 #![warn(missing_docs)]
 
 pub mod bounding;
+pub mod builtin;
 pub mod error;
+pub mod manifest;
 pub mod model;
+pub mod obj;
 mod rng;
 
+use std::path::Path;
+
 pub use error::SceneError;
-pub use model::{Camera, Light, Material, Mesh, Scene, SceneBuilder};
+pub use model::{
+    is_degenerate_triangle, Camera, Light, Material, Mesh, Scene, SceneBuilder, SceneSummary,
+    MAX_TRIANGLES, MAX_VERTICES,
+};
+
+/// What a load produced besides the scene: where it came from and the non-fatal problems
+/// found (missing MTL, meshes without material, recomputed normals, ...).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct LoadReport {
+    /// The spec or path that was loaded.
+    pub source: String,
+    /// Warnings, one per problem, each naming its file or mesh.
+    pub warnings: Vec<String>,
+}
+
+fn accepted() -> String {
+    format!(
+        "expected a built-in scene name ({}), a .toml manifest or an .obj file",
+        builtin::NAMES.join(", ")
+    )
+}
+
+/// Loads a scene from `spec`: a built-in name ([`builtin::NAMES`]), or a path to a `.toml`
+/// manifest or an `.obj` file.
+pub fn load(spec: &str) -> Result<Scene, SceneError> {
+    load_with_report(spec).map(|(s, _)| s)
+}
+
+/// [`load`], also returning the [`LoadReport`] (warnings such as a missing MTL file).
+pub fn load_with_report(spec: &str) -> Result<(Scene, LoadReport), SceneError> {
+    if builtin::NAMES.contains(&spec) {
+        let (scene, warnings) = builtin::build_with_warnings(spec)?;
+        return Ok((
+            scene,
+            LoadReport {
+                source: spec.to_string(),
+                warnings,
+            },
+        ));
+    }
+    let path = Path::new(spec);
+    if extension(path).is_none() && !path.exists() {
+        return Err(SceneError::invalid(
+            format!("scene '{spec}'"),
+            format!("not a built-in scene nor a file: {}", accepted()),
+        ));
+    }
+    load_path_with_report(path)
+}
+
+fn extension(path: &Path) -> Option<&'static str> {
+    let ext = path.extension()?.to_str()?;
+    ["toml", "obj"]
+        .into_iter()
+        .find(|known| ext.eq_ignore_ascii_case(known))
+}
+
+/// Loads the scene at `path`: a `.toml` manifest or an `.obj` file (chosen by extension).
+pub fn load_path(path: &Path) -> Result<Scene, SceneError> {
+    load_path_with_report(path).map(|(s, _)| s)
+}
+
+/// [`load_path`], also returning the [`LoadReport`].
+pub fn load_path_with_report(path: &Path) -> Result<(Scene, LoadReport), SceneError> {
+    let (scene, warnings) = match extension(path) {
+        Some("toml") => manifest::load(path)?,
+        Some("obj") => obj::load(path)?,
+        _ => {
+            return Err(SceneError::invalid(
+                path.display().to_string(),
+                format!("unsupported file type: {}", accepted()),
+            ))
+        }
+    };
+    Ok((
+        scene,
+        LoadReport {
+            source: path.display().to_string(),
+            warnings,
+        },
+    ))
+}

@@ -24,6 +24,11 @@ pub struct Material {
     pub transparency: f32,
     /// Index of refraction (Ni), ≥ 1 for transparent materials.
     pub ior: f32,
+    /// Emitted radiance (MTL `Ke`): marks the surface of an emitter (e.g. the Cornell box's
+    /// ceiling lamp). It is not a light source: lights are the scene's point [`Light`]s, and a
+    /// shader may add this term to what the surface shows. Zero for ordinary materials.
+    #[serde(default)]
+    pub emission: Vec3,
 }
 
 impl Default for Material {
@@ -36,7 +41,64 @@ impl Default for Material {
             reflectivity: 0.0,
             transparency: 0.0,
             ior: 1.0,
+            emission: Vec3::ZERO,
         }
+    }
+}
+
+impl Material {
+    /// Whether the material reflects mirror rays (reflectivity > 0).
+    pub fn is_mirror(&self) -> bool {
+        self.reflectivity > 0.0
+    }
+
+    /// Whether the material refracts rays (transparency > 0).
+    pub fn is_transparent(&self) -> bool {
+        self.transparency > 0.0
+    }
+
+    /// Whether the surface emits (`emission` not zero).
+    pub fn is_emitter(&self) -> bool {
+        self.emission.max_element() > 0.0
+    }
+
+    /// Checks that every value is finite and in range: colours ≥ 0, shininess ≥ 0,
+    /// reflectivity and transparency in `[0, 1]`, ior > 0. The error message names the
+    /// material and the offending value.
+    pub fn validate(&self) -> Result<(), String> {
+        let name = &self.name;
+        for (what, v) in [
+            ("diffuse", self.diffuse),
+            ("specular", self.specular),
+            ("emission", self.emission),
+        ] {
+            if !v.is_finite() || v.min_element() < 0.0 {
+                return Err(format!(
+                    "material '{name}': {what} {v} must be finite and non-negative"
+                ));
+            }
+        }
+        if !self.shininess.is_finite() || self.shininess < 0.0 {
+            return Err(format!(
+                "material '{name}': shininess {} must be finite and non-negative",
+                self.shininess
+            ));
+        }
+        for (what, v) in [
+            ("reflectivity", self.reflectivity),
+            ("transparency", self.transparency),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(format!("material '{name}': {what} {v} is outside [0, 1]"));
+            }
+        }
+        if !self.ior.is_finite() || self.ior <= 0.0 {
+            return Err(format!(
+                "material '{name}': index of refraction {} must be finite and positive",
+                self.ior
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -58,6 +120,36 @@ impl Light {
     pub fn attenuation_at(&self, distance: f32) -> f32 {
         let [c, l, q] = self.attenuation;
         1.0 / (c + l * distance + q * distance * distance)
+    }
+
+    /// Checks that the light is usable: finite position, non-negative finite colour and
+    /// intensity, non-negative attenuation coefficients with a positive constant term (so the
+    /// factor of eq. 3.19c stays finite at every distance).
+    pub fn validate(&self) -> Result<(), String> {
+        if !self.position.is_finite() {
+            return Err(format!("light position {} is not finite", self.position));
+        }
+        if !self.color.is_finite() || self.color.min_element() < 0.0 {
+            return Err(format!(
+                "light color {} must be finite and non-negative",
+                self.color
+            ));
+        }
+        if !self.intensity.is_finite() || self.intensity < 0.0 {
+            return Err(format!(
+                "light intensity {} must be finite and non-negative",
+                self.intensity
+            ));
+        }
+        let [c, l, q] = self.attenuation;
+        if ![c, l, q].iter().all(|v| v.is_finite() && *v >= 0.0) || c <= 0.0 {
+            return Err(format!(
+                "light attenuation {:?} needs finite non-negative coefficients and a positive \
+                 constant term",
+                self.attenuation
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -95,6 +187,59 @@ impl Camera {
         let ndc_x = (2.0 * sx / width as f32 - 1.0) * tan_half * aspect;
         let ndc_y = (1.0 - 2.0 * sy / height as f32) * tan_half;
         (f + r * ndc_x + u * ndc_y).normalize()
+    }
+
+    /// Checks that the camera defines a view: finite vectors, eye ≠ target, `up` not parallel
+    /// to the viewing direction, field of view in `(0°, 180°)`, positive finite aspect.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.eye.is_finite() && self.target.is_finite() && self.up.is_finite()) {
+            return Err(format!(
+                "camera eye {}, target {} and up {} must be finite",
+                self.eye, self.target, self.up
+            ));
+        }
+        let f = self.target - self.eye;
+        if f.length_squared() == 0.0 {
+            return Err(format!("camera eye and target coincide at {}", self.eye));
+        }
+        if f.normalize().cross(self.up).length_squared() < 1e-12 {
+            return Err(format!(
+                "camera up {} is zero or parallel to the viewing direction {}",
+                self.up,
+                f.normalize()
+            ));
+        }
+        if !(self.vfov_deg > 0.0 && self.vfov_deg < 180.0) {
+            return Err(format!(
+                "camera vfov_deg {} must lie strictly between 0 and 180",
+                self.vfov_deg
+            ));
+        }
+        if let Some(a) = self.aspect {
+            if !(a.is_finite() && a > 0.0) {
+                return Err(format!("camera aspect {a} must be finite and positive"));
+            }
+        }
+        Ok(())
+    }
+
+    /// A camera looking at the centre of `sphere` from the `+z` side, at the distance where
+    /// the sphere just fits the vertical field of view `vfov_deg` (`r / sin(fov / 2)`), up `+y`.
+    /// Used for bare OBJ files, which carry no camera.
+    pub fn framing(sphere: Sphere, vfov_deg: f32) -> Camera {
+        let r = if sphere.radius > 0.0 {
+            sphere.radius
+        } else {
+            1.0
+        };
+        let d = r / (vfov_deg.to_radians() * 0.5).sin();
+        Camera {
+            eye: sphere.center + Vec3::Z * d,
+            target: sphere.center,
+            up: Vec3::Y,
+            vfov_deg,
+            aspect: None,
+        }
     }
 }
 
@@ -139,7 +284,7 @@ pub struct Scene {
     pub lights: Vec<Light>,
     /// Camera.
     pub camera: Camera,
-    /// Bounds of all vertices.
+    /// Bounds of all triangle vertices (the union of the meshes' boxes).
     pub bounds: Aabb,
     /// Number of zero-area triangles (kept, never hit).
     pub degenerate_triangles: usize,
@@ -165,9 +310,88 @@ impl Scene {
     pub fn material_of(&self, t: usize) -> &Material {
         &self.materials[self.tri_material[t] as usize]
     }
+
+    /// Whether triangle `t` has zero area (see [`is_degenerate_triangle`]); such triangles are
+    /// counted in [`Scene::degenerate_triangles`] and must never be reported as hit.
+    pub fn is_degenerate(&self, t: usize) -> bool {
+        let [a, b, c] = self.triangle(t);
+        is_degenerate_triangle(a, b, c)
+    }
+
+    /// A one-line description for listings: name, triangles, meshes, lights, degenerates.
+    pub fn summary(&self) -> SceneSummary {
+        SceneSummary {
+            name: self.name.clone(),
+            triangles: self.indices.len(),
+            vertices: self.positions.len(),
+            meshes: self.meshes.len(),
+            materials: self.materials.len(),
+            lights: self.lights.len(),
+            degenerate_triangles: self.degenerate_triangles,
+        }
+    }
+}
+
+/// The counts that describe a scene in listings (`crsh scenes`) and reports.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SceneSummary {
+    /// Scene name.
+    pub name: String,
+    /// Number of triangles.
+    pub triangles: usize,
+    /// Number of vertices.
+    pub vertices: usize,
+    /// Number of meshes.
+    pub meshes: usize,
+    /// Number of materials.
+    pub materials: usize,
+    /// Number of point lights.
+    pub lights: usize,
+    /// Number of zero-area triangles.
+    pub degenerate_triangles: usize,
+}
+
+impl std::fmt::Display for SceneSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}: {} triangles, {} meshes, {} materials, {} lights",
+            self.name, self.triangles, self.meshes, self.materials, self.lights
+        )?;
+        if self.degenerate_triangles > 0 {
+            write!(f, ", {} degenerate triangles", self.degenerate_triangles)?;
+        }
+        Ok(())
+    }
+}
+
+/// Whether the triangle `a, b, c` has exactly zero area. The cross product of the edges is
+/// evaluated in `f64`, where products of `f32` coordinates differences are (almost always)
+/// exact, so only truly collinear or coincident vertices count, not merely small triangles.
+pub fn is_degenerate_triangle(a: Vec3, b: Vec3, c: Vec3) -> bool {
+    let (a, b, c) = (a.as_dvec3(), b.as_dvec3(), c.as_dvec3());
+    (b - a).cross(c - a) == glam::DVec3::ZERO
+}
+
+/// Largest number of triangles a scene may hold (64 Mi); larger inputs are rejected before
+/// anything is allocated for them.
+pub const MAX_TRIANGLES: usize = 64 << 20;
+
+/// Largest number of vertices a scene may hold (64 Mi).
+pub const MAX_VERTICES: usize = 64 << 20;
+
+/// A mesh as added to the builder, before validation.
+#[derive(Clone, Debug)]
+struct PendingMesh {
+    name: String,
+    first_tri: u32,
+    tri_count: u32,
 }
 
 /// Collects meshes one at a time and builds a validated [`Scene`].
+///
+/// Problems found while adding a mesh (index out of range, non-finite coordinate, size limit)
+/// are remembered and returned by [`SceneBuilder::build`], which names the mesh.
 #[derive(Clone, Debug, Default)]
 pub struct SceneBuilder {
     name: String,
@@ -175,10 +399,12 @@ pub struct SceneBuilder {
     normals: Vec<Option<Vec3>>,
     indices: Vec<[u32; 3]>,
     tri_material: Vec<u32>,
-    mesh_ranges: Vec<(String, u32, u32)>,
+    meshes: Vec<PendingMesh>,
     materials: Vec<Material>,
     lights: Vec<Light>,
     camera: Option<Camera>,
+    error: Option<(String, String)>,
+    warnings: Vec<String>,
 }
 
 impl SceneBuilder {
@@ -208,8 +434,54 @@ impl SceneBuilder {
         self
     }
 
+    /// Whether a camera has been set.
+    pub fn has_camera(&self) -> bool {
+        self.camera.is_some()
+    }
+
+    /// The materials added so far (loaders apply overrides through [`Self::materials_mut`]).
+    pub fn materials(&self) -> &[Material] {
+        &self.materials
+    }
+
+    /// Mutable access to the materials added so far.
+    pub fn materials_mut(&mut self) -> &mut [Material] {
+        &mut self.materials
+    }
+
+    /// The vertex positions added so far (all meshes).
+    pub fn positions(&self) -> &[Vec3] {
+        &self.positions
+    }
+
+    /// Number of meshes added so far.
+    pub fn mesh_count(&self) -> usize {
+        self.meshes.len()
+    }
+
+    /// Records a non-fatal problem (e.g. a missing MTL file) for the load report.
+    pub fn warn(&mut self, message: impl Into<String>) -> &mut Self {
+        self.warnings.push(message.into());
+        self
+    }
+
+    /// The warnings recorded so far.
+    pub fn warnings(&self) -> &[String] {
+        &self.warnings
+    }
+
+    fn fail(&mut self, mesh: String, message: String) {
+        if self.error.is_none() {
+            self.error = Some((mesh, message));
+        }
+    }
+
     /// Adds a mesh: `positions` and optional per-vertex `normals` (same length), `indices`
     /// into them, and one material id for all of its triangles.
+    ///
+    /// The mesh is checked at once (indices in range, finite positions, normals count, size
+    /// limits [`MAX_TRIANGLES`] / [`MAX_VERTICES`] before anything is copied); the first
+    /// problem is returned by [`SceneBuilder::build`] and the offending mesh is not added.
     pub fn mesh(
         &mut self,
         name: impl Into<String>,
@@ -218,6 +490,62 @@ impl SceneBuilder {
         indices: &[[u32; 3]],
         material: u32,
     ) -> &mut Self {
+        let name = name.into();
+        let label = format!("mesh '{}' (#{})", name, self.meshes.len());
+        if self.positions.len().saturating_add(positions.len()) > MAX_VERTICES {
+            self.fail(
+                label,
+                format!(
+                    "too many vertices: {} + {} exceeds the limit of {MAX_VERTICES}",
+                    self.positions.len(),
+                    positions.len()
+                ),
+            );
+            return self;
+        }
+        if self.indices.len().saturating_add(indices.len()) > MAX_TRIANGLES {
+            self.fail(
+                label,
+                format!(
+                    "too many triangles: {} + {} exceeds the limit of {MAX_TRIANGLES}",
+                    self.indices.len(),
+                    indices.len()
+                ),
+            );
+            return self;
+        }
+        if let Some(n) = normals {
+            if n.len() != positions.len() {
+                self.fail(
+                    label,
+                    format!(
+                        "{} normals given for {} positions",
+                        n.len(),
+                        positions.len()
+                    ),
+                );
+                return self;
+            }
+        }
+        if let Some((i, p)) = positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
+            self.fail(label, format!("vertex {i} has a non-finite coordinate {p}"));
+            return self;
+        }
+        let nv = positions.len() as u32;
+        if let Some((t, tri)) = indices
+            .iter()
+            .enumerate()
+            .find(|(_, t)| t.iter().any(|&i| i >= nv))
+        {
+            self.fail(
+                label,
+                format!(
+                    "triangle {t} references vertex {} but the mesh has {nv} vertices",
+                    tri.iter().copied().find(|&i| i >= nv).unwrap_or(nv)
+                ),
+            );
+            return self;
+        }
         let base = self.positions.len() as u32;
         self.positions.extend_from_slice(positions);
         match normals {
@@ -225,11 +553,17 @@ impl SceneBuilder {
             None => self.normals.extend(positions.iter().map(|_| None)),
         }
         let first = self.indices.len() as u32;
-        self.indices
-            .extend(indices.iter().map(|t| [t[0] + base, t[1] + base, t[2] + base]));
+        self.indices.extend(
+            indices
+                .iter()
+                .map(|t| [t[0] + base, t[1] + base, t[2] + base]),
+        );
         self.tri_material.extend(indices.iter().map(|_| material));
-        self.mesh_ranges
-            .push((name.into(), first, indices.len() as u32));
+        self.meshes.push(PendingMesh {
+            name,
+            first_tri: first,
+            tri_count: indices.len() as u32,
+        });
         self
     }
 
@@ -237,7 +571,212 @@ impl SceneBuilder {
     /// least one triangle, material ids valid; computes missing normals, bounding volumes and
     /// the degenerate-triangle count. `context` names the source (file) in errors.
     pub fn build(self, context: &str) -> Result<Scene, SceneError> {
-        let _ = (&bounding::min_sphere, context);
-        unimplemented!("SceneBuilder::build: being written")
+        self.build_with_warnings(context).map(|(scene, _)| scene)
     }
+
+    /// [`SceneBuilder::build`], also returning the warnings recorded with
+    /// [`SceneBuilder::warn`] and those found while building (e.g. vertices whose normal had
+    /// to be invented).
+    ///
+    /// What is computed:
+    /// - per-vertex unit normals: a supplied normal is kept (normalized) when finite and
+    ///   non-zero; otherwise the area-weighted average of the incident triangles' normals (the
+    ///   sum of their unnormalized edge cross products); a vertex only in zero-area triangles
+    ///   gets `+z`;
+    /// - the minimal sphere of every triangle ([`bounding::triangle_sphere`]);
+    /// - per mesh, the exact minimal sphere of the vertices its triangles use
+    ///   ([`bounding::min_sphere`]) and their AABB; the scene bounds are the union;
+    /// - the number of zero-area triangles ([`is_degenerate_triangle`]).
+    pub fn build_with_warnings(
+        mut self,
+        context: &str,
+    ) -> Result<(Scene, Vec<String>), SceneError> {
+        if let Some((mesh, message)) = self.error.take() {
+            return Err(SceneError::invalid(format!("{context}: {mesh}"), message));
+        }
+        if self.meshes.is_empty() {
+            return Err(SceneError::invalid(context, "empty scene: no meshes"));
+        }
+        if self.indices.is_empty() {
+            return Err(SceneError::invalid(
+                context,
+                format!("empty scene: {} meshes but no triangles", self.meshes.len()),
+            ));
+        }
+        if let Some((k, m)) = self
+            .meshes
+            .iter()
+            .enumerate()
+            .find(|(_, m)| m.tri_count == 0)
+        {
+            return Err(SceneError::invalid(
+                format!("{context}: mesh '{}' (#{k})", m.name),
+                "mesh has no triangles",
+            ));
+        }
+        let camera = match self.camera.take() {
+            Some(c) => c,
+            None => return Err(SceneError::invalid(context, "no camera set")),
+        };
+        camera
+            .validate()
+            .map_err(|m| SceneError::invalid(context, m))?;
+        for (i, l) in self.lights.iter().enumerate() {
+            l.validate()
+                .map_err(|m| SceneError::invalid(format!("{context}: light #{i}"), m))?;
+        }
+        for m in &self.materials {
+            m.validate().map_err(|e| SceneError::invalid(context, e))?;
+        }
+        let n_mat = self.materials.len() as u32;
+        for (k, m) in self.meshes.iter().enumerate() {
+            let mat = self.tri_material[m.first_tri as usize];
+            if mat >= n_mat {
+                return Err(SceneError::invalid(
+                    format!("{context}: mesh '{}' (#{k})", m.name),
+                    format!("material id {mat} is out of range ({n_mat} materials)"),
+                ));
+            }
+        }
+
+        let mut warnings = std::mem::take(&mut self.warnings);
+        let normals = compute_normals(&self.positions, &self.normals, &self.indices, &mut warnings);
+
+        let mut degenerate = 0usize;
+        let mut tri_spheres = Vec::with_capacity(self.indices.len());
+        let mut tri_mesh = Vec::with_capacity(self.indices.len());
+        for &[a, b, c] in &self.indices {
+            let (a, b, c) = (
+                self.positions[a as usize],
+                self.positions[b as usize],
+                self.positions[c as usize],
+            );
+            if is_degenerate_triangle(a, b, c) {
+                degenerate += 1;
+            }
+            tri_spheres.push(bounding::triangle_sphere(a, b, c));
+        }
+
+        // Vertices used by each mesh (a mesh may carry unreferenced vertices).
+        let mut seen = vec![u32::MAX; self.positions.len()];
+        let mut used = Vec::new();
+        let mut meshes = Vec::with_capacity(self.meshes.len());
+        let mut bounds = Aabb::EMPTY;
+        for (k, m) in self.meshes.iter().enumerate() {
+            used.clear();
+            // Stray vertices (left by some exporters) do not enlarge the bounds.
+            let tris = &self.indices[m.first_tri as usize..(m.first_tri + m.tri_count) as usize];
+            for tri in tris {
+                for &v in tri {
+                    if seen[v as usize] != k as u32 {
+                        seen[v as usize] = k as u32;
+                        used.push(self.positions[v as usize]);
+                    }
+                }
+            }
+            tri_mesh.extend(std::iter::repeat_n(k as u32, tris.len()));
+            let aabb = Aabb::from_points(used.iter().copied());
+            bounds = bounds.union(aabb);
+            meshes.push(Mesh {
+                name: m.name.clone(),
+                first_tri: m.first_tri,
+                tri_count: m.tri_count,
+                sphere: bounding::min_sphere(&used),
+                aabb,
+            });
+        }
+        if self.lights.is_empty() {
+            warnings.push(format!("{context}: the scene has no lights"));
+        }
+
+        let scene = Scene {
+            name: self.name,
+            positions: self.positions,
+            normals,
+            indices: self.indices,
+            tri_mesh,
+            tri_material: self.tri_material,
+            tri_spheres,
+            meshes,
+            materials: self.materials,
+            lights: self.lights,
+            camera,
+            bounds,
+            degenerate_triangles: degenerate,
+        };
+        Ok((scene, warnings))
+    }
+}
+
+/// Per-vertex unit normals: supplied ones where usable, else area-weighted face normals.
+fn compute_normals(
+    positions: &[Vec3],
+    supplied: &[Option<Vec3>],
+    indices: &[[u32; 3]],
+    warnings: &mut Vec<String>,
+) -> Vec<Vec3> {
+    let usable = |n: Option<Vec3>| n.filter(|n| n.is_finite() && n.length_squared() > 0.0);
+    let mut out: Vec<Vec3> = Vec::with_capacity(positions.len());
+    let mut need = false;
+    for &n in supplied {
+        match usable(n) {
+            Some(n) => out.push(n.normalize()),
+            None => {
+                out.push(Vec3::ZERO);
+                need = true;
+            }
+        }
+    }
+    if !need {
+        return out;
+    }
+    let missing: Vec<bool> = out.iter().map(|n| *n == Vec3::ZERO).collect();
+    let replaced = supplied
+        .iter()
+        .filter(|n| n.is_some() && usable(**n).is_none())
+        .count();
+    if replaced > 0 {
+        warnings.push(format!(
+            "{replaced} supplied normals were zero or not finite and were recomputed"
+        ));
+    }
+    // Sum of unnormalized cross products: |(b-a)×(c-a)| = 2·area, so the sum weights each
+    // face normal by its area.
+    let mut acc = vec![glam::DVec3::ZERO; positions.len()];
+    for &[a, b, c] in indices {
+        let (pa, pb, pc) = (
+            positions[a as usize].as_dvec3(),
+            positions[b as usize].as_dvec3(),
+            positions[c as usize].as_dvec3(),
+        );
+        let n = (pb - pa).cross(pc - pa);
+        for v in [a, b, c] {
+            if missing[v as usize] {
+                acc[v as usize] += n;
+            }
+        }
+    }
+    let mut invented = 0usize;
+    for (i, o) in out.iter_mut().enumerate() {
+        if missing[i] {
+            let n = acc[i].as_vec3();
+            *o = if n.is_finite() && n.length_squared() > 0.0 {
+                n.normalize()
+            } else {
+                let n = acc[i].normalize_or_zero().as_vec3();
+                if n != Vec3::ZERO {
+                    n
+                } else {
+                    invented += 1;
+                    Vec3::Z
+                }
+            };
+        }
+    }
+    if invented > 0 {
+        warnings.push(format!(
+            "{invented} vertices touch only zero-area triangles (or none); their normal is +z"
+        ));
+    }
+    out
 }

@@ -1,0 +1,201 @@
+//! Built-in procedural scenes that need no files, and the geometry helpers they share.
+//!
+//! - [`cornell_mirrors`]: the thesis's CORNELL — an icosphere inside a closed box of six
+//!   mirror walls, one point light (reflection-heavy).
+//! - [`office_boxes`]: a deterministic procedural office with ~140 separate meshes and two
+//!   lights (shadow-ray work), plus one glass and one mirror object.
+//!
+//! Every built-in is deterministic: the same arrays on every call and machine.
+
+pub mod cornell_mirrors;
+pub mod office_boxes;
+
+use glam::Vec3;
+
+use crate::error::SceneError;
+use crate::model::Scene;
+
+/// Names of the built-in scenes, as accepted by [`build`] and [`crate::load`].
+pub const NAMES: &[&str] = &["cornell-mirrors", "office-boxes"];
+
+/// Builds the built-in scene `name` (one of [`NAMES`]).
+pub fn build(name: &str) -> Result<Scene, SceneError> {
+    build_with_warnings(name).map(|(s, _)| s)
+}
+
+/// [`build`], also returning the (normally empty) build warnings.
+pub fn build_with_warnings(name: &str) -> Result<(Scene, Vec<String>), SceneError> {
+    match name {
+        "cornell-mirrors" => cornell_mirrors::builder().build_with_warnings(name),
+        "office-boxes" => office_boxes::builder().build_with_warnings(name),
+        _ => Err(SceneError::invalid(
+            format!("built-in scene '{name}'"),
+            format!("unknown (built-ins: {})", NAMES.join(", ")),
+        )),
+    }
+}
+
+/// Indexed triangle geometry with per-vertex normals.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct Geometry {
+    pub(crate) positions: Vec<Vec3>,
+    pub(crate) normals: Vec<Vec3>,
+    pub(crate) indices: Vec<[u32; 3]>,
+}
+
+impl Geometry {
+    /// Appends a planar quad `a, b, c, d` (counter-clockwise seen from the side its normal
+    /// points to) with flat normal `(b - a) × (c - a)`.
+    pub(crate) fn quad(&mut self, a: Vec3, b: Vec3, c: Vec3, d: Vec3) {
+        let n = (b - a).cross(c - a).normalize();
+        let base = self.positions.len() as u32;
+        self.positions.extend([a, b, c, d]);
+        self.normals.extend([n; 4]);
+        self.indices
+            .extend([[base, base + 1, base + 2], [base, base + 2, base + 3]]);
+    }
+
+    /// Appends the planar quad `a, b, c, d` (a cycle around its edge) wound so that its
+    /// normal points along `facing`.
+    pub(crate) fn quad_facing(&mut self, a: Vec3, b: Vec3, c: Vec3, d: Vec3, facing: Vec3) {
+        if (b - a).cross(c - a).dot(facing) >= 0.0 {
+            self.quad(a, b, c, d);
+        } else {
+            self.quad(a, d, c, b);
+        }
+    }
+
+    /// An axis-aligned box from `min` to `max`, faces outward, flat normals (24 vertices,
+    /// 12 triangles).
+    pub(crate) fn cuboid(min: Vec3, max: Vec3) -> Geometry {
+        let mut g = Geometry::default();
+        let (x0, y0, z0) = (min.x, min.y, min.z);
+        let (x1, y1, z1) = (max.x, max.y, max.z);
+        let v = Vec3::new;
+        g.quad(v(x1, y0, z0), v(x1, y1, z0), v(x1, y1, z1), v(x1, y0, z1)); // +x
+        g.quad(v(x0, y0, z0), v(x0, y0, z1), v(x0, y1, z1), v(x0, y1, z0)); // -x
+        g.quad(v(x0, y1, z0), v(x0, y1, z1), v(x1, y1, z1), v(x1, y1, z0)); // +y
+        g.quad(v(x0, y0, z0), v(x1, y0, z0), v(x1, y0, z1), v(x0, y0, z1)); // -y
+        g.quad(v(x0, y0, z1), v(x1, y0, z1), v(x1, y1, z1), v(x0, y1, z1)); // +z
+        g.quad(v(x0, y0, z0), v(x0, y1, z0), v(x1, y1, z0), v(x1, y0, z0)); // -z
+        g
+    }
+
+    /// An icosphere: the icosahedron subdivided `levels` times (20·4^levels triangles),
+    /// projected on the sphere, with smooth (radial) normals, outward winding.
+    pub(crate) fn icosphere(center: Vec3, radius: f32, levels: u32) -> Geometry {
+        let t = (1.0 + 5f32.sqrt()) / 2.0;
+        let mut verts: Vec<Vec3> = [
+            (-1.0, t, 0.0),
+            (1.0, t, 0.0),
+            (-1.0, -t, 0.0),
+            (1.0, -t, 0.0),
+            (0.0, -1.0, t),
+            (0.0, 1.0, t),
+            (0.0, -1.0, -t),
+            (0.0, 1.0, -t),
+            (t, 0.0, -1.0),
+            (t, 0.0, 1.0),
+            (-t, 0.0, -1.0),
+            (-t, 0.0, 1.0),
+        ]
+        .iter()
+        .map(|&(x, y, z)| Vec3::new(x, y, z).normalize())
+        .collect();
+        let mut faces: Vec<[u32; 3]> = vec![
+            [0, 11, 5],
+            [0, 5, 1],
+            [0, 1, 7],
+            [0, 7, 10],
+            [0, 10, 11],
+            [1, 5, 9],
+            [5, 11, 4],
+            [11, 10, 2],
+            [10, 7, 6],
+            [7, 1, 8],
+            [3, 9, 4],
+            [3, 4, 2],
+            [3, 2, 6],
+            [3, 6, 8],
+            [3, 8, 9],
+            [4, 9, 5],
+            [2, 4, 11],
+            [6, 2, 10],
+            [8, 6, 7],
+            [9, 8, 1],
+        ];
+        for _ in 0..levels {
+            // Midpoints keyed by the sorted edge, in a BTreeMap for determinism.
+            let mut mid = std::collections::BTreeMap::new();
+            let mut midpoint = |a: u32, b: u32, verts: &mut Vec<Vec3>| -> u32 {
+                *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                    verts.push(((verts[a as usize] + verts[b as usize]) * 0.5).normalize());
+                    verts.len() as u32 - 1
+                })
+            };
+            let mut next = Vec::with_capacity(faces.len() * 4);
+            for &[a, b, c] in &faces {
+                let ab = midpoint(a, b, &mut verts);
+                let bc = midpoint(b, c, &mut verts);
+                let ca = midpoint(c, a, &mut verts);
+                next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+            }
+            faces = next;
+        }
+        Geometry {
+            positions: verts.iter().map(|&n| center + n * radius).collect(),
+            normals: verts,
+            indices: faces,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cuboid_faces_point_outward() {
+        let g = Geometry::cuboid(Vec3::ZERO, Vec3::ONE);
+        assert_eq!((g.positions.len(), g.indices.len()), (24, 12));
+        for &[a, b, c] in &g.indices {
+            let (pa, pb, pc) = (
+                g.positions[a as usize],
+                g.positions[b as usize],
+                g.positions[c as usize],
+            );
+            let n = (pb - pa).cross(pc - pa);
+            let out = (pa + pb + pc) / 3.0 - Vec3::splat(0.5);
+            assert!(n.dot(out) > 0.0, "inward face");
+            assert!(n.normalize().dot(g.normals[a as usize]) > 0.999);
+        }
+    }
+
+    #[test]
+    fn icosphere_is_closed_and_outward() {
+        let g = Geometry::icosphere(Vec3::new(1.0, 2.0, 3.0), 2.0, 2);
+        assert_eq!(g.indices.len(), 320);
+        assert_eq!(g.positions.len(), 162); // V - E + F = 2
+        for &[a, b, c] in &g.indices {
+            let (pa, pb, pc) = (
+                g.positions[a as usize],
+                g.positions[b as usize],
+                g.positions[c as usize],
+            );
+            let n = (pb - pa).cross(pc - pa);
+            assert!(n.dot(pa - Vec3::new(1.0, 2.0, 3.0)) > 0.0);
+        }
+        for p in &g.positions {
+            assert!((p.distance(Vec3::new(1.0, 2.0, 3.0)) - 2.0).abs() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn unknown_builtin_lists_the_names() {
+        let e = build("nope").unwrap_err().to_string();
+        assert!(
+            e.contains("cornell-mirrors") && e.contains("office-boxes"),
+            "{e}"
+        );
+    }
+}
