@@ -352,3 +352,224 @@ impl RayGen<Cpu> for Whitted {
         self.rays(surfaces, kind)
     }
 }
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crsh_core::{Aabb, ParamValue, Sphere, NO_HIT};
+    use crsh_scene::{Camera, Light, Material, Mesh};
+
+    /// A one-quad scene (the square `[-1, 1]²` at z = 0, normal +z) assembled field by field,
+    /// with the given materials (the quad uses material 0) and lights.
+    pub(crate) fn quad_scene(materials: Vec<Material>, lights: Vec<Light>) -> Arc<Scene> {
+        let positions = vec![
+            Vec3::new(-1.0, -1.0, 0.0),
+            Vec3::new(1.0, -1.0, 0.0),
+            Vec3::new(1.0, 1.0, 0.0),
+            Vec3::new(-1.0, 1.0, 0.0),
+        ];
+        let bounds = Aabb::from_points(positions.iter().copied());
+        let sphere = Sphere::new(Vec3::ZERO, 2f32.sqrt());
+        Arc::new(Scene {
+            name: "quad".into(),
+            normals: vec![Vec3::Z; 4],
+            indices: vec![[0, 1, 2], [0, 2, 3]],
+            tri_mesh: vec![0, 0],
+            tri_material: vec![0, 0],
+            tri_spheres: vec![sphere; 2],
+            meshes: vec![Mesh {
+                name: "quad".into(),
+                first_tri: 0,
+                tri_count: 2,
+                sphere,
+                aabb: bounds,
+            }],
+            materials,
+            lights,
+            camera: Camera {
+                eye: Vec3::new(0.0, 0.0, 5.0),
+                target: Vec3::ZERO,
+                up: Vec3::Y,
+                vfov_deg: 45.0,
+                aspect: None,
+            },
+            bounds,
+            degenerate_triangles: 0,
+            positions,
+        })
+    }
+
+    pub(crate) fn light(position: Vec3) -> Light {
+        Light {
+            position,
+            color: Vec3::ONE,
+            intensity: 1.0,
+            attenuation: [1.0, 0.0, 0.0],
+        }
+    }
+
+    /// A front-facing surface record on the quad at `p`, seen along -z.
+    pub(crate) fn surface(p: Vec3, pixel: u32, material: u32) -> Surface {
+        Surface {
+            position: p,
+            tri: 0,
+            normal: Vec3::Z,
+            material,
+            incident: -Vec3::Z,
+            pixel,
+            throughput: Vec3::ONE,
+            depth: 0,
+            geo_normal: Vec3::Z,
+            flags: Surface::FRONT_FACE,
+        }
+    }
+
+    fn spec(params: &[(&str, ParamValue)]) -> StageSpec {
+        let mut s = StageSpec::new("whitted");
+        s.params
+            .insert("shadow_origin".into(), ParamValue::Str("light".into()));
+        s.params
+            .insert("cull_backfacing".into(), ParamValue::Bool(true));
+        s.params
+            .insert("min_throughput".into(), ParamValue::Float(1e-3));
+        s.params.insert("epsilon".into(), ParamValue::Float(1e-5));
+        for (k, v) in params {
+            s.params.insert(k.to_string(), v.clone());
+        }
+        s
+    }
+
+    fn mirror(reflectivity: f32, transparency: f32) -> Material {
+        Material {
+            reflectivity,
+            transparency,
+            ior: 1.5,
+            ..Material::default()
+        }
+    }
+
+    #[test]
+    fn shadow_rays_are_compacted_in_surface_then_light_order() {
+        let lights = vec![
+            light(Vec3::new(0.0, 0.0, 2.0)),
+            light(Vec3::new(0.0, 0.0, -2.0)), // behind the quad: culled
+            light(Vec3::new(1.0, 1.0, 3.0)),
+        ];
+        let scene = quad_scene(vec![Material::default()], lights);
+        let g = Whitted::new(&scene, &spec(&[])).unwrap();
+        let mut bg = Surface::background(1, -Vec3::Z, Vec3::ONE, 0);
+        bg.material = 99; // ignored: background records spawn nothing
+        let surfaces = [
+            surface(Vec3::ZERO, 0, 0),
+            bg,
+            surface(Vec3::new(0.5, 0.5, 0.0), 2, 0),
+        ];
+        let rays = g.rays(&surfaces, RayKind::Shadow).unwrap();
+        let ids: Vec<(u32, u32, u32)> = rays.iter().map(|r| (r.source, r.light, r.pixel)).collect();
+        assert_eq!(ids, vec![(0, 0, 0), (0, 2, 0), (2, 0, 2), (2, 2, 2)]);
+        for r in &rays {
+            assert_eq!(r.ray_kind(), RayKind::Shadow);
+            assert_eq!(r.depth, 1);
+            assert!((r.dir.length() - 1.0).abs() < 1e-6);
+            assert_eq!(r.origin, scene.lights[r.light as usize].position);
+        }
+        // Without culling the light behind the quad gets its ray too.
+        let g = Whitted::new(
+            &scene,
+            &spec(&[("cull_backfacing", ParamValue::Bool(false))]),
+        )
+        .unwrap();
+        let rays = g.rays(&surfaces, RayKind::Shadow).unwrap();
+        assert_eq!(rays.len(), 6);
+        // Its surface end point is offset to the light's side (below the quad).
+        let r = rays.iter().find(|r| r.light == 1 && r.source == 0).unwrap();
+        assert!(r.at(r.t_max).z < 0.0);
+    }
+
+    #[test]
+    fn both_shadow_conventions_test_the_same_segment() {
+        let scene = quad_scene(
+            vec![Material::default()],
+            vec![light(Vec3::new(0.3, -0.4, 1.2))],
+        );
+        let s = [surface(Vec3::new(0.1, 0.2, 0.0), 0, 0)];
+        let a = Whitted::new(&scene, &spec(&[]))
+            .unwrap()
+            .rays(&s, RayKind::Shadow)
+            .unwrap()[0];
+        let b = Whitted::new(
+            &scene,
+            &spec(&[("shadow_origin", ParamValue::Str("surface".into()))]),
+        )
+        .unwrap()
+        .rays(&s, RayKind::Shadow)
+        .unwrap()[0];
+        assert!((a.at(a.t_min) - b.at(b.t_max)).length() < 1e-6);
+        assert!((a.at(a.t_max) - b.at(b.t_min)).length() < 1e-6);
+        assert!((a.dir + b.dir).length() < 1e-6);
+    }
+
+    #[test]
+    fn throughput_culling_and_weights() {
+        let lights = vec![light(Vec3::new(0.0, 0.0, 2.0))];
+        let mats = vec![mirror(1.0, 0.0), mirror(0.5, 0.3), mirror(0.0005, 0.0)];
+        let scene = quad_scene(mats, lights);
+        let g = Whitted::new(&scene, &spec(&[])).unwrap();
+        let s = [
+            surface(Vec3::ZERO, 0, 0),
+            surface(Vec3::ZERO, 1, 1),
+            surface(Vec3::ZERO, 2, 2),
+        ];
+        // A perfect mirror has no local weight: no shadow ray.
+        let shadow = g.rays(&s, RayKind::Shadow).unwrap();
+        assert_eq!(
+            shadow.iter().map(|r| r.source).collect::<Vec<_>>(),
+            vec![1, 2]
+        );
+        assert!((shadow[0].throughput - Vec3::splat(0.2)).length() < 1e-6);
+        // Reflectivity 0.0005 is below min_throughput.
+        let refl = g.rays(&s, RayKind::Reflection).unwrap();
+        assert_eq!(
+            refl.iter().map(|r| r.source).collect::<Vec<_>>(),
+            vec![0, 1]
+        );
+        assert_eq!(refl[1].throughput, Vec3::splat(0.5));
+        let refr = g.rays(&s, RayKind::Refraction).unwrap();
+        assert_eq!(refr.len(), 1);
+        assert!((refr[0].throughput - Vec3::splat(0.3)).length() < 1e-6);
+        assert_eq!(refr[0].light, u32::MAX);
+        // Refraction rays leave below the surface, reflection rays above.
+        assert!(refr[0].origin.z < 0.0 && refl[0].origin.z > 0.0);
+        assert_eq!(refl[0].t_min, g.offset());
+        assert!((g.offset() - 1e-5 * 8f32.sqrt()).abs() < 1e-9);
+    }
+
+    #[test]
+    fn bad_input_is_an_error() {
+        let scene = quad_scene(vec![Material::default()], vec![light(Vec3::Z)]);
+        for bad in [
+            ("epsilon", ParamValue::Float(-1.0)),
+            ("epsilon", ParamValue::Float(0.5)),
+            ("min_throughput", ParamValue::Float(f64::NAN)),
+            ("shadow_origin", ParamValue::Str("moon".into())),
+            ("cull_backfacing", ParamValue::Int(1)),
+        ] {
+            assert!(
+                Whitted::new(&scene, &spec(std::slice::from_ref(&bad))).is_err(),
+                "{bad:?}"
+            );
+        }
+        let g = Whitted::new(&scene, &spec(&[])).unwrap();
+        let mut s = surface(Vec3::ZERO, 0, 0);
+        s.material = 7;
+        assert!(g.rays(&[s], RayKind::Shadow).is_err());
+        assert!(g.rays(&[], RayKind::Primary).is_err());
+        let glass = Material {
+            transparency: 1.0,
+            ior: 0.0,
+            ..Material::default()
+        };
+        assert!(Whitted::new(&quad_scene(vec![glass], vec![]), &spec(&[])).is_err());
+        assert_eq!(NO_HIT, Surface::background(0, Vec3::Z, Vec3::ONE, 0).tri);
+    }
+}

@@ -363,3 +363,182 @@ impl Shader<Cpu> for Phong {
         self.next_surfaces(rays, hits)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raygen::whitted::tests::{light, quad_scene, surface};
+    use crsh_core::{ParamValue, RayKind};
+    use crsh_scene::Material;
+
+    fn spec(ambient: f64, background: f64) -> StageSpec {
+        let mut s = StageSpec::new("phong");
+        s.params
+            .insert("ambient".into(), ParamValue::Float(ambient));
+        s.params
+            .insert("background".into(), ParamValue::Float(background));
+        s
+    }
+
+    fn shadow(source: u32, light: u32) -> Ray {
+        Ray {
+            origin: Vec3::ZERO,
+            t_min: 0.0,
+            dir: Vec3::Z,
+            t_max: 1.0,
+            throughput: Vec3::ONE,
+            kind: RayKind::Shadow as u32,
+            pixel: 0,
+            light,
+            depth: 1,
+            source,
+        }
+    }
+
+    const OCCLUDED: Hit = Hit {
+        t: 0.5,
+        tri: 1,
+        u: 0.0,
+        v: 0.0,
+    };
+
+    #[test]
+    fn visibility_comes_from_the_shadow_rays() {
+        let lights = vec![
+            light(Vec3::new(0.0, 0.0, 1.0)),
+            light(Vec3::new(0.0, 0.0, 2.0)),
+        ];
+        let mat = Material {
+            diffuse: Vec3::new(1.0, 0.5, 0.25),
+            ..Material::default()
+        };
+        let scene = quad_scene(vec![mat], lights);
+        let sh = Phong::new(&scene, &spec(0.0, 0.0)).unwrap();
+        let s = [surface(Vec3::ZERO, 0, 0), surface(Vec3::ZERO, 1, 0)];
+        let mut img = vec![[0.0f32; 4]; 3];
+        // Surface 0 sees light 0 only (light 1 occluded); surface 1 has no shadow rays at all.
+        let rays = [shadow(0, 0), shadow(0, 1)];
+        sh.shade(&s, &rays, &[Hit::MISS, OCCLUDED], &mut img)
+            .unwrap();
+        // Head-on, distance 1, no attenuation: the diffuse colour exactly.
+        assert_eq!(img[0], [1.0, 0.5, 0.25, 1.0]);
+        assert_eq!(img[1], [0.0, 0.0, 0.0, 1.0]);
+        assert_eq!(img[2], [0.0; 4]);
+        // Accumulates across calls.
+        sh.shade(&s[..1], &rays[..1], &[Hit::MISS], &mut img)
+            .unwrap();
+        assert_eq!(img[0], [2.0, 1.0, 0.5, 1.0]);
+    }
+
+    #[test]
+    fn ambient_background_and_local_weight() {
+        let mat = Material {
+            diffuse: Vec3::new(0.8, 0.4, 0.2),
+            reflectivity: 0.25,
+            transparency: 0.25,
+            ..Material::default()
+        };
+        let scene = quad_scene(vec![mat], vec![]);
+        let sh = Phong::new(&scene, &spec(0.5, 0.25)).unwrap();
+        let mut s = surface(Vec3::ZERO, 0, 0);
+        s.throughput = Vec3::new(1.0, 0.5, 2.0);
+        let bg = Surface::background(1, Vec3::Z, Vec3::new(0.5, 1.0, 2.0), 1);
+        let mut img = vec![[0.0f32; 4]; 2];
+        sh.shade(&[s, bg], &[], &[], &mut img).unwrap();
+        // ambient · diffuse · local weight (0.5) · throughput
+        assert_eq!(img[0], [0.2, 0.05, 0.1, 1.0]);
+        assert_eq!(img[1], [0.125, 0.25, 0.5, 1.0]);
+    }
+
+    #[test]
+    fn light_behind_the_geometric_normal_lights_nothing() {
+        let m = Material {
+            specular: Vec3::ONE,
+            shininess: 4.0,
+            ..Material::default()
+        };
+        let l = light(Vec3::new(0.0, 0.0, -1.0));
+        let c = phong_light(
+            Vec3::ZERO,
+            Vec3::Z,
+            Vec3::Z,
+            -Vec3::Z,
+            m.diffuse,
+            m.specular,
+            4.0,
+            &l,
+        );
+        assert_eq!(c, Vec3::ZERO);
+        // In front of the face but behind a tilted shading normal: no diffuse, no highlight.
+        let l = light(Vec3::new(1.0, 0.0, 0.1));
+        let n = Vec3::new(-1.0, 0.0, 0.2).normalize();
+        let c = phong_light(
+            Vec3::ZERO,
+            n,
+            Vec3::Z,
+            -Vec3::Z,
+            m.diffuse,
+            m.specular,
+            4.0,
+            &l,
+        );
+        assert_eq!(c, Vec3::ZERO);
+    }
+
+    #[test]
+    fn bad_input_is_an_error() {
+        let scene = quad_scene(vec![Material::default()], vec![light(Vec3::Z)]);
+        assert!(Phong::new(&scene, &spec(-0.1, 0.0)).is_err());
+        assert!(Phong::new(&scene, &spec(0.0, f64::INFINITY)).is_err());
+        let sh = Phong::new(&scene, &spec(0.0, 0.0)).unwrap();
+        let s = [surface(Vec3::ZERO, 0, 0)];
+        let mut img = vec![[0.0f32; 4]; 1];
+        assert!(sh.shade(&s, &[shadow(0, 0)], &[], &mut img).is_err());
+        assert!(sh
+            .shade(&s, &[shadow(1, 0)], &[Hit::MISS], &mut img)
+            .is_err());
+        assert!(sh
+            .shade(&s, &[shadow(0, 3)], &[Hit::MISS], &mut img)
+            .is_err());
+        assert!(sh
+            .shade(&[surface(Vec3::ZERO, 5, 0)], &[], &[], &mut img)
+            .is_err());
+        let bad_hit = Hit {
+            t: 1.0,
+            tri: 9,
+            u: 0.0,
+            v: 0.0,
+        };
+        assert!(sh.next_surfaces(&[shadow(0, 0)], &[bad_hit]).is_err());
+        assert!(sh.next_surfaces(&[shadow(0, 0)], &[]).is_err());
+    }
+
+    #[test]
+    fn resolve_keeps_pixel_throughput_and_depth() {
+        let scene = quad_scene(vec![Material::default()], vec![]);
+        let sh = Phong::new(&scene, &spec(0.0, 0.0)).unwrap();
+        let mut r = shadow(0, u32::MAX);
+        r.kind = RayKind::Reflection as u32;
+        r.origin = Vec3::new(0.25, -0.5, 1.0);
+        r.dir = -Vec3::Z;
+        r.pixel = 42;
+        r.depth = 2;
+        r.throughput = Vec3::new(0.5, 0.25, 0.125);
+        // Triangle 0 is (-1,-1), (1,-1), (1,1): the point (0.25, -0.5) has u = 0.375, v = 0.25.
+        let hit = Hit {
+            t: 1.0,
+            tri: 0,
+            u: 0.375,
+            v: 0.25,
+        };
+        let out = sh.next_surfaces(&[r, r], &[hit, Hit::MISS]).unwrap();
+        assert_eq!(out[0].position, Vec3::new(0.25, -0.5, 0.0));
+        assert_eq!(out[0].normal, Vec3::Z);
+        assert!(out[0].front_face());
+        assert!(!out[1].is_hit());
+        for s in &out {
+            assert_eq!((s.pixel, s.depth, s.throughput), (42, 2, r.throughput));
+            assert_eq!(s.incident, -Vec3::Z);
+        }
+    }
+}
