@@ -1,0 +1,750 @@
+//! `brute`: every ray against every triangle, the exact reference intersector.
+//!
+//! # Scene queries
+//!
+//! Rays are processed in packets of [`PACKET`] (rayon over packets); each packet sweeps the
+//! scene's triangles in [`TriangleBlock`]s of [`LANES`], so a block is loaded once per packet
+//! rather than once per ray, and the per-lane Möller-Trumbore of [`crate::triangle`] vectorizes.
+//! Nothing is allocated per ray. Each ray's result depends only on the ray and the scene, so
+//! the output is the same for any thread count.
+//!
+//! - [`HitMode::Closest`]: every triangle is tested; a hit replaces the stored one when
+//!   [`Hit::closer_than`] says so (smaller `t`, then lower triangle id), so the answer does not
+//!   depend on the order of the tests. Counts `triangles` tests per ray.
+//! - [`HitMode::Any`]: a ray whose stored hit is already a hit is skipped (0 tests). Otherwise
+//!   the sweep stops after the first block with a hit and stores that block's lowest-id hit;
+//!   the count is the tests actually computed: all lanes of every block swept, i.e.
+//!   `min(LANES·blocks_swept, triangles)` (padding lanes of the last block are not counted).
+//!
+//! # Candidate queries
+//!
+//! [`Query::Candidates`] tests only the listed (node, triangle) pairs: node `n` of
+//! `hierarchy.levels[0]` covers the leaves `n·subdivision .. min((n+1)·subdivision, rays)`,
+//! whose rays are `hierarchy.order[leaf]`. Pairs are sorted and de-duplicated first, so the
+//! result does not depend on their order; per ray the triangles are tested in increasing id
+//! order with the same merge rules as above (any-hit: the lowest-id hit, stop at the first).
+//! Each (ray, triangle) test performed is counted.
+//!
+//! # Errors
+//!
+//! [`CoreError::InvalidInput`] when `hits` and `rays` differ in length, a ray is not valid
+//! ([`Ray::is_valid`]: NaN / infinite origin or direction, zero direction, NaN interval), or
+//! a candidate batch is inconsistent (node or triangle out of range, `order` not a
+//! permutation of the rays, zero subdivision, no level).
+
+use std::sync::Arc;
+
+use crsh_core::{
+    Candidate, CoreError, Hit, HitMode, Intersector, Query, Ray, RayHierarchy, Result, StageSpec,
+    Stats,
+};
+use crsh_scene::Scene;
+use rayon::prelude::*;
+
+use crate::backend::Cpu;
+use crate::triangle::{RayPre, TriangleSet, LANES};
+
+#[cfg(doc)]
+use crate::triangle::TriangleBlock;
+
+/// Rays per packet in scene queries.
+pub const PACKET: usize = 16;
+
+/// The brute-force intersector (variant `brute`, no parameters).
+#[derive(Clone, Debug)]
+pub struct BruteForce {
+    tris: TriangleSet,
+}
+
+impl BruteForce {
+    /// Prepares the triangles of `scene`. `spec` has no parameters to read.
+    pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<BruteForce, CoreError> {
+        let _ = spec;
+        Ok(BruteForce::from_scene(scene))
+    }
+
+    /// Prepares the triangles of `scene`.
+    pub fn from_scene(scene: &Scene) -> BruteForce {
+        BruteForce {
+            tris: TriangleSet::new(scene),
+        }
+    }
+
+    /// The prepared triangles.
+    pub fn triangles(&self) -> &TriangleSet {
+        &self.tris
+    }
+
+    /// Scene query for one packet (`rays.len() <= PACKET`); returns the tests performed.
+    fn scene_packet(&self, rays: &[Ray], hits: &mut [Hit], mode: HitMode) -> u64 {
+        let n = self.tris.len();
+        let blocks = self.tris.blocks();
+        let mut pre = [RayPre::new(Default::default(), Default::default()); PACKET];
+        let mut best = [Hit::MISS; PACKET];
+        let mut active = [false; PACKET];
+        let count = rays.len();
+        for i in 0..count {
+            pre[i] = RayPre::of(&rays[i]);
+            best[i] = hits[i];
+            active[i] = mode == HitMode::Closest || !hits[i].is_hit();
+        }
+        let mut tests = 0u64;
+        match mode {
+            HitMode::Closest => {
+                for (k, block) in blocks.iter().enumerate() {
+                    for i in 0..count {
+                        let bh = block.test(&pre[i], rays[i].t_min, rays[i].t_max);
+                        let m = bh.t.iter().fold(f32::INFINITY, |a, &b| a.min(b));
+                        if m < f32::INFINITY && m <= best[i].t {
+                            for l in 0..LANES {
+                                let cand = Hit {
+                                    t: bh.t[l],
+                                    tri: (k * LANES + l) as u32,
+                                    u: bh.u[l],
+                                    v: bh.v[l],
+                                };
+                                if cand.t < f32::INFINITY && cand.closer_than(&best[i]) {
+                                    best[i] = cand;
+                                }
+                            }
+                        }
+                    }
+                }
+                tests = (n * count) as u64;
+            }
+            HitMode::Any => {
+                let mut remaining = active[..count].iter().filter(|&&a| a).count();
+                for (k, block) in blocks.iter().enumerate() {
+                    if remaining == 0 {
+                        break;
+                    }
+                    for i in 0..count {
+                        if !active[i] {
+                            continue;
+                        }
+                        let bh = block.test(&pre[i], rays[i].t_min, rays[i].t_max);
+                        if let Some(l) = (0..LANES).find(|&l| bh.t[l] < f32::INFINITY) {
+                            best[i] = Hit {
+                                t: bh.t[l],
+                                tri: (k * LANES + l) as u32,
+                                u: bh.u[l],
+                                v: bh.v[l],
+                            };
+                            active[i] = false;
+                            remaining -= 1;
+                            tests += ((k + 1) * LANES).min(n) as u64;
+                        }
+                    }
+                }
+                tests += (remaining * n) as u64;
+            }
+        }
+        hits[..count].copy_from_slice(&best[..count]);
+        tests
+    }
+
+    /// Candidate query: see the module doc.
+    fn candidates(
+        &self,
+        rays: &[Ray],
+        hierarchy: &RayHierarchy<Cpu>,
+        pairs: &[Candidate],
+        mode: HitMode,
+        hits: &mut [Hit],
+    ) -> Result<u64> {
+        if pairs.is_empty() {
+            return Ok(0);
+        }
+        let n_rays = rays.len();
+        let sub = hierarchy.subdivision as usize;
+        if sub == 0 {
+            return Err(CoreError::InvalidInput("hierarchy subdivision is 0".into()));
+        }
+        let Some(level0) = hierarchy.levels.first() else {
+            return Err(CoreError::InvalidInput("hierarchy has no levels".into()));
+        };
+        let order = &hierarchy.order;
+        check_permutation(order, n_rays)?;
+        let n_nodes = level0.len();
+        let n_tris = self.tris.len();
+        if let Some(bad) = pairs
+            .par_iter()
+            .find_first(|c| c.node as usize >= n_nodes || c.tri as usize >= n_tris)
+        {
+            return Err(CoreError::InvalidInput(format!(
+                "candidate (node {}, triangle {}) out of range ({} nodes, {} triangles)",
+                bad.node, bad.tri, n_nodes, n_tris
+            )));
+        }
+        let mut sorted = pairs.to_vec();
+        sorted.par_sort_unstable();
+        sorted.dedup();
+
+        // Active nodes: (node, first pair, end pair, first leaf, leaf count).
+        let mut groups: Vec<(usize, usize, usize, usize)> = Vec::new();
+        let mut start = 0;
+        while start < sorted.len() {
+            let node = sorted[start].node as usize;
+            let mut end = start + 1;
+            while end < sorted.len() && sorted[end].node as usize == node {
+                end += 1;
+            }
+            let first_leaf = (node * sub).min(n_rays);
+            let leaves = ((node + 1) * sub).min(n_rays) - first_leaf;
+            if leaves > 0 {
+                groups.push((start, end, first_leaf, leaves));
+            }
+            start = end;
+        }
+        // Gather the current hits of the active nodes' rays into one buffer, split per node.
+        let mut local: Vec<Hit> = groups
+            .iter()
+            .flat_map(|&(_, _, first, leaves)| {
+                order[first..first + leaves]
+                    .iter()
+                    .map(|&r| hits[r as usize])
+            })
+            .collect();
+        let mut slices: Vec<&mut [Hit]> = Vec::with_capacity(groups.len());
+        let mut rest: &mut [Hit] = &mut local;
+        for &(_, _, _, leaves) in &groups {
+            let (head, tail) = rest.split_at_mut(leaves);
+            slices.push(head);
+            rest = tail;
+        }
+        let tris = self.tris.triangles();
+        let tests: u64 = groups
+            .par_iter()
+            .zip(slices.into_par_iter())
+            .map(|(&(p0, p1, first, _), out)| {
+                let node_pairs = &sorted[p0..p1];
+                let mut tests = 0u64;
+                for (j, best) in out.iter_mut().enumerate() {
+                    let ray = &rays[order[first + j] as usize];
+                    if mode == HitMode::Any && best.is_hit() {
+                        continue;
+                    }
+                    let r = RayPre::of(ray);
+                    for c in node_pairs {
+                        tests += 1;
+                        if let Some(h) = tris[c.tri as usize].hit(&r, ray.t_min, ray.t_max, c.tri) {
+                            if mode == HitMode::Any {
+                                *best = h;
+                                break;
+                            }
+                            if h.closer_than(best) {
+                                *best = h;
+                            }
+                        }
+                    }
+                }
+                tests
+            })
+            .sum();
+        // Scatter back.
+        let mut k = 0;
+        for &(_, _, first, leaves) in &groups {
+            for &r in &order[first..first + leaves] {
+                hits[r as usize] = local[k];
+                k += 1;
+            }
+        }
+        Ok(tests)
+    }
+}
+
+/// Checks that `hits` matches `rays` and every ray is valid.
+pub(crate) fn check_batch(rays: &[Ray], hits: &[Hit]) -> Result<()> {
+    if rays.len() != hits.len() {
+        return Err(CoreError::InvalidInput(format!(
+            "{} rays but {} hit slots",
+            rays.len(),
+            hits.len()
+        )));
+    }
+    if let Some(i) = rays.par_iter().position_first(|r| !r.is_valid()) {
+        return Err(CoreError::InvalidInput(format!(
+            "ray {i} is not valid (non-finite or zero direction, or NaN interval): {:?}",
+            rays[i]
+        )));
+    }
+    Ok(())
+}
+
+/// Checks that `order` is a permutation of `0..n`.
+fn check_permutation(order: &[u32], n: usize) -> Result<()> {
+    if order.len() != n {
+        return Err(CoreError::InvalidInput(format!(
+            "hierarchy order has {} entries for {n} rays",
+            order.len()
+        )));
+    }
+    let mut seen = vec![false; n];
+    for &r in order {
+        let r = r as usize;
+        if r >= n || std::mem::replace(&mut seen[r], true) {
+            return Err(CoreError::InvalidInput(format!(
+                "hierarchy order is not a permutation of the rays (entry {r})"
+            )));
+        }
+    }
+    Ok(())
+}
+
+impl Intersector<Cpu> for BruteForce {
+    fn name(&self) -> &str {
+        "brute"
+    }
+
+    fn intersect(
+        &self,
+        _backend: &Cpu,
+        rays: &Vec<Ray>,
+        query: Query<'_, Cpu>,
+        mode: HitMode,
+        hits: &mut Vec<Hit>,
+        stats: &mut Stats,
+    ) -> Result<()> {
+        check_batch(rays, hits)?;
+        let tests = match query {
+            Query::Scene => rays
+                .par_chunks(PACKET)
+                .zip(hits.par_chunks_mut(PACKET))
+                .map(|(r, h)| self.scene_packet(r, h, mode))
+                .sum(),
+            Query::Candidates { hierarchy, batch } => {
+                self.candidates(rays, hierarchy, &batch.pairs, mode, hits)?
+            }
+        };
+        stats.add_ray_triangle(tests);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::surface::tests::raw_scene;
+    use crate::triangle::tests::TestRng;
+    use crsh_core::glam::Vec3;
+    use crsh_core::{CandidateBatch, RayKind, SphereCone};
+
+    /// A random triangle soup in `[-1, 1]³` with a few degenerate and duplicated triangles
+    /// (exact ties).
+    pub(crate) fn soup(seed: u64, n: usize) -> Scene {
+        let mut rng = TestRng(seed);
+        let mut positions = Vec::new();
+        let mut indices = Vec::new();
+        for i in 0..n {
+            let a = rng.vec3(-1.0, 1.0);
+            let size = if i % 10 == 0 { 0.8 } else { 0.25 };
+            let (b, c) = match i % 37 {
+                5 => (a, a + Vec3::X * 0.1),                 // degenerate
+                6 => (a + Vec3::Y * 0.1, a + Vec3::Y * 0.2), // collinear
+                _ => (a + rng.vec3(-size, size), a + rng.vec3(-size, size)),
+            };
+            let base = positions.len() as u32;
+            positions.extend([a, b, c]);
+            indices.push([base, base + 1, base + 2]);
+            if i % 23 == 0 {
+                // The same triangle again (reversed winding): exact t ties.
+                indices.push([base, base + 2, base + 1]);
+            }
+        }
+        let normals = vec![Vec3::Z; positions.len()];
+        raw_scene(positions, normals, indices)
+    }
+
+    /// Random rays: from outside, from on a surface (origin on a triangle, small `t_min`),
+    /// grazing along a triangle's plane, and short shadow-like segments.
+    pub(crate) fn random_rays(scene: &Scene, seed: u64, n: usize) -> Vec<Ray> {
+        let mut rng = TestRng(seed);
+        (0..n)
+            .map(|i| {
+                let tri = scene.triangle(rng.next_u64() as usize % scene.triangle_count());
+                let (u, v) = (rng.f32() * 0.5, rng.f32() * 0.5);
+                let on = tri[0] + (tri[1] - tri[0]) * u + (tri[2] - tri[0]) * v;
+                let (origin, dir, t_min, t_max) = match i % 4 {
+                    0 => {
+                        let o = rng.vec3(-2.0, 2.0);
+                        (o, (on - o).normalize_or(Vec3::X), 0.0, f32::INFINITY)
+                    }
+                    1 => (on, rng.unit(), 1e-4, f32::INFINITY),
+                    2 => {
+                        let dir = (tri[1] - tri[0]).normalize_or(Vec3::X);
+                        (on - dir, dir, 0.0, f32::INFINITY)
+                    }
+                    _ => {
+                        let o = rng.vec3(-2.0, 2.0);
+                        let d = on - o;
+                        (
+                            o,
+                            d.normalize_or(Vec3::X),
+                            0.0,
+                            d.length() * rng.range(0.5, 1.5),
+                        )
+                    }
+                };
+                Ray {
+                    origin,
+                    t_min,
+                    dir,
+                    t_max,
+                    throughput: Vec3::ONE,
+                    kind: RayKind::Reflection as u32,
+                    pixel: i as u32,
+                    light: u32::MAX,
+                    depth: 1,
+                    source: i as u32,
+                }
+            })
+            .collect()
+    }
+
+    /// The obvious scalar reference: every triangle, one at a time.
+    fn naive(set: &TriangleSet, ray: &Ray, mode: HitMode) -> Hit {
+        let r = RayPre::of(ray);
+        let mut best = Hit::MISS;
+        for (i, t) in set.triangles().iter().enumerate() {
+            if let Some(h) = t.hit(&r, ray.t_min, ray.t_max, i as u32) {
+                if mode == HitMode::Any {
+                    return h;
+                }
+                if h.closer_than(&best) {
+                    best = h;
+                }
+            }
+        }
+        best
+    }
+
+    fn run(b: &BruteForce, rays: &Vec<Ray>, q: Query<'_, Cpu>, mode: HitMode) -> (Vec<Hit>, Stats) {
+        let mut hits = vec![Hit::MISS; rays.len()];
+        let mut stats = Stats::default();
+        b.intersect(&Cpu, rays, q, mode, &mut hits, &mut stats)
+            .unwrap();
+        (hits, stats)
+    }
+
+    #[test]
+    fn scene_query_matches_naive_loop() {
+        let scene = soup(1, 300);
+        let b = BruteForce::from_scene(&scene);
+        let rays = random_rays(&scene, 2, 403);
+        let (closest, stats) = run(&b, &rays, Query::Scene, HitMode::Closest);
+        assert_eq!(
+            stats.tests.ray_triangle,
+            (rays.len() * b.triangles().len()) as u64
+        );
+        let mut n_hits = 0;
+        for (ray, h) in rays.iter().zip(&closest) {
+            let want = naive(&b.tris, ray, HitMode::Closest);
+            assert_eq!(h, &want);
+            n_hits += h.is_hit() as usize;
+        }
+        assert!(n_hits > rays.len() / 3, "{n_hits}");
+        let (any, stats) = run(&b, &rays, Query::Scene, HitMode::Any);
+        for (ray, h) in rays.iter().zip(&any) {
+            let want = naive(&b.tris, ray, HitMode::Any);
+            // Both report the lowest-id hit (the first block with a hit, its lowest lane).
+            assert_eq!(h, &want);
+        }
+        assert!(stats.tests.ray_triangle < (rays.len() * b.triangles().len()) as u64);
+    }
+
+    #[test]
+    fn ties_go_to_the_lower_id() {
+        // Two copies of one quad: every hit is a tie.
+        let p = vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::new(1.0, 1.0, 0.0)];
+        let scene = raw_scene(
+            p.clone(),
+            vec![Vec3::Z; 4],
+            vec![[3, 2, 1], [0, 1, 2], [1, 2, 3], [0, 1, 2]],
+        );
+        let b = BruteForce::from_scene(&scene);
+        let ray = |x: f32, y: f32| Ray {
+            origin: Vec3::new(x, y, 1.0),
+            t_min: 0.0,
+            dir: -Vec3::Z,
+            t_max: f32::INFINITY,
+            throughput: Vec3::ONE,
+            kind: 0,
+            pixel: 0,
+            light: u32::MAX,
+            depth: 0,
+            source: 0,
+        };
+        let rays = vec![ray(0.2, 0.2), ray(0.8, 0.8)];
+        let (hits, _) = run(&b, &rays, Query::Scene, HitMode::Closest);
+        assert_eq!(hits[0].tri, 1);
+        assert_eq!(hits[1].tri, 0);
+    }
+
+    #[test]
+    fn merges_into_existing_hits() {
+        let scene = soup(4, 100);
+        let b = BruteForce::from_scene(&scene);
+        let rays = random_rays(&scene, 5, 64);
+        let (fresh, _) = run(&b, &rays, Query::Scene, HitMode::Closest);
+        // A stored hit closer than anything: kept.
+        let mut hits = vec![
+            Hit {
+                t: -1.0,
+                tri: 12345,
+                u: 0.0,
+                v: 0.0
+            };
+            rays.len()
+        ];
+        b.intersect(
+            &Cpu,
+            &rays,
+            Query::Scene,
+            HitMode::Closest,
+            &mut hits,
+            &mut Stats::default(),
+        )
+        .unwrap();
+        assert!(hits.iter().all(|h| h.tri == 12345));
+        // Any-hit: rays already hit are skipped and cost nothing.
+        let mut hits = fresh.clone();
+        let mut stats = Stats::default();
+        b.intersect(
+            &Cpu,
+            &rays,
+            Query::Scene,
+            HitMode::Any,
+            &mut hits,
+            &mut stats,
+        )
+        .unwrap();
+        assert_eq!(hits, fresh);
+        let misses = fresh.iter().filter(|h| !h.is_hit()).count();
+        assert_eq!(
+            stats.tests.ray_triangle,
+            (misses * b.triangles().len()) as u64
+        );
+    }
+
+    fn hierarchy(order: Vec<u32>, sub: u32) -> RayHierarchy<Cpu> {
+        let nodes = order.len().div_ceil(sub as usize);
+        RayHierarchy {
+            order,
+            levels: vec![vec![<SphereCone as bytemuck::Zeroable>::zeroed(); nodes]],
+            subdivision: sub,
+        }
+    }
+
+    #[test]
+    fn candidates_with_all_pairs_equal_scene_query() {
+        let scene = soup(6, 120);
+        let b = BruteForce::from_scene(&scene);
+        let rays = random_rays(&scene, 7, 101);
+        let mut rng = TestRng(8);
+        // A shuffled order and subdivision 4 (the last node is partial).
+        let mut order: Vec<u32> = (0..rays.len() as u32).collect();
+        for i in (1..order.len()).rev() {
+            order.swap(i, rng.next_u64() as usize % (i + 1));
+        }
+        let h = hierarchy(order, 4);
+        let nodes = h.levels[0].len() as u32;
+        let mut pairs: Vec<Candidate> = (0..nodes)
+            .flat_map(|node| {
+                (0..b.triangles().len() as u32).map(move |tri| Candidate { node, tri })
+            })
+            .collect();
+        // Shuffle the pairs and split them into two batches: same result.
+        for i in (1..pairs.len()).rev() {
+            pairs.swap(i, rng.next_u64() as usize % (i + 1));
+        }
+        let half = pairs.len() / 2;
+        for mode in [HitMode::Closest, HitMode::Any] {
+            let (want, _) = run(&b, &rays, Query::Scene, mode);
+            let mut hits = vec![Hit::MISS; rays.len()];
+            let mut stats = Stats::default();
+            for part in [&pairs[..half], &pairs[half..]] {
+                let batch = CandidateBatch::<Cpu> {
+                    pairs: part.to_vec(),
+                };
+                let q = Query::Candidates {
+                    hierarchy: &h,
+                    batch: &batch,
+                };
+                b.intersect(&Cpu, &rays, q, mode, &mut hits, &mut stats)
+                    .unwrap();
+            }
+            match mode {
+                HitMode::Closest => {
+                    assert_eq!(hits, want);
+                    assert_eq!(
+                        stats.tests.ray_triangle,
+                        (rays.len() * b.triangles().len()) as u64
+                    );
+                }
+                HitMode::Any => {
+                    for (g, w) in hits.iter().zip(&want) {
+                        assert_eq!(g.is_hit(), w.is_hit());
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn candidates_test_only_listed_pairs() {
+        let scene = soup(9, 50);
+        let b = BruteForce::from_scene(&scene);
+        let rays = random_rays(&scene, 10, 20);
+        let h = hierarchy((0..20).rev().collect(), 8);
+        // Node 2 covers leaves 16..20, i.e. rays 3, 2, 1, 0.
+        let pairs = vec![
+            Candidate { node: 2, tri: 7 },
+            Candidate { node: 2, tri: 3 },
+            Candidate { node: 2, tri: 7 },
+        ];
+        let batch = CandidateBatch::<Cpu> { pairs };
+        let mut hits = vec![Hit::MISS; rays.len()];
+        let mut stats = Stats::default();
+        b.intersect(
+            &Cpu,
+            &rays,
+            Query::Candidates {
+                hierarchy: &h,
+                batch: &batch,
+            },
+            HitMode::Closest,
+            &mut hits,
+            &mut stats,
+        )
+        .unwrap();
+        assert_eq!(stats.tests.ray_triangle, 8, "4 rays x 2 distinct triangles");
+        for (i, (ray, hit)) in rays.iter().zip(&hits).enumerate() {
+            let r = RayPre::of(ray);
+            let mut want = Hit::MISS;
+            if i < 4 {
+                for tri in [3u32, 7] {
+                    if let Some(x) =
+                        b.tris.triangles()[tri as usize].hit(&r, ray.t_min, ray.t_max, tri)
+                    {
+                        if x.closer_than(&want) {
+                            want = x;
+                        }
+                    }
+                }
+            }
+            assert_eq!(hit, &want, "ray {i}");
+        }
+    }
+
+    #[test]
+    fn bad_input_is_an_error() {
+        let scene = soup(11, 10);
+        let b = BruteForce::from_scene(&scene);
+        let mut rays = random_rays(&scene, 12, 8);
+        let mut hits = vec![Hit::MISS; 7];
+        assert!(b
+            .intersect(
+                &Cpu,
+                &rays,
+                Query::Scene,
+                HitMode::Closest,
+                &mut hits,
+                &mut Stats::default()
+            )
+            .is_err());
+        let mut hits = vec![Hit::MISS; 8];
+        rays[3].dir = Vec3::new(f32::NAN, 0.0, 1.0);
+        assert!(b
+            .intersect(
+                &Cpu,
+                &rays,
+                Query::Scene,
+                HitMode::Closest,
+                &mut hits,
+                &mut Stats::default()
+            )
+            .is_err());
+        rays[3].dir = Vec3::ZERO;
+        assert!(b
+            .intersect(
+                &Cpu,
+                &rays,
+                Query::Scene,
+                HitMode::Any,
+                &mut hits,
+                &mut Stats::default()
+            )
+            .is_err());
+        let rays = random_rays(&scene, 12, 8);
+        let cases: Vec<(RayHierarchy<Cpu>, Vec<Candidate>)> = vec![
+            (
+                hierarchy((0..8).collect(), 4),
+                vec![Candidate { node: 2, tri: 0 }],
+            ),
+            (
+                hierarchy((0..8).collect(), 4),
+                vec![Candidate { node: 0, tri: 99 }],
+            ),
+            (
+                hierarchy(vec![0, 1, 2, 3, 4, 5, 6, 6], 4),
+                vec![Candidate { node: 0, tri: 0 }],
+            ),
+            (
+                hierarchy((0..7).collect(), 4),
+                vec![Candidate { node: 0, tri: 0 }],
+            ),
+            (
+                RayHierarchy {
+                    order: (0..8).collect(),
+                    levels: vec![],
+                    subdivision: 4,
+                },
+                vec![Candidate { node: 0, tri: 0 }],
+            ),
+            (
+                RayHierarchy {
+                    order: (0..8).collect(),
+                    levels: vec![vec![<SphereCone as bytemuck::Zeroable>::zeroed(); 2]],
+                    subdivision: 0,
+                },
+                vec![Candidate { node: 0, tri: 0 }],
+            ),
+        ];
+        for (h, pairs) in cases {
+            let batch = CandidateBatch::<Cpu> { pairs };
+            let r = b.intersect(
+                &Cpu,
+                &rays,
+                Query::Candidates {
+                    hierarchy: &h,
+                    batch: &batch,
+                },
+                HitMode::Closest,
+                &mut hits,
+                &mut Stats::default(),
+            );
+            assert!(matches!(r, Err(CoreError::InvalidInput(_))), "{r:?}");
+        }
+    }
+
+    #[test]
+    fn same_result_for_any_thread_count() {
+        let scene = soup(13, 200);
+        let b = BruteForce::from_scene(&scene);
+        let rays = random_rays(&scene, 14, 300);
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let three = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap();
+        for mode in [HitMode::Closest, HitMode::Any] {
+            let a = one.install(|| run(&b, &rays, Query::Scene, mode));
+            let c = three.install(|| run(&b, &rays, Query::Scene, mode));
+            assert_eq!(a.0, c.0);
+            assert_eq!(a.1.tests, c.1.tests);
+        }
+    }
+}
