@@ -405,6 +405,8 @@ pub struct SceneBuilder {
     camera: Option<Camera>,
     error: Option<(String, String)>,
     warnings: Vec<String>,
+    /// Lower limits `(triangles, vertices)` than the global ones (tests).
+    limits: Option<(usize, usize)>,
 }
 
 impl SceneBuilder {
@@ -492,22 +494,23 @@ impl SceneBuilder {
     ) -> &mut Self {
         let name = name.into();
         let label = format!("mesh '{}' (#{})", name, self.meshes.len());
-        if self.positions.len().saturating_add(positions.len()) > MAX_VERTICES {
+        let (max_tris, max_verts) = self.limits.unwrap_or((MAX_TRIANGLES, MAX_VERTICES));
+        if self.positions.len().saturating_add(positions.len()) > max_verts {
             self.fail(
                 label,
                 format!(
-                    "too many vertices: {} + {} exceeds the limit of {MAX_VERTICES}",
+                    "too many vertices: {} + {} exceeds the limit of {max_verts}",
                     self.positions.len(),
                     positions.len()
                 ),
             );
             return self;
         }
-        if self.indices.len().saturating_add(indices.len()) > MAX_TRIANGLES {
+        if self.indices.len().saturating_add(indices.len()) > max_tris {
             self.fail(
                 label,
                 format!(
-                    "too many triangles: {} + {} exceeds the limit of {MAX_TRIANGLES}",
+                    "too many triangles: {} + {} exceeds the limit of {max_tris}",
                     self.indices.len(),
                     indices.len()
                 ),
@@ -581,8 +584,8 @@ impl SceneBuilder {
     /// What is computed:
     /// - per-vertex unit normals: a supplied normal is kept (normalized) when finite and
     ///   non-zero; otherwise the area-weighted average of the incident triangles' normals (the
-    ///   sum of their unnormalized edge cross products); a vertex only in zero-area triangles
-    ///   gets `+z`;
+    ///   sum of their unnormalized edge cross products); where those cancel out, the normal
+    ///   of the largest incident triangle; a vertex only in zero-area triangles gets `+z`;
     /// - the minimal sphere of every triangle ([`bounding::triangle_sphere`]);
     /// - per mesh, the exact minimal sphere of the vertices its triangles use
     ///   ([`bounding::min_sphere`]) and their AABB; the scene bounds are the union;
@@ -743,6 +746,9 @@ fn compute_normals(
     // Sum of unnormalized cross products: |(b-a)×(c-a)| = 2·area, so the sum weights each
     // face normal by its area.
     let mut acc = vec![glam::DVec3::ZERO; positions.len()];
+    // Largest incident face (by area), for vertices whose face normals cancel out (the same
+    // triangle present twice with opposite winding, as in some scanned meshes).
+    let mut largest = vec![glam::DVec3::ZERO; positions.len()];
     for &[a, b, c] in indices {
         let (pa, pb, pc) = (
             positions[a as usize].as_dvec3(),
@@ -751,27 +757,36 @@ fn compute_normals(
         );
         let n = (pb - pa).cross(pc - pa);
         for v in [a, b, c] {
-            if missing[v as usize] {
-                acc[v as usize] += n;
+            let v = v as usize;
+            if missing[v] {
+                acc[v] += n;
+                if n.length_squared() > largest[v].length_squared() {
+                    largest[v] = n;
+                }
             }
         }
     }
-    let mut invented = 0usize;
+    let (mut cancelled, mut invented) = (0usize, 0usize);
     for (i, o) in out.iter_mut().enumerate() {
-        if missing[i] {
-            let n = acc[i].as_vec3();
-            *o = if n.is_finite() && n.length_squared() > 0.0 {
-                n.normalize()
-            } else {
-                let n = acc[i].normalize_or_zero().as_vec3();
-                if n != Vec3::ZERO {
-                    n
-                } else {
-                    invented += 1;
-                    Vec3::Z
-                }
-            };
+        if !missing[i] {
+            continue;
         }
+        let sum = acc[i].normalize_or_zero().as_vec3();
+        *o = if sum != Vec3::ZERO {
+            sum
+        } else if largest[i] != glam::DVec3::ZERO {
+            cancelled += 1;
+            largest[i].normalize().as_vec3()
+        } else {
+            invented += 1;
+            Vec3::Z
+        };
+    }
+    if cancelled > 0 {
+        warnings.push(format!(
+            "{cancelled} vertices have incident face normals that cancel out (faces repeated \
+             with opposite winding?); they take the normal of their largest face"
+        ));
     }
     if invented > 0 {
         warnings.push(format!(
@@ -779,4 +794,187 @@ fn compute_normals(
         ));
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn camera() -> Camera {
+        Camera {
+            eye: Vec3::new(0.0, 0.0, 5.0),
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            vfov_deg: 45.0,
+            aspect: None,
+        }
+    }
+
+    const TRI: [Vec3; 3] = [Vec3::ZERO, Vec3::X, Vec3::Y];
+
+    fn builder() -> SceneBuilder {
+        let mut b = SceneBuilder::new("t");
+        b.material(Material::default());
+        b.camera(camera());
+        b
+    }
+
+    fn err(b: SceneBuilder) -> String {
+        b.build("src.obj").unwrap_err().to_string()
+    }
+
+    #[test]
+    fn builds_a_valid_scene() {
+        let mut b = builder();
+        b.mesh("a", &TRI, None, &[[0, 1, 2]], 0);
+        b.mesh("b", &TRI.map(|p| p + Vec3::Z), None, &[[0, 2, 1]], 0);
+        let s = b.build("src.obj").unwrap();
+        assert_eq!(s.indices, vec![[0, 1, 2], [3, 5, 4]]);
+        assert_eq!(s.tri_mesh, vec![0, 1]);
+        assert_eq!(s.normals[0], Vec3::Z);
+        assert_eq!(s.normals[3], -Vec3::Z);
+        assert_eq!(s.bounds.max, Vec3::ONE);
+        assert_eq!(s.summary().triangles, 2);
+    }
+
+    #[test]
+    fn index_out_of_range_names_the_mesh() {
+        let mut b = builder();
+        b.mesh("ok", &TRI, None, &[[0, 1, 2]], 0);
+        b.mesh("broken", &TRI, None, &[[0, 1, 2], [0, 3, 1]], 0);
+        let e = err(b);
+        assert!(e.contains("src.obj") && e.contains("'broken' (#1)"), "{e}");
+        assert!(e.contains("triangle 1") && e.contains("vertex 3"), "{e}");
+    }
+
+    #[test]
+    fn non_finite_coordinates_name_the_mesh() {
+        let mut b = builder();
+        b.mesh(
+            "nan",
+            &[Vec3::ZERO, Vec3::new(f32::NAN, 0.0, 0.0), Vec3::Y],
+            None,
+            &[[0, 1, 2]],
+            0,
+        );
+        let e = err(b);
+        assert!(
+            e.contains("'nan'") && e.contains("vertex 1") && e.contains("non-finite"),
+            "{e}"
+        );
+        let mut b = builder();
+        b.mesh(
+            "inf",
+            &[Vec3::ZERO, Vec3::X, Vec3::splat(f32::INFINITY)],
+            None,
+            &[[0, 1, 2]],
+            0,
+        );
+        assert!(err(b).contains("vertex 2"));
+    }
+
+    #[test]
+    fn empty_scenes_and_missing_camera_are_errors() {
+        let e = err(builder());
+        assert!(e.contains("src.obj") && e.contains("no meshes"), "{e}");
+        let mut b = builder();
+        b.mesh("nothing", &TRI, None, &[], 0);
+        assert!(err(b).contains("no triangles"));
+        let mut b = SceneBuilder::new("t");
+        b.material(Material::default());
+        b.mesh("a", &TRI, None, &[[0, 1, 2]], 0);
+        assert!(err(b).contains("no camera"));
+    }
+
+    #[test]
+    fn material_ids_and_values_are_checked() {
+        let mut b = builder();
+        b.mesh("a", &TRI, None, &[[0, 1, 2]], 3);
+        let e = err(b);
+        assert!(e.contains("'a'") && e.contains("material id 3"), "{e}");
+        let mut b = builder();
+        b.material(Material {
+            name: "weird".into(),
+            reflectivity: f32::NAN,
+            ..Material::default()
+        });
+        b.mesh("a", &TRI, None, &[[0, 1, 2]], 0);
+        let e = err(b);
+        assert!(e.contains("'weird'") && e.contains("reflectivity"), "{e}");
+    }
+
+    #[test]
+    fn bad_camera_and_lights_are_errors() {
+        let mut b = builder();
+        b.mesh("a", &TRI, None, &[[0, 1, 2]], 0);
+        b.camera(Camera {
+            up: Vec3::Z,
+            ..camera()
+        });
+        assert!(err(b).contains("parallel"));
+        let mut b = builder();
+        b.mesh("a", &TRI, None, &[[0, 1, 2]], 0);
+        b.light(Light {
+            position: Vec3::ONE,
+            color: Vec3::ONE,
+            intensity: 1.0,
+            attenuation: [0.0, 0.0, 0.0],
+        });
+        let e = err(b);
+        assert!(e.contains("light #0") && e.contains("attenuation"), "{e}");
+    }
+
+    #[test]
+    fn normals_count_mismatch_is_an_error() {
+        let mut b = builder();
+        b.mesh("n", &TRI, Some(&[Vec3::Z]), &[[0, 1, 2]], 0);
+        let e = err(b);
+        assert!(
+            e.contains("'n'") && e.contains("1 normals given for 3 positions"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn absurd_sizes_are_rejected_without_copying() {
+        let mut b = builder();
+        b.limits = Some((4, 6));
+        b.mesh("a", &TRI, None, &[[0, 1, 2]; 3], 0);
+        b.mesh("b", &TRI, None, &[[0, 1, 2]; 2], 0);
+        assert_eq!(b.indices.len(), 3, "the oversized mesh was not copied");
+        let e = err(b);
+        assert!(
+            e.contains("'b' (#1)") && e.contains("too many triangles"),
+            "{e}"
+        );
+        let mut b = builder();
+        b.limits = Some((100, 4));
+        b.mesh("a", &TRI, None, &[[0, 1, 2]], 0);
+        b.mesh("b", &TRI, None, &[[0, 1, 2]], 0);
+        assert_eq!(b.positions.len(), 3);
+        assert!(err(b).contains("too many vertices"));
+    }
+
+    #[test]
+    fn camera_framing_fits_the_sphere() {
+        let c = Camera::framing(Sphere::new(Vec3::new(1.0, 2.0, 3.0), 2.0), 45.0);
+        let d = c.eye.distance(c.target);
+        // The sphere's silhouette touches the edge of the vertical field of view.
+        assert!(((2.0 / d).asin().to_degrees() - 22.5).abs() < 1e-3);
+        assert_eq!(c.target, Vec3::new(1.0, 2.0, 3.0));
+        assert!(c.eye.z > c.target.z);
+        c.validate().unwrap();
+    }
+
+    #[test]
+    fn degenerate_predicate_is_exact() {
+        assert!(is_degenerate_triangle(Vec3::ZERO, Vec3::X, Vec3::X * 2.0));
+        assert!(is_degenerate_triangle(Vec3::ONE, Vec3::ONE, Vec3::Y));
+        // Tiny but not zero area.
+        assert!(!is_degenerate_triangle(
+            Vec3::ZERO,
+            Vec3::X * 1e-6,
+            Vec3::Y * 1e-6
+        ));
+    }
 }

@@ -151,18 +151,28 @@ fn mtl_mapping_follows_the_readme() {
     assert_eq!(red.shininess, 32.0);
     assert_eq!((red.reflectivity, red.transparency), (0.0, 0.0));
     let glass = mat("glass");
-    assert!((glass.transparency - 0.9).abs() < 1e-6, "Tf below 1 → max(Tf)");
+    assert!(
+        (glass.transparency - 0.9).abs() < 1e-6,
+        "Tf below 1 → max(Tf)"
+    );
     assert_eq!(glass.ior, 1.5);
     assert_eq!(glass.diffuse, Vec3::ZERO, "no Kd but Ks/Tf given → black");
     let chrome = mat("chrome");
-    assert!((chrome.reflectivity - 0.9).abs() < 1e-6, "illum 3 → max(Ks)");
+    assert!(
+        (chrome.reflectivity - 0.9).abs() < 1e-6,
+        "illum 3 → max(Ks)"
+    );
     let veil = mat("veil");
     assert!((veil.transparency - 0.75).abs() < 1e-6, "d → 1 - d");
     let lamp = mat("lamp");
     assert_eq!(lamp.emission, Vec3::new(5.0, 4.0, 3.0));
     assert!(lamp.is_emitter() && lamp.reflectivity == 0.0);
     let lens = mat("lens");
-    assert_eq!((lens.transparency, lens.ior), (1.0, 1.33), "illum 7 → transparent");
+    assert_eq!(
+        (lens.transparency, lens.ior),
+        (1.0, 1.33),
+        "illum 7 → transparent"
+    );
     // Each usemtl change starts a mesh: six meshes of one triangle.
     assert_eq!(s.meshes.len(), 6);
 }
@@ -180,15 +190,31 @@ fn material_overrides_apply_and_unknown_names_are_errors() {
     let red = s.material_of(0);
     assert_eq!(red.reflectivity, 0.5);
     assert_eq!(red.diffuse, Vec3::new(0.1, 0.2, 0.3));
-    assert_eq!(red.specular, Vec3::splat(0.2), "untouched fields keep the MTL value");
+    assert_eq!(
+        red.specular,
+        Vec3::splat(0.2),
+        "untouched fields keep the MTL value"
+    );
 
-    let m = d.write("bad.toml", &format!("{MANIFEST}\n[materials.blue]\nreflectivity = 0.5\n"));
+    let m = d.write(
+        "bad.toml",
+        &format!("{MANIFEST}\n[materials.blue]\nreflectivity = 0.5\n"),
+    );
     let e = err_text(load_path(&m));
-    assert!(e.contains("bad.toml") && e.contains("'blue'") && e.contains("red"), "{e}");
+    assert!(
+        e.contains("bad.toml") && e.contains("'blue'") && e.contains("red"),
+        "{e}"
+    );
 
-    let m = d.write("range.toml", &format!("{MANIFEST}\n[materials.red]\ntransparency = 1.5\n"));
+    let m = d.write(
+        "range.toml",
+        &format!("{MANIFEST}\n[materials.red]\ntransparency = 1.5\n"),
+    );
     let e = err_text(load_path(&m));
-    assert!(e.contains("range.toml") && e.contains("red") && e.contains("transparency"), "{e}");
+    assert!(
+        e.contains("range.toml") && e.contains("red") && e.contains("transparency"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -220,7 +246,10 @@ fn missing_files_are_named() {
     let e = err_text(load_path(&m));
     assert!(e.contains("q.obj"), "manifest naming a missing mesh: {e}");
     let e = err_text(load("no-such-scene"));
-    assert!(e.contains("cornell-mirrors") && e.contains(".toml") && e.contains(".obj"), "{e}");
+    assert!(
+        e.contains("cornell-mirrors") && e.contains(".toml") && e.contains(".obj"),
+        "{e}"
+    );
     let p = d.write("x.ply", "ply\n");
     let e = err_text(load(p.to_str().unwrap()));
     assert!(e.contains("x.ply") && e.contains(".obj"), "{e}");
@@ -235,7 +264,10 @@ fn missing_or_bad_mtl_only_warns() {
     assert_eq!(s.materials.len(), 1);
     assert_eq!(s.materials[0].name, "default");
     assert!(
-        report.warnings.iter().any(|w| w.contains("m.mtl") && w.contains("not found")),
+        report
+            .warnings
+            .iter()
+            .any(|w| w.contains("m.mtl") && w.contains("not found")),
         "{:?}",
         report.warnings
     );
@@ -243,7 +275,10 @@ fn missing_or_bad_mtl_only_warns() {
     let (s, report) = load_with_report(p.to_str().unwrap()).unwrap();
     assert_eq!(s.triangle_count(), 3);
     assert!(
-        report.warnings.iter().any(|w| w.contains("m.mtl") && w.contains("parse")),
+        report
+            .warnings
+            .iter()
+            .any(|w| w.contains("m.mtl") && w.contains("parse")),
         "{:?}",
         report.warnings
     );
@@ -267,7 +302,10 @@ fn malformed_obj_names_the_line() {
 
 #[test]
 fn out_of_range_indices_name_the_line() {
-    let e = obj_error("range", "v 0 0 0\nv 1 0 0\nv 0 1 0\n# comment\nf 1 2 3\nf 1 2 9\n");
+    let e = obj_error(
+        "range",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\n# comment\nf 1 2 3\nf 1 2 9\n",
+    );
     assert!(e.contains("bad.obj:6") && e.contains("9"), "{e}");
     let e = obj_error("neg", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -1 -2 -4\n");
     assert!(e.contains("bad.obj:4") && e.contains("-4"), "{e}");
@@ -279,7 +317,10 @@ fn out_of_range_indices_name_the_line() {
 fn non_finite_coordinates_name_the_line() {
     for (tag, bad) in [("nan", "nan"), ("inf", "inf"), ("ninf", "-inf")] {
         let e = obj_error(tag, &format!("v 0 0 0\nv 1 0 0\nv 0 {bad} 0\nf 1 2 3\n"));
-        assert!(e.contains("bad.obj:3") && e.contains("non-finite"), "{tag}: {e}");
+        assert!(
+            e.contains("bad.obj:3") && e.contains("non-finite"),
+            "{tag}: {e}"
+        );
     }
     // Overflow to infinity while parsing counts as well.
     let e = obj_error("huge", "v 0 0 0\nv 1e39 0 0\nv 0 1 0\nf 1 2 3\n");
@@ -307,7 +348,10 @@ fn absurd_sizes_are_rejected_before_loading() {
     let p = d.write("big.obj", &text);
     drop(text);
     let e = err_text(load_path(&p));
-    assert!(e.contains("big.obj") && e.contains("exceed the limit"), "{e}");
+    assert!(
+        e.contains("big.obj") && e.contains("exceed the limit"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -323,7 +367,11 @@ fn degenerate_triangles_load_and_are_counted() {
     assert!(!s.is_degenerate(0) && s.is_degenerate(1) && s.is_degenerate(2));
     assert!(s.normals.iter().all(|n| (n.length() - 1.0).abs() < 1e-6));
     // The collinear vertex 4 touches only the degenerate triangle: its normal is invented.
-    assert!(report.warnings.iter().any(|w| w.contains("zero-area")), "{:?}", report.warnings);
+    assert!(
+        report.warnings.iter().any(|w| w.contains("zero-area")),
+        "{:?}",
+        report.warnings
+    );
 }
 
 #[test]
@@ -351,7 +399,10 @@ fn supplied_normals_are_kept_and_bad_ones_replaced() {
 #[test]
 fn bare_obj_is_framed_with_a_light_above_the_camera() {
     let d = TempDir::new("bare");
-    let p = d.write("b.obj", "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nf 1 2 3 4\n");
+    let p = d.write(
+        "b.obj",
+        "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nf 1 2 3 4\n",
+    );
     let s = load_path(&p).unwrap();
     assert_eq!(s.name, "b");
     let c = &s.camera;
@@ -359,7 +410,11 @@ fn bare_obj_is_framed_with_a_light_above_the_camera() {
     assert_eq!(c.vfov_deg, 45.0);
     let r = 2f32.sqrt();
     let d_expect = r / (22.5f32).to_radians().sin();
-    assert!((c.eye - Vec3::new(0.0, 0.0, d_expect)).length() < 1e-4, "{}", c.eye);
+    assert!(
+        (c.eye - Vec3::new(0.0, 0.0, d_expect)).length() < 1e-4,
+        "{}",
+        c.eye
+    );
     assert_eq!(s.lights.len(), 1);
     assert!(s.lights[0].position.y > c.eye.y);
     assert_eq!(s.lights[0].color, Vec3::ONE);
