@@ -4,6 +4,17 @@
 //! triangle ranges with their minimal bounding spheres, materials, point lights and a pinhole
 //! camera. No scene graph. Loaders read OBJ + MTL (through `tobj`) and the TOML manifests of
 //! `../shared/scenes`; built-in procedural scenes need no files.
+//!
+//! Entry points:
+//! - [`load`] / [`load_with_report`]: a built-in name ([`builtin::NAMES`]), a `.toml`
+//!   manifest ([`manifest`]) or a bare `.obj` ([`obj`]); the report carries non-fatal warnings
+//!   such as a missing MTL file.
+//! - [`load_path`] / [`load_path_with_report`]: a file, by extension.
+//! - [`manifest::list`]: the manifests of a scenes directory, for `crsh scenes`.
+//! - [`SceneBuilder`]: builds and validates a [`Scene`] from meshes, computing normals,
+//!   per-triangle and per-mesh minimal bounding spheres ([`bounding`]) and bounds.
+//!
+//! Every error names the file and line, or the mesh, where the problem is.
 
 #![warn(missing_docs)]
 

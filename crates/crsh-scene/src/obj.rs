@@ -1,7 +1,7 @@
 //! Wavefront OBJ + MTL loading through `tobj`.
 //!
-//! The file is read once into memory, its `v` and `f` lines are counted (so an absurdly large
-//! file is rejected before `tobj` allocates for it), then parsed by `tobj` with
+//! The file's `v` and `f` lines are first counted while streaming it (so an absurdly large
+//! file is rejected before anything is allocated for it); it is then read into memory and parsed by `tobj` with
 //! [`tobj::GPU_LOAD_OPTIONS`] (one index per vertex, polygons triangulated as fans, points and
 //! lines ignored). Each `tobj` model (a new one starts at every `o`, `g` or material change)
 //! becomes one mesh, a contiguous triangle range.
@@ -23,7 +23,8 @@ use glam::Vec3;
 use crate::error::SceneError;
 use crate::model::{Camera, Light, Material, SceneBuilder, MAX_TRIANGLES, MAX_VERTICES};
 
-/// Largest OBJ file accepted (16 GiB); anything larger is rejected before it is read.
+/// Largest OBJ file accepted (16 GiB); anything larger is rejected before it is read (files
+/// below are counted, streaming, before they are loaded: see [`MAX_TRIANGLES`]).
 pub const MAX_FILE_BYTES: u64 = 16 << 30;
 
 /// Vertical field of view of the camera framed for a bare OBJ, in degrees.
@@ -67,20 +68,41 @@ fn words(line: &[u8]) -> impl Iterator<Item = &[u8]> {
         .filter(|w| !w.is_empty())
 }
 
+impl Counts {
+    fn add_line(&mut self, line: &[u8]) {
+        let mut w = words(line);
+        match w.next() {
+            Some(b"v") => self.positions += 1,
+            Some(b"vt") => self.texcoords += 1,
+            Some(b"vn") => self.normals += 1,
+            Some(b"f") => self.triangles += w.count().saturating_sub(2),
+            _ => {}
+        }
+    }
+}
+
 fn count_elements(bytes: &[u8]) -> Counts {
     let mut c = Counts::default();
     for_each_line(bytes, |_, line| {
-        let mut w = words(line);
-        match w.next() {
-            Some(b"v") => c.positions += 1,
-            Some(b"vt") => c.texcoords += 1,
-            Some(b"vn") => c.normals += 1,
-            Some(b"f") => c.triangles += w.count().saturating_sub(2),
-            _ => {}
-        }
+        c.add_line(line);
         true
     });
     c
+}
+
+/// [`count_elements`] over a file, streaming line by line.
+fn count_file(path: &Path) -> std::io::Result<Counts> {
+    use std::io::BufRead;
+    let mut reader = std::io::BufReader::with_capacity(1 << 20, std::fs::File::open(path)?);
+    let mut c = Counts::default();
+    let mut line = Vec::new();
+    loop {
+        line.clear();
+        if reader.read_until(b'\n', &mut line)? == 0 {
+            return Ok(c);
+        }
+        c.add_line(&line);
+    }
 }
 
 fn parse_f32(w: &[u8]) -> Option<f32> {
@@ -348,8 +370,8 @@ pub fn read(path: &Path, builder: &mut SceneBuilder) -> Result<ObjInfo, SceneErr
             ),
         ));
     }
-    let bytes = std::fs::read(path).map_err(io)?;
-    let counts = count_elements(&bytes);
+    // Count first, streaming, so that an absurd file is rejected before it is held in memory.
+    let counts = count_file(path).map_err(io)?;
     if counts.triangles > MAX_TRIANGLES {
         return Err(SceneError::invalid(
             path.display().to_string(),
@@ -367,6 +389,10 @@ pub fn read(path: &Path, builder: &mut SceneBuilder) -> Result<ObjInfo, SceneErr
                 counts.positions
             ),
         ));
+    }
+    let mut bytes = std::fs::read(path).map_err(io)?;
+    if bytes.starts_with(b"\xEF\xBB\xBF") {
+        bytes.drain(..3); // a UTF-8 byte-order mark would hide the first keyword from tobj
     }
 
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();

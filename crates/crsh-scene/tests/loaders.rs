@@ -355,6 +355,18 @@ fn absurd_sizes_are_rejected_before_loading() {
 }
 
 #[test]
+fn crlf_lines_and_a_byte_order_mark_are_accepted() {
+    let d = TempDir::new("crlf");
+    let p = d.write(
+        "c.obj",
+        "\u{feff}v 0 0 0\r\nv 1 0 0\r\nv 0 1 0\r\nf 1 2 3\r\n",
+    );
+    let s = load_path(&p).unwrap();
+    assert_eq!(s.triangle_count(), 1);
+    assert_eq!(s.positions.len(), 3);
+}
+
+#[test]
 fn degenerate_triangles_load_and_are_counted() {
     let d = TempDir::new("degen");
     let p = d.write(
