@@ -34,7 +34,10 @@
 //! (default 0.05: a little fill light so that shadowed regions are not black; set it to 0 for
 //! the thesis's formula exactly). It is weighted by the record's throughput and the material's
 //! local weight `max(0, 1 − reflectivity − transparency)`: the rest of the energy is carried
-//! by the reflection and refraction rays, whose throughput holds those weights. A background
+//! by the reflection and refraction rays, whose throughput holds those weights. A surface whose
+//! material has an emission colour (MTL `Ke`, e.g. the Cornell box's lamp panel, which is not
+//! itself a light) also shows `emission × throughput`, unweighted (not in the thesis, which has
+//! no emitters; zero for ordinary materials). A background
 //! record (a pixel or ray that saw nothing) adds `background` (a grey level, default 0) × its
 //! throughput.
 //!
@@ -68,6 +71,7 @@ struct MatShade {
     specular: Vec3,
     shininess: f32,
     local_weight: f32,
+    emission: Vec3,
 }
 
 /// The per-light data shading needs.
@@ -107,6 +111,7 @@ pub fn phong_light(
         specular,
         shininess,
         local_weight: 1.0,
+        emission: Vec3::ZERO,
     };
     light_term(p, normal, geo_normal, incident, &m, &l)
 }
@@ -174,7 +179,11 @@ impl Phong {
         let background = nonneg("background")?;
         let mut materials = Vec::with_capacity(scene.materials.len());
         for m in &scene.materials {
-            if !(m.diffuse.is_finite() && m.specular.is_finite() && m.shininess.is_finite()) {
+            let finite = m.diffuse.is_finite()
+                && m.specular.is_finite()
+                && m.shininess.is_finite()
+                && m.emission.is_finite();
+            if !finite {
                 return Err(CoreError::InvalidInput(format!(
                     "material `{}` has non-finite colours or shininess",
                     m.name
@@ -185,6 +194,7 @@ impl Phong {
                 specular: m.specular,
                 shininess: m.shininess,
                 local_weight: (1.0 - m.reflectivity - m.transparency).max(0.0),
+                emission: m.emission,
             });
         }
         let mut lights = Vec::with_capacity(scene.lights.len());
@@ -219,8 +229,9 @@ impl Phong {
             return s.throughput * self.background;
         }
         let m = &self.materials[s.material as usize];
+        let emitted = m.emission * s.throughput;
         if m.local_weight <= 0.0 {
-            return Vec3::ZERO;
+            return emitted;
         }
         let mut color = m.diffuse * self.ambient;
         for (li, l) in self.lights.iter().enumerate() {
@@ -228,7 +239,7 @@ impl Phong {
                 color += light_term(s.position, s.normal, s.geo_normal, s.incident, m, l);
             }
         }
-        color * m.local_weight * s.throughput
+        emitted + color * m.local_weight * s.throughput
     }
 
     /// Adds the direct light of `surfaces` to `image` (see the module docs). `visible` rays are
