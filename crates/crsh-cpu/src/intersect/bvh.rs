@@ -1,0 +1,566 @@
+//! `bvh`: an object-space compressed wide BVH (obvhs CWBVH, 8-wide) over the scene's triangles.
+//!
+//! The BVH is built once, when the stage is constructed ([`CwBvh::new`]), with obvhs's PLOC
+//! builder and the preset chosen by `build_quality`. Leaf primitives are stored in leaf order
+//! ([`PreparedTriangle`]s indexed by the BVH's primitive slot, plus each slot's scene triangle
+//! id), so a leaf test reads consecutive memory. Degenerate triangles (never hit, see
+//! [`crate::triangle`]) are left out of the tree.
+//!
+//! # Identical to brute force
+//!
+//! Primitive tests use the crate's one triangle test ([`PreparedTriangle::hit`]), on scene
+//! triangle ids, merged with [`Hit::closer_than`]; the node test culls only boxes that cannot
+//! hold a hit that could still win, so closest hits (triangle, `t`, `u`, `v`) are the
+//! brute-force ones bit for bit, ties included:
+//!
+//! - obvhs's own node test clamps the entry distance to a fixed `1e-4` (ignoring the ray's
+//!   `t_min`), maps zero direction components to `±1/f32::EPSILON` and rounds without margin;
+//!   it can therefore drop hits close to the origin or on boxes touched at grazing angles. The
+//!   node test here ([`child_hits`]) uses the ray's own interval, keeps zero components
+//!   (clamped to `±1e-25`, a perturbation of `1e-25·t`) and widens every slab by a bound on
+//!   the rounding of the quantized-plane arithmetic (`1e-6·(255·|E/d| + |(p - o)/d|)` per axis:
+//!   the terms the computation adds, so the bound holds whatever the cancellation), and the
+//!   distance interval by a relative `1e-5` for the rounding of the triangle test's `t`.
+//! - The culling distance is `min(t_max, best.t)` and the comparison inclusive, so a
+//!   triangle at exactly the best `t` with a lower id is still reached.
+//! - The `slow` preset (`BvhBuildParams::slow_build`) is used without its spatial pre-splits:
+//!   their clipped boxes are computed in floating point and are not guaranteed to contain
+//!   their triangle fragments, which would break the guarantee above. Everything else of the
+//!   preset (PLOC search distance, reinsertion, sort precision) is kept.
+//!
+//! # Counting
+//!
+//! `stats.add_bounds`: one per non-empty child box tested (each node visited tests all its
+//! children at once). `stats.add_ray_triangle`: one per leaf primitive tested. Any-hit rays
+//! stop at the first hit found (traversal order), so their counts are the tests done.
+//! Rays whose stored hit is already a hit are skipped in any-hit mode.
+//!
+//! Rays are traced in parallel with rayon, each independently, so results and counts do not
+//! depend on the thread count. [`Query::Candidates`] is not supported (a BVH tests the whole
+//! scene): it returns [`CoreError::Unsupported`].
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use crsh_core::glam::{UVec2, Vec3, Vec3A};
+use crsh_core::{CoreError, Hit, HitMode, Intersector, Query, Ray, Result, StageSpec, Stats};
+use crsh_scene::Scene;
+use obvhs::cwbvh::builder::build_cwbvh_from_tris;
+use obvhs::cwbvh::node::CwBvhNode;
+use obvhs::triangle::Triangle;
+use obvhs::BvhBuildParams;
+use rayon::prelude::*;
+
+use crate::backend::Cpu;
+use crate::intersect::brute::check_batch;
+use crate::triangle::{PreparedTriangle, RayPre};
+
+/// Rays per rayon task.
+const CHUNK: usize = 64;
+
+/// Relative slab widening for the rounding of the node test (see the module doc).
+const SLAB_SLACK: f32 = 1e-6;
+
+/// Relative widening of the node test's distance interval (rounding of the triangle's `t`).
+const T_SLACK: f32 = 1e-5;
+
+/// Smallest direction component magnitude used in the node test.
+const MIN_DIR: f32 = 1e-25;
+
+/// BVH build presets (`build_quality`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BuildQuality {
+    /// `BvhBuildParams::fast_build`.
+    Fast,
+    /// `BvhBuildParams::medium_build` (the default).
+    Medium,
+    /// `BvhBuildParams::slow_build` without spatial pre-splits (see the module doc).
+    Slow,
+}
+
+impl BuildQuality {
+    /// The names accepted by `build_quality`.
+    pub const NAMES: [&'static str; 3] = ["fast", "medium", "slow"];
+
+    /// The preset called `name`.
+    pub fn from_name(name: &str) -> Option<BuildQuality> {
+        match name {
+            "fast" => Some(BuildQuality::Fast),
+            "medium" => Some(BuildQuality::Medium),
+            "slow" => Some(BuildQuality::Slow),
+            _ => None,
+        }
+    }
+
+    /// The obvhs build parameters.
+    pub fn params(self) -> BvhBuildParams {
+        match self {
+            BuildQuality::Fast => BvhBuildParams::fast_build(),
+            BuildQuality::Medium => BvhBuildParams::medium_build(),
+            BuildQuality::Slow => BvhBuildParams {
+                pre_split: false,
+                ..BvhBuildParams::slow_build()
+            },
+        }
+    }
+}
+
+/// The CWBVH intersector (variant `bvh`).
+pub struct CwBvh {
+    bvh: obvhs::cwbvh::CwBvh,
+    /// Prepared triangle per BVH primitive slot.
+    leaf_tris: Vec<PreparedTriangle>,
+    /// Scene triangle id per BVH primitive slot.
+    leaf_ids: Vec<u32>,
+    quality: BuildQuality,
+    build_time: Duration,
+}
+
+impl std::fmt::Debug for CwBvh {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CwBvh")
+            .field("nodes", &self.bvh.nodes.len())
+            .field("primitives", &self.leaf_ids.len())
+            .field("quality", &self.quality)
+            .field("build_time", &self.build_time)
+            .finish()
+    }
+}
+
+impl CwBvh {
+    /// Builds the BVH of `scene` with `spec.build_quality` (`fast` | `medium` | `slow`).
+    pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<CwBvh, CoreError> {
+        let name = spec.str("build_quality")?;
+        let quality = BuildQuality::from_name(name).ok_or_else(|| CoreError::InvalidParam {
+            key: "bvh.build_quality".into(),
+            reason: format!("`{name}` is not one of {}", BuildQuality::NAMES.join(", ")),
+        })?;
+        Ok(CwBvh::build(scene, quality))
+    }
+
+    /// Builds the BVH of `scene` with the given preset.
+    pub fn build(scene: &Scene, quality: BuildQuality) -> CwBvh {
+        let prepared: Vec<(u32, PreparedTriangle, [Vec3; 3])> = (0..scene.triangle_count())
+            .map(|t| {
+                let [a, b, c] = scene.triangle(t);
+                (t as u32, PreparedTriangle::new(a, b, c), [a, b, c])
+            })
+            .filter(|(_, p, _)| !p.is_degenerate())
+            .collect();
+        let tris: Vec<Triangle> = prepared
+            .iter()
+            .map(|(_, _, [a, b, c])| Triangle {
+                v0: (*a).into(),
+                v1: (*b).into(),
+                v2: (*c).into(),
+            })
+            .collect();
+        let mut build_time = Duration::ZERO;
+        let bvh = if tris.is_empty() {
+            obvhs::cwbvh::CwBvh::default()
+        } else {
+            build_cwbvh_from_tris(&tris, quality.params(), &mut build_time)
+        };
+        let (leaf_tris, leaf_ids) = bvh
+            .primitive_indices
+            .iter()
+            .map(|&i| (prepared[i as usize].1, prepared[i as usize].0))
+            .unzip();
+        CwBvh {
+            bvh,
+            leaf_tris,
+            leaf_ids,
+            quality,
+            build_time,
+        }
+    }
+
+    /// The build preset used.
+    pub fn quality(&self) -> BuildQuality {
+        self.quality
+    }
+
+    /// Number of BVH nodes.
+    pub fn node_count(&self) -> usize {
+        self.bvh.nodes.len()
+    }
+
+    /// Core build time as obvhs measured it.
+    pub fn build_time(&self) -> Duration {
+        self.build_time
+    }
+
+    /// Traces one ray; merges into `best` and returns `(bounds, triangle)` test counts.
+    #[inline]
+    fn trace(&self, ray: &Ray, mode: HitMode, best: &mut Hit) -> (u64, u64) {
+        if self.bvh.nodes.is_empty() || (mode == HitMode::Any && best.is_hit()) {
+            return (0, 0);
+        }
+        let r = RayPre::of(ray);
+        let nr = NodeRay::new(ray.origin, ray.dir);
+        let t_lo = ray.t_min - ray.t_min.abs() * T_SLACK;
+        let mut t_hi = cull_distance(ray.t_max.min(best.t));
+        let mut bounds = 0u64;
+        let mut prims = 0u64;
+        let bvh = &self.bvh;
+        let mut state = bvh.new_traversal(Vec3A::from(ray.dir));
+        let mut node: &CwBvhNode;
+        'trace: {
+            obvhs::traverse!(
+                bvh,
+                node,
+                state,
+                {
+                    bounds += node.child_meta.iter().filter(|&&m| m != 0).count() as u64;
+                    child_hits(node, &nr, state.oct_inv4, t_lo, t_hi)
+                },
+                {
+                    let slot = state.primitive_id as usize;
+                    prims += 1;
+                    let id = self.leaf_ids[slot];
+                    if let Some(h) = self.leaf_tris[slot].hit(&r, ray.t_min, ray.t_max, id) {
+                        if mode == HitMode::Any {
+                            *best = h;
+                            break 'trace;
+                        }
+                        if h.closer_than(best) {
+                            *best = h;
+                            t_hi = cull_distance(ray.t_max.min(best.t));
+                        }
+                    }
+                }
+            );
+        }
+        (bounds, prims)
+    }
+}
+
+/// The node test's far distance for a best hit (or `t_max`) at `t`.
+#[inline(always)]
+fn cull_distance(t: f32) -> f32 {
+    t + t.abs() * T_SLACK
+}
+
+/// Per-ray values of the node test.
+#[derive(Clone, Copy, Debug)]
+pub struct NodeRay {
+    origin: Vec3A,
+    inv_dir: Vec3A,
+    negative: [bool; 3],
+}
+
+impl NodeRay {
+    /// The node-test form of a ray: inverse direction with components clamped away from 0.
+    pub fn new(origin: Vec3, dir: Vec3) -> NodeRay {
+        let clamp = |d: f32| {
+            if d.abs() < MIN_DIR {
+                MIN_DIR.copysign(d)
+            } else {
+                d
+            }
+        };
+        let d = Vec3A::new(clamp(dir.x), clamp(dir.y), clamp(dir.z));
+        NodeRay {
+            origin: origin.into(),
+            inv_dir: Vec3A::ONE / d,
+            negative: [d.x < 0.0, d.y < 0.0, d.z < 0.0],
+        }
+    }
+}
+
+/// The children of `node` whose (quantized, rounding-widened) boxes the ray overlaps within
+/// `[t_lo, t_hi]`, as the CWBVH hit mask the `traverse!` macro expects.
+#[inline(always)]
+pub fn child_hits(node: &CwBvhNode, nr: &NodeRay, oct_inv4: u32, t_lo: f32, t_hi: f32) -> u32 {
+    let e = node.compute_extent();
+    let a = e * nr.inv_dir;
+    let orig = (Vec3A::from(node.p) - nr.origin) * nr.inv_dir;
+    let slack = (a.abs() * 255.0 + orig.abs()) * SLAB_SLACK;
+    let lo = orig - slack;
+    let hi = orig + slack;
+    let pick =
+        |neg: bool, min: &[u8; 8], max: &[u8; 8]| if neg { (*max, *min) } else { (*min, *max) };
+    let (nx, fx) = pick(nr.negative[0], &node.child_min_x, &node.child_max_x);
+    let (ny, fy) = pick(nr.negative[1], &node.child_min_y, &node.child_max_y);
+    let (nz, fz) = pick(nr.negative[2], &node.child_min_z, &node.child_max_z);
+    let mut hit = [false; 8];
+    for c in 0..8 {
+        let t0 = (nx[c] as f32 * a.x + lo.x)
+            .max(ny[c] as f32 * a.y + lo.y)
+            .max(nz[c] as f32 * a.z + lo.z)
+            .max(t_lo);
+        let t1 = (fx[c] as f32 * a.x + hi.x)
+            .min(fy[c] as f32 * a.y + hi.y)
+            .min(fz[c] as f32 * a.z + hi.z)
+            .min(t_hi);
+        hit[c] = t0 <= t1;
+    }
+    let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
+    let mut mask = 0u32;
+    for (c, &h) in hit.iter().enumerate() {
+        if h {
+            let child_bits = ((child_bits8 >> (c * 8)) & 0xff) as u32;
+            let bit_index = ((bit_index8 >> (c * 8)) & 0xff) as u32;
+            mask |= child_bits << bit_index;
+        }
+    }
+    mask
+}
+
+impl Intersector<Cpu> for CwBvh {
+    fn name(&self) -> &str {
+        "bvh"
+    }
+
+    fn intersect(
+        &self,
+        _backend: &Cpu,
+        rays: &Vec<Ray>,
+        query: Query<'_, Cpu>,
+        mode: HitMode,
+        hits: &mut Vec<Hit>,
+        stats: &mut Stats,
+    ) -> Result<()> {
+        if let Query::Candidates { .. } = query {
+            return Err(CoreError::Unsupported {
+                stage: "intersect",
+                variant: "bvh".into(),
+                what: "candidate-pair queries (it tests the whole scene)".into(),
+            });
+        }
+        check_batch(rays, hits)?;
+        let (bounds, prims) = rays
+            .par_chunks(CHUNK)
+            .zip(hits.par_chunks_mut(CHUNK))
+            .map(|(rs, hs)| {
+                let mut n = (0u64, 0u64);
+                for (ray, h) in rs.iter().zip(hs.iter_mut()) {
+                    let (b, p) = self.trace(ray, mode, h);
+                    n.0 += b;
+                    n.1 += p;
+                }
+                n
+            })
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        stats.add_bounds(bounds);
+        stats.add_ray_triangle(prims);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::intersect::brute::tests::{random_rays, soup};
+    use crate::intersect::brute::BruteForce;
+    use crate::surface::tests::raw_scene;
+    use crate::triangle::tests::TestRng;
+    use crsh_core::{CandidateBatch, ParamValue, RayHierarchy, RayKind};
+
+    fn run(x: &dyn Intersector<Cpu>, rays: &Vec<Ray>, mode: HitMode) -> (Vec<Hit>, Stats) {
+        let mut hits = vec![Hit::MISS; rays.len()];
+        let mut stats = Stats::default();
+        x.intersect(&Cpu, rays, Query::Scene, mode, &mut hits, &mut stats)
+            .unwrap();
+        (hits, stats)
+    }
+
+    fn check_against_brute(scene: &Scene, rays: &Vec<Ray>, quality: BuildQuality) {
+        let brute = BruteForce::from_scene(scene);
+        let bvh = CwBvh::build(scene, quality);
+        let (want, _) = run(&brute, rays, HitMode::Closest);
+        let (got, stats) = run(&bvh, rays, HitMode::Closest);
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+            assert_eq!(
+                (g.tri, g.t.to_bits(), g.u.to_bits(), g.v.to_bits()),
+                (w.tri, w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
+                "{quality:?} ray {i}: {:?}: bvh {g:?} brute {w:?}",
+                rays[i]
+            );
+        }
+        assert!(stats.tests.bounds > 0);
+        let (want, _) = run(&brute, rays, HitMode::Any);
+        let (got, any_stats) = run(&bvh, rays, HitMode::Any);
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+            assert_eq!(
+                g.is_hit(),
+                w.is_hit(),
+                "{quality:?} any ray {i}: {:?}",
+                rays[i]
+            );
+            if g.is_hit() {
+                let r = RayPre::of(&rays[i]);
+                let again = brute.triangles().triangles()[g.tri as usize].hit(
+                    &r,
+                    rays[i].t_min,
+                    rays[i].t_max,
+                    g.tri,
+                );
+                assert_eq!(again, Some(*g));
+            }
+        }
+        assert!(any_stats.tests.ray_triangle <= stats.tests.ray_triangle);
+    }
+
+    #[test]
+    fn identical_to_brute_force_on_random_soups() {
+        for (seed, n) in [(21u64, 500usize), (22, 60), (23, 1)] {
+            let scene = soup(seed, n);
+            let rays = random_rays(&scene, seed + 100, 1500);
+            for q in [BuildQuality::Fast, BuildQuality::Medium, BuildQuality::Slow] {
+                check_against_brute(&scene, &rays, q);
+            }
+        }
+    }
+
+    /// An axis-aligned box room (flat boxes: zero-thickness node slabs) with rays grazing
+    /// along the walls, starting on them, and axis-parallel directions (zero components).
+    #[test]
+    fn identical_to_brute_force_on_grazing_axis_aligned_rays() {
+        let mut positions = Vec::new();
+        let mut indices = Vec::new();
+        // A 6x6 grid of unit quads on each of three planes, plus exactly overlapping copies.
+        for (axis, offset) in [(0usize, 0.0f32), (1, 0.0), (2, 0.0), (2, 3.0), (0, 3.0)] {
+            for i in 0..6 {
+                for j in 0..6 {
+                    let corner = |di: f32, dj: f32| {
+                        let mut p = [0.0f32; 3];
+                        p[axis] = offset;
+                        p[(axis + 1) % 3] = (i as f32 + di) * 0.5;
+                        p[(axis + 2) % 3] = (j as f32 + dj) * 0.5;
+                        Vec3::from_array(p)
+                    };
+                    let b = positions.len() as u32;
+                    positions.extend([
+                        corner(0.0, 0.0),
+                        corner(1.0, 0.0),
+                        corner(1.0, 1.0),
+                        corner(0.0, 1.0),
+                    ]);
+                    indices.extend([[b, b + 1, b + 2], [b, b + 2, b + 3]]);
+                }
+            }
+        }
+        let n = positions.len();
+        let scene = raw_scene(positions, vec![Vec3::Z; n], indices);
+        let mut rng = TestRng(31);
+        let mut rays = Vec::new();
+        let axes = [Vec3::X, Vec3::Y, Vec3::Z, -Vec3::X, -Vec3::Y, -Vec3::Z];
+        for i in 0..3000 {
+            let grid = |rng: &mut TestRng| (rng.next_u64() % 13) as f32 * 0.25;
+            let mut o = Vec3::new(grid(&mut rng), grid(&mut rng), grid(&mut rng));
+            if i % 3 == 0 {
+                o = rng.vec3(-0.5, 3.5);
+            }
+            let dir = match i % 4 {
+                0 => axes[i % 6],
+                1 => (axes[i % 6] + axes[(i / 6) % 6] * 0.5).normalize_or(Vec3::X),
+                2 => rng.unit(),
+                _ => (axes[i % 6] + rng.unit() * 1e-3).normalize(),
+            };
+            rays.push(Ray {
+                origin: o,
+                t_min: if i % 5 == 0 { 0.0 } else { 1e-5 },
+                dir,
+                t_max: if i % 7 == 0 { 1.0 } else { f32::INFINITY },
+                throughput: Vec3::ONE,
+                kind: RayKind::Reflection as u32,
+                pixel: 0,
+                light: u32::MAX,
+                depth: 1,
+                source: 0,
+            });
+        }
+        for q in [BuildQuality::Fast, BuildQuality::Medium] {
+            check_against_brute(&scene, &rays, q);
+        }
+    }
+
+    #[test]
+    fn candidates_are_unsupported_and_bad_params_rejected() {
+        let scene = Arc::new(soup(41, 20));
+        let mut spec = StageSpec::new("bvh");
+        assert!(CwBvh::new(&scene, &spec).is_err(), "unresolved spec");
+        spec.params
+            .insert("build_quality".into(), ParamValue::Str("ultra".into()));
+        assert!(matches!(
+            CwBvh::new(&scene, &spec),
+            Err(CoreError::InvalidParam { .. })
+        ));
+        spec.params
+            .insert("build_quality".into(), ParamValue::Str("fast".into()));
+        let bvh = CwBvh::new(&scene, &spec).unwrap();
+        assert_eq!(bvh.quality(), BuildQuality::Fast);
+        let rays = random_rays(&scene, 42, 8);
+        let h = RayHierarchy::<Cpu> {
+            order: (0..8).collect(),
+            levels: vec![vec![bytemuck::Zeroable::zeroed(); 1]],
+            subdivision: 8,
+        };
+        let batch = CandidateBatch::<Cpu> { pairs: vec![] };
+        let mut hits = vec![Hit::MISS; 8];
+        let r = bvh.intersect(
+            &Cpu,
+            &rays,
+            Query::Candidates {
+                hierarchy: &h,
+                batch: &batch,
+            },
+            HitMode::Closest,
+            &mut hits,
+            &mut Stats::default(),
+        );
+        assert!(matches!(r, Err(CoreError::Unsupported { .. })));
+        let mut bad = rays.clone();
+        bad[0].origin.x = f32::INFINITY;
+        assert!(bvh
+            .intersect(
+                &Cpu,
+                &bad,
+                Query::Scene,
+                HitMode::Any,
+                &mut hits,
+                &mut Stats::default()
+            )
+            .is_err());
+    }
+
+    #[test]
+    fn all_degenerate_scene_never_hits() {
+        let scene = raw_scene(
+            vec![Vec3::ZERO, Vec3::X, Vec3::X * 2.0],
+            vec![Vec3::Z; 3],
+            vec![[0, 1, 2]],
+        );
+        let bvh = CwBvh::build(&scene, BuildQuality::Medium);
+        assert_eq!(bvh.node_count(), 0);
+        let rays = random_rays(&scene, 43, 16);
+        let (hits, stats) = run(&bvh, &rays, HitMode::Closest);
+        assert!(hits.iter().all(|h| !h.is_hit()));
+        assert_eq!(stats.tests.total, 0);
+    }
+
+    #[test]
+    fn same_result_for_any_thread_count() {
+        let scene = soup(51, 400);
+        let bvh = CwBvh::build(&scene, BuildQuality::Medium);
+        let rays = random_rays(&scene, 52, 700);
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let three = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap();
+        for mode in [HitMode::Closest, HitMode::Any] {
+            let a = one.install(|| run(&bvh, &rays, mode));
+            let b = three.install(|| run(&bvh, &rays, mode));
+            assert_eq!(a.0, b.0);
+            assert_eq!(a.1.tests, b.1.tests);
+        }
+        // The BVH does far fewer triangle tests than brute force.
+        let (_, stats) = run(&bvh, &rays, HitMode::Closest);
+        assert!(stats.tests.ray_triangle * 5 < (rays.len() * scene.triangle_count()) as u64);
+    }
+}
