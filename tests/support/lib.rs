@@ -32,3 +32,26 @@ pub fn shared_scene(rel: &str) -> Option<PathBuf> {
         None
     }
 }
+
+/// The files ending in `.{ext}` directly under `sub` of the shared scenes directory (e.g. every
+/// `cornell/*.toml`), sorted by name; empty (after printing why) when the directory is absent.
+pub fn shared_scenes_in(sub: &str, ext: &str) -> Vec<PathBuf> {
+    let Some(dir) = scenes_dir().map(|d| d.join(sub)) else {
+        return Vec::new();
+    };
+    let mut found: Vec<PathBuf> = match std::fs::read_dir(&dir) {
+        Ok(entries) => entries
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == ext))
+            .collect(),
+        Err(e) => {
+            eprintln!("SKIP: cannot list {}: {e}", dir.display());
+            return Vec::new();
+        }
+    };
+    found.sort();
+    if found.is_empty() {
+        eprintln!("SKIP: no .{ext} files in {}", dir.display());
+    }
+    found
+}

@@ -4,7 +4,7 @@
 //! prints and what [`PipelineConfig::resolve`] checks configs against); [`preset`] gives the
 //! named pipelines of `--pipeline`; [`build_stages`] turns a config and a scene into runnable
 //! [`Stages`]; [`build_intersector`] makes the `--reference` intersector; [`render`] does all of
-//! it and renders a frame.
+//! it and renders a frame; [`with_threads`] runs it on a pool of a chosen size.
 
 use std::sync::Arc;
 
@@ -221,6 +221,17 @@ pub fn render(
     render_frame(&Cpu, &stages, &opts, reference.as_deref(), progress)
 }
 
+/// Runs `f` on a dedicated rayon pool of `threads` worker threads (0: rayon's default, one per
+/// core), so that every CPU stage `f` runs uses that many threads: the CLI's `--threads`, and
+/// the determinism tests (the output does not depend on the count).
+pub fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> Result<T> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| CoreError::Backend(format!("cannot start {threads} worker threads: {e}")))?;
+    Ok(pool.install(f))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -235,6 +246,12 @@ mod tests {
             assert_eq!(cfg.shade.f64("ambient").unwrap(), 0.05);
         }
         assert!(preset("kdtree").is_none());
+    }
+
+    #[test]
+    fn thread_pools_have_the_size_asked_for() {
+        assert_eq!(with_threads(3, rayon::current_num_threads).unwrap(), 3);
+        assert_eq!(with_threads(1, rayon::current_num_threads).unwrap(), 1);
     }
 
     #[test]

@@ -1,0 +1,463 @@
+//! The whole CPU Whitted pipeline: brute force and BVH agree hit for hit and pixel for pixel
+//! on every built-in scene and on the shared Cornell boxes, every ray kind occurs where it
+//! should, raster and ray-cast primaries agree, the output does not depend on the thread
+//! count, and a lit quad has exactly the radiance eq. 3.19 predicts.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use crsh_core::glam::{DVec3, Vec3};
+use crsh_core::metrics::{psnr_rgba8, to_rgba8};
+use crsh_core::{CoreError, Frame, FrameOptions, PipelineConfig, StageSpec};
+use crsh_cpu::catalogue::{render, with_threads};
+use crsh_cpu::Cpu;
+use crsh_scene::{Camera, Light, Material, Scene, SceneBuilder};
+
+const SIZE: u32 = 64;
+
+fn opts(width: u32, height: u32, max_depth: u32) -> FrameOptions {
+    FrameOptions {
+        width,
+        height,
+        max_depth,
+        triangles: 0,
+    }
+}
+
+/// The preset `name` with the `--set` overrides `sets`.
+fn config(name: &str, sets: &[&str]) -> PipelineConfig {
+    let mut cfg = crsh_cpu::preset(name).expect("preset exists");
+    for s in sets {
+        cfg.set(s).unwrap();
+    }
+    cfg
+}
+
+fn frame(
+    scene: &Arc<Scene>,
+    cfg: &PipelineConfig,
+    o: &FrameOptions,
+    reference: Option<&str>,
+) -> Frame<Cpu> {
+    let reference = reference.map(StageSpec::new);
+    render(scene, cfg, o, reference.as_ref(), &mut |_| {})
+        .unwrap_or_else(|e| panic!("{} with {}: {e}", scene.name, cfg.name))
+}
+
+fn builtin(name: &str) -> Arc<Scene> {
+    Arc::new(crsh_scene::builtin::build(name).unwrap())
+}
+
+fn load(path: &Path) -> Arc<Scene> {
+    Arc::new(crsh_scene::load_path(path).unwrap_or_else(|e| panic!("{e}")))
+}
+
+fn bits(image: &[[f32; 4]]) -> Vec<u32> {
+    image.iter().flatten().map(|c| c.to_bits()).collect()
+}
+
+/// Renders `scene` with the bvh pipeline checked against a brute-force reference, and with
+/// the brute pipeline; both must agree on every traced ray and give the same image.
+fn check_brute_and_bvh_agree(scene: &Arc<Scene>) -> Frame<Cpu> {
+    let o = opts(SIZE, SIZE, 3);
+    let bvh = frame(scene, &config("bvh", &[]), &o, Some("brute"));
+    let acc = bvh.stats.accuracy.clone().expect("reference given");
+    assert!(acc.rays > 0);
+    assert_eq!(
+        acc.hit_agreement(),
+        1.0,
+        "{}: bvh vs brute reference: {acc:?}",
+        scene.name
+    );
+    let brute = frame(scene, &config("brute", &[]), &o, Some("bvh"));
+    assert_eq!(brute.stats.accuracy.clone().unwrap().hit_agreement(), 1.0);
+    assert_eq!(bvh.stats.rays, brute.stats.rays, "{}", scene.name);
+    assert!(
+        bits(&bvh.image) == bits(&brute.image),
+        "{}: brute and bvh images differ",
+        scene.name
+    );
+    // Brute force tests every nearest-hit ray against every triangle (shadow rays may stop
+    // at the first occluder), so it never exceeds the N×M figure.
+    let tris = scene.triangle_count() as u64;
+    for kind in ["reflection", "refraction"] {
+        if let Some(k) = brute.stats.per_kind.get(kind) {
+            assert_eq!(k.ray_triangle, k.rays * tris, "{} {kind}", scene.name);
+        }
+    }
+    let secondary: u64 = ["shadow", "reflection", "refraction"]
+        .iter()
+        .filter_map(|k| brute.stats.per_kind.get(*k))
+        .map(|k| k.ray_triangle)
+        .sum();
+    assert!(secondary <= brute.stats.tests.brute_force);
+    assert!(
+        bvh.stats.tests.ray_triangle < brute.stats.tests.ray_triangle,
+        "{}: the BVH should prune",
+        scene.name
+    );
+    bvh
+}
+
+#[test]
+fn brute_and_bvh_agree_on_every_builtin_scene() {
+    for name in crsh_scene::builtin::NAMES {
+        let f = check_brute_and_bvh_agree(&builtin(name));
+        assert!(f.stats.rays.shadow > 0, "{name}: no shadow rays");
+        assert!(
+            f.image.iter().any(|p| p[0] + p[1] + p[2] > 0.0),
+            "{name}: black image"
+        );
+    }
+}
+
+#[test]
+fn brute_and_bvh_agree_on_the_shared_cornell_boxes() {
+    for path in crsh_tests::shared_scenes_in("cornell", "toml") {
+        check_brute_and_bvh_agree(&load(&path));
+    }
+}
+
+#[test]
+fn every_ray_kind_occurs_where_expected() {
+    let f = frame(
+        &builtin("cornell-mirrors"),
+        &config("bvh", &[]),
+        &opts(SIZE, SIZE, 3),
+        None,
+    );
+    assert!(f.stats.rays.reflection > 0 && f.stats.rays.shadow > 0);
+    assert_eq!(f.stats.rays.primary, (SIZE * SIZE) as u64);
+    // Mirror walls inside a closed box: every bounce finds a wall, so there are reflections
+    // at every depth (more reflection rays than one bounce's worth of pixels).
+    assert!(f.stats.rays.reflection > (SIZE * SIZE) as u64);
+    // Depth 0: no secondary bounce at all.
+    let f0 = frame(
+        &builtin("cornell-mirrors"),
+        &config("bvh", &[]),
+        &opts(SIZE, SIZE, 0),
+        None,
+    );
+    assert_eq!(f0.stats.rays.reflection + f0.stats.rays.refraction, 0);
+    assert!(f0.stats.rays.shadow > 0);
+
+    // A glass pane in front of a wall: refraction rays (and the pane's own reflections).
+    let scene = glass_scene();
+    let f = frame(&scene, &config("bvh", &[]), &opts(SIZE, SIZE, 2), None);
+    assert!(f.stats.rays.refraction > 0, "{:?}", f.stats.rays);
+    assert!(f.stats.rays.reflection > 0);
+
+    if let Some(path) = crsh_tests::shared_scene("cornell/cornell-sphere.toml") {
+        let f = frame(
+            &load(&path),
+            &config("bvh", &[]),
+            &opts(SIZE, SIZE, 3),
+            None,
+        );
+        assert!(f.stats.rays.reflection > 0 && f.stats.rays.refraction > 0);
+    }
+    if let Some(path) = crsh_tests::shared_scene("cornell/cornell-mirror.toml") {
+        let f = frame(
+            &load(&path),
+            &config("bvh", &[]),
+            &opts(SIZE, SIZE, 3),
+            None,
+        );
+        assert!(f.stats.rays.reflection > 0);
+    }
+}
+
+/// A white back wall at z = -1 with a glass pane (ior 1.5) in front of it at z = 0, covering
+/// the middle of the view; one light near the camera.
+fn glass_scene() -> Arc<Scene> {
+    let quad = |z: f32, s: f32| {
+        [
+            Vec3::new(-s, -s, z),
+            Vec3::new(s, -s, z),
+            Vec3::new(s, s, z),
+            Vec3::new(-s, s, z),
+        ]
+    };
+    let mut b = SceneBuilder::new("glass-pane");
+    let wall = b.material(Material::default());
+    let glass = b.material(Material {
+        name: "glass".into(),
+        diffuse: Vec3::splat(0.05),
+        transparency: 0.8,
+        reflectivity: 0.1,
+        ior: 1.5,
+        ..Material::default()
+    });
+    b.mesh(
+        "wall",
+        &quad(-1.0, 3.0),
+        None,
+        &[[0, 1, 2], [0, 2, 3]],
+        wall,
+    );
+    b.mesh(
+        "pane",
+        &quad(0.0, 0.6),
+        None,
+        &[[0, 1, 2], [0, 2, 3]],
+        glass,
+    );
+    b.light(Light {
+        position: Vec3::new(0.5, 0.5, 3.0),
+        color: Vec3::ONE,
+        intensity: 1.0,
+        attenuation: [1.0, 0.0, 0.0],
+    });
+    b.camera(Camera {
+        eye: Vec3::new(0.3, 0.2, 3.0),
+        target: Vec3::new(0.0, 0.0, -1.0),
+        up: Vec3::Y,
+        vfov_deg: 50.0,
+        aspect: None,
+    });
+    Arc::new(b.build("glass-pane").unwrap())
+}
+
+#[test]
+fn raster_and_raycast_primaries_give_the_same_image() {
+    for name in crsh_scene::builtin::NAMES {
+        let scene = builtin(name);
+        let o = opts(SIZE, SIZE, 3);
+        let raster = frame(&scene, &config("bvh", &[]), &o, None);
+        let cast = frame(&scene, &config("bvh", &["primary.kind=raycast"]), &o, None);
+        let (a, b) = (to_rgba8(&raster.image), to_rgba8(&cast.image));
+        // Pixels on triangle edges may see the neighbouring triangle; nothing else differs.
+        let differing = a
+            .chunks_exact(4)
+            .zip(b.chunks_exact(4))
+            .filter(|(p, q)| p.iter().zip(*q).any(|(x, y)| x.abs_diff(*y) > 2))
+            .count();
+        let psnr = psnr_rgba8(&a, &b);
+        assert!(
+            differing * 50 <= (SIZE * SIZE) as usize && psnr > 30.0,
+            "{name}: {differing} pixels differ, PSNR {psnr:.1} dB"
+        );
+    }
+}
+
+#[test]
+fn output_does_not_depend_on_the_thread_count() {
+    for name in crsh_scene::builtin::NAMES {
+        let scene = builtin(name);
+        for preset in crsh_cpu::PRESETS {
+            let cfg = config(preset, &[]);
+            let run = |threads| {
+                with_threads(threads, || frame(&scene, &cfg, &opts(SIZE, 48, 3), None)).unwrap()
+            };
+            let (one, three) = (run(1), run(3));
+            assert!(
+                bits(&one.image) == bits(&three.image),
+                "{name} {preset}: images differ between 1 and 3 threads"
+            );
+            assert_eq!(one.stats.rays, three.stats.rays, "{name} {preset}");
+            assert_eq!(one.stats.tests, three.stats.tests, "{name} {preset}");
+            assert_eq!(one.stats.per_kind.len(), three.stats.per_kind.len());
+            for (k, v) in &one.stats.per_kind {
+                let w = &three.stats.per_kind[k];
+                assert_eq!(
+                    (v.rays, v.bounds, v.ray_triangle),
+                    (w.rays, w.bounds, w.ray_triangle)
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn culling_and_shadow_origin_are_pure_optimisations() {
+    let scene = builtin("office-boxes");
+    let o = opts(SIZE, SIZE, 2);
+    let base = frame(&scene, &config("bvh", &[]), &o, None);
+    let unculled = frame(
+        &scene,
+        &config("bvh", &["raygen.cull_backfacing=false"]),
+        &o,
+        None,
+    );
+    assert!(unculled.stats.rays.shadow > base.stats.rays.shadow);
+    assert!(bits(&base.image) == bits(&unculled.image));
+    // Starting shadow rays at the surface tests the same segments the other way round.
+    let surface = frame(
+        &scene,
+        &config("bvh", &["raygen.shadow_origin=surface"]),
+        &o,
+        None,
+    );
+    assert_eq!(surface.stats.rays, base.stats.rays);
+    let psnr = psnr_rgba8(&to_rgba8(&base.image), &to_rgba8(&surface.image));
+    assert!(psnr > 45.0, "PSNR {psnr}");
+}
+
+/// A quad lit head-on by one light at a known distance, no ambient: every pixel that sees the
+/// quad has the radiance of eq. 3.19 (diffuse + specular with attenuation), computed here
+/// independently in f64 from the camera ray through the pixel centre.
+#[test]
+fn lit_quad_has_the_radiance_of_eq_3_19() {
+    let (diffuse, specular, shininess) = (Vec3::new(0.6, 0.5, 0.4), Vec3::splat(0.3), 10.0f32);
+    let light = Light {
+        position: Vec3::new(0.0, 0.0, 2.0),
+        color: Vec3::new(1.0, 0.9, 0.8),
+        intensity: 2.0,
+        attenuation: [1.0, 0.5, 0.25],
+    };
+    let mut b = SceneBuilder::new("lit-quad");
+    let m = b.material(Material {
+        diffuse,
+        specular,
+        shininess,
+        ..Material::default()
+    });
+    let s = 1.0;
+    b.mesh(
+        "quad",
+        &[
+            Vec3::new(-s, -s, 0.0),
+            Vec3::new(s, -s, 0.0),
+            Vec3::new(s, s, 0.0),
+            Vec3::new(-s, s, 0.0),
+        ],
+        None,
+        &[[0, 1, 2], [0, 2, 3]],
+        m,
+    );
+    b.light(light.clone());
+    let camera = Camera {
+        eye: Vec3::new(0.0, 0.0, 3.0),
+        target: Vec3::ZERO,
+        up: Vec3::Y,
+        vfov_deg: 45.0,
+        aspect: None,
+    };
+    b.camera(camera.clone());
+    let scene = Arc::new(b.build("lit-quad").unwrap());
+    let (w, h) = (48u32, 40u32);
+    for preset in crsh_cpu::PRESETS {
+        let f = frame(
+            &scene,
+            &config(preset, &["shade.ambient=0"]),
+            &opts(w, h, 3),
+            None,
+        );
+        let mut lit = 0;
+        for y in 0..h {
+            for x in 0..w {
+                let px = f.image[(y * w + x) as usize];
+                let dir = camera
+                    .direction(x as f32 + 0.5, y as f32 + 0.5, w, h)
+                    .as_dvec3();
+                let eye = camera.eye.as_dvec3();
+                let p = eye + dir * (-eye.z / dir.z);
+                let expect = if p.x.abs().max(p.y.abs()) < 0.99 {
+                    lit += 1;
+                    eq_3_19(p, dir, &light, diffuse, specular, shininess as f64)
+                } else if p.x.abs().max(p.y.abs()) > 1.01 {
+                    DVec3::ZERO
+                } else {
+                    continue; // on the quad's border
+                };
+                for k in 0..3 {
+                    assert!(
+                        (px[k] as f64 - expect[k]).abs() < 1e-4,
+                        "{preset} pixel ({x}, {y}): {px:?} vs {expect}"
+                    );
+                }
+                assert_eq!(px[3], 1.0);
+            }
+        }
+        assert!(lit > (w * h / 3) as usize);
+        assert_eq!(f.stats.rays.reflection + f.stats.rays.refraction, 0);
+    }
+}
+
+/// Eq. 3.19a-i for one light at hit point `p` seen along the unit `view` direction, normal +z.
+fn eq_3_19(
+    p: DVec3,
+    view: DVec3,
+    light: &Light,
+    diffuse: Vec3,
+    specular: Vec3,
+    shininess: f64,
+) -> DVec3 {
+    let n = DVec3::Z;
+    let to_light = light.position.as_dvec3() - p;
+    let dist = to_light.length(); // 3.19b
+    let l = to_light / dist; // 3.19a
+    let [c, lin, quad] = light.attenuation.map(f64::from);
+    let att = 1.0 / (c + dist * lin + dist * dist * quad); // 3.19c
+    let half = (l - view).normalize(); // 3.19d-e
+    let fd = l.dot(n).clamp(0.0, 1.0); // 3.19f
+    let fs = half.dot(n).max(0.0).powf(shininess).clamp(0.0, 1.0); // 3.19g
+    let lc = light.color.as_dvec3() * light.intensity as f64;
+    diffuse.as_dvec3() * lc * fd * att + specular.as_dvec3() * lc * fs * att // 3.19h-i
+}
+
+#[test]
+fn bad_pipelines_are_errors_not_panics() {
+    let scene = builtin("cornell-mirrors");
+    let o = opts(8, 8, 1);
+    let run = |cfg: &PipelineConfig, reference: Option<&StageSpec>| {
+        render(&scene, cfg, &o, reference, &mut |_| {}).map(|_| ())
+    };
+    let unknown = config("bvh", &["intersect.kind=kdtree"]);
+    assert!(matches!(
+        run(&unknown, None),
+        Err(CoreError::UnknownVariant { .. })
+    ));
+    let no_cpu_hash = config("bvh", &["hash.kind=morton"]);
+    assert!(matches!(
+        run(&no_cpu_hash, None),
+        Err(CoreError::UnknownVariant { .. })
+    ));
+    let bad_param = config("bvh", &["raygen.epsilon=bright"]);
+    assert!(matches!(
+        run(&bad_param, None),
+        Err(CoreError::InvalidParam { .. })
+    ));
+    let bad_choice = config("bvh", &["intersect.build_quality=perfect"]);
+    assert!(run(&bad_choice, None).is_err());
+    assert!(run(&config("bvh", &[]), Some(&StageSpec::new("oracle"))).is_err());
+    let zero = render(
+        &scene,
+        &config("bvh", &[]),
+        &opts(0, 8, 1),
+        None,
+        &mut |_| {},
+    );
+    assert!(matches!(zero, Err(CoreError::InvalidInput(_))));
+}
+
+#[test]
+fn progress_is_reported_and_timings_recorded() {
+    let scene = builtin("cornell-mirrors");
+    let mut steps = Vec::new();
+    let f = render(
+        &scene,
+        &config("brute", &[]),
+        &opts(16, 16, 2),
+        None,
+        &mut |p| steps.push((p.step, p.total_steps)),
+    )
+    .unwrap();
+    assert!(steps.len() > 3);
+    assert!(steps.windows(2).all(|w| w[0].0 <= w[1].0));
+    let (last, total) = *steps.last().unwrap();
+    assert_eq!(last, total);
+    for key in [
+        "total",
+        "primary",
+        "ray_creation",
+        "intersection",
+        "shading",
+    ] {
+        assert!(f.stats.timings_ms.contains_key(key), "no timing for {key}");
+    }
+    assert_eq!(
+        f.stats.tests.brute_force,
+        (f.stats.rays.total() - f.stats.rays.primary) * scene.triangle_count() as u64
+    );
+}
