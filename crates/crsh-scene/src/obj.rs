@@ -258,7 +258,8 @@ fn first_number(s: &str) -> Option<f32> {
 /// - `Ks` specular (default black), `Ns` shininess (default 1), `Ke` emission (marks an
 ///   emitter's surface; not a light).
 /// - Mirror: `illum 3` or `illum 5` give reflectivity `max(Ks)` (clamped to `[0, 1]`).
-/// - Transparency, first rule that applies: `d < 1` gives `1 - d` (dissolve is opacity);
+/// - Transparency, first rule that applies: `d < 1` gives `1 - d` (dissolve is opacity;
+///   `Tr`, its complement written by some exporters, counts as `d = 1 - Tr`);
 ///   else `Tf` with `max(Tf) < 1` gives `max(Tf)` (the transmission filter is the fraction
 ///   transmitted; `Tf 1 1 1` is ignored because exporters write it for opaque materials);
 ///   else `illum 4`, `6` or `7` give 1 (fully transparent glass, weighted by `max(Tf)` when
