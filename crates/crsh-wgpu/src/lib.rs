@@ -1,1 +1,33 @@
-//! crsh-wgpu (in progress)
+//! # crsh-wgpu
+//!
+//! The wgpu backend of crsh: the same stage sequence that runs on `crsh-cpu` runs here with
+//! stage buffers in device memory.
+//!
+//! * [`adapter`]: adapter discovery ([`enumerate_adapters`], honouring `WGPU_BACKEND`,
+//!   `WGPU_ADAPTER_NAME`, `WGPU_POWER_PREF`) and the shared device context [`GpuContext`],
+//!   opened with the adapter's own limits and, where available, timestamp queries.
+//! * [`backend`]: [`Wgpu`], the [`crsh_core::Backend`] whose `Buffer<T>` is a typed device
+//!   buffer [`GpuBuffer<T>`]. The frame driver only uploads, downloads, fills and concatenates
+//!   buffers; stages record their own compute passes on the context's device.
+//! * [`kernels`]: compute kernels that stages build on, starting with the exclusive prefix sum
+//!   ([`kernels::scan`]).
+//!
+//! **Every kernel has a CPU twin** in the same module (e.g. [`exclusive_scan`] and
+//! [`exclusive_scan_cpu`]) with bit-identical semantics (integer kernels use the same wrapping
+//! arithmetic); the tests run both on the same inputs and require equal results, so a GPU
+//! result can always be checked on the host.
+//!
+//! Without a GPU, Mesa's lavapipe (`apt-get install mesa-vulkan-drivers libvulkan1`) provides
+//! a software Vulkan adapter: results are exact, timings are not representative.
+
+#![warn(missing_docs)]
+
+pub mod adapter;
+pub mod backend;
+pub mod error;
+pub mod kernels;
+
+pub use adapter::{enumerate_adapters, AdapterInfo, GpuContext};
+pub use backend::{GpuBuffer, Wgpu};
+pub use error::{GpuError, GpuResult};
+pub use kernels::scan::{exclusive_scan, exclusive_scan_cpu, exclusive_scan_in_place, ScanKernel};

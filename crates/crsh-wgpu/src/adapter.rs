@@ -1,0 +1,332 @@
+//! Adapter discovery and the device context that buffers and kernels share.
+//!
+//! Adapter choice follows wgpu's environment conventions so that a user can steer it without
+//! code changes:
+//!
+//! * `WGPU_BACKEND` (`vulkan`, `gl`, `metal`, `dx12`, comma-separated) restricts the backends
+//!   searched (wgpu's [`wgpu::Backends::from_env`], applied through
+//!   [`wgpu::InstanceDescriptor::new_without_display_handle_from_env`], which also honours
+//!   `WGPU_DEBUG` / `WGPU_VALIDATION`);
+//! * `WGPU_ADAPTER_NAME` picks the first adapter whose name contains the given text
+//!   (case-insensitive); unlike wgpu's helper, a name that matches nothing is an error, not a
+//!   panic;
+//! * `WGPU_POWER_PREF` (`low`, `high`, `none`) otherwise steers `request_adapter`; the default
+//!   here is `high` (a discrete GPU wins over an integrated one or lavapipe).
+
+use std::any::{Any, TypeId};
+use std::collections::HashMap;
+use std::fmt;
+use std::sync::{Arc, Mutex};
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{GpuError, GpuResult};
+
+/// What a wgpu adapter says about itself, in a serialisable form (for `crsh devices`, stats
+/// files and benchmark reports).
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct AdapterInfo {
+    /// Adapter name, e.g. `llvmpipe (LLVM 15.0.6, 256 bits)` for lavapipe.
+    pub name: String,
+    /// Backend in lower case: `vulkan`, `gl`, `metal`, `dx12`, `webgpu`, `noop`.
+    pub backend: String,
+    /// Device type: `discrete-gpu`, `integrated-gpu`, `virtual-gpu`, `cpu` (software, such
+    /// as lavapipe) or `other`.
+    pub device_type: String,
+    /// Driver name (may be empty on some backends).
+    pub driver: String,
+    /// Driver version and build information (may be empty).
+    pub driver_info: String,
+    /// PCI vendor id (0 when unknown).
+    pub vendor: u32,
+    /// PCI device id (0 when unknown).
+    pub device: u32,
+}
+
+impl AdapterInfo {
+    /// True for software adapters (lavapipe, llvmpipe, WARP): timings on them say nothing about
+    /// GPU performance.
+    pub fn is_software(&self) -> bool {
+        self.device_type == "cpu"
+    }
+}
+
+impl From<&wgpu::AdapterInfo> for AdapterInfo {
+    fn from(info: &wgpu::AdapterInfo) -> Self {
+        let device_type = match info.device_type {
+            wgpu::DeviceType::DiscreteGpu => "discrete-gpu",
+            wgpu::DeviceType::IntegratedGpu => "integrated-gpu",
+            wgpu::DeviceType::VirtualGpu => "virtual-gpu",
+            wgpu::DeviceType::Cpu => "cpu",
+            wgpu::DeviceType::Other => "other",
+        };
+        AdapterInfo {
+            name: info.name.clone(),
+            backend: info.backend.to_str().to_string(),
+            device_type: device_type.to_string(),
+            driver: info.driver.clone(),
+            driver_info: info.driver_info.clone(),
+            vendor: info.vendor,
+            device: info.device,
+        }
+    }
+}
+
+/// The backends searched: `WGPU_BACKEND` when set, otherwise all compiled-in backends.
+pub fn backends_from_env() -> wgpu::Backends {
+    wgpu::Backends::from_env().unwrap_or_else(wgpu::Backends::all)
+}
+
+fn new_instance() -> wgpu::Instance {
+    wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env())
+}
+
+/// Every adapter visible to wgpu on this machine (restricted to `WGPU_BACKEND` when set).
+///
+/// An empty list means no GPU driver and no software Vulkan/GL implementation is installed.
+pub fn enumerate_adapters() -> Vec<AdapterInfo> {
+    let instance = new_instance();
+    pollster::block_on(instance.enumerate_adapters(backends_from_env()))
+        .iter()
+        .map(|a| AdapterInfo::from(&a.get_info()))
+        .collect()
+}
+
+/// Optional features requested when the adapter has them, never required.
+///
+/// `TIMESTAMP_QUERY` (and its in-encoder variant) lets later stages report GPU-side timings.
+pub const OPTIONAL_FEATURES: wgpu::Features =
+    wgpu::Features::TIMESTAMP_QUERY.union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS);
+
+type KernelCache = Mutex<HashMap<TypeId, Arc<dyn Any + Send + Sync>>>;
+
+/// An open device: instance, adapter, device and queue, plus the limits and features that
+/// were granted and a cache of compiled kernels.
+///
+/// Create one per process and share it (`Arc<GpuContext>`); wgpu objects are thread-safe.
+pub struct GpuContext {
+    instance: wgpu::Instance,
+    adapter: wgpu::Adapter,
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    info: AdapterInfo,
+    kernels: KernelCache,
+}
+
+impl fmt::Debug for GpuContext {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("GpuContext")
+            .field("info", &self.info)
+            .field("features", &self.device.features())
+            .finish_non_exhaustive()
+    }
+}
+
+impl GpuContext {
+    /// Opens the adapter chosen by the environment (see the module docs) with the adapter's own
+    /// limits rather than WebGPU's defaults (so a discrete GPU grants storage bindings of
+    /// several GiB and 1024-invocation workgroups; lavapipe grants 128 MiB bindings) and
+    /// [`OPTIONAL_FEATURES`] where available.
+    ///
+    /// Fails with [`GpuError::NoAdapter`] when no adapter exists.
+    pub fn new() -> GpuResult<Self> {
+        let instance = new_instance();
+        let backends = backends_from_env();
+        let adapter = match std::env::var("WGPU_ADAPTER_NAME") {
+            Ok(wanted) if !wanted.trim().is_empty() => {
+                let adapters = pollster::block_on(instance.enumerate_adapters(backends));
+                let needle = wanted.to_lowercase();
+                let names: Vec<String> = adapters.iter().map(|a| a.get_info().name).collect();
+                match adapters
+                    .into_iter()
+                    .find(|a| a.get_info().name.to_lowercase().contains(&needle))
+                {
+                    Some(a) => a,
+                    None if names.is_empty() => {
+                        return Err(GpuError::NoAdapter {
+                            backends: format!("{backends:?}"),
+                            reason: "enumerate_adapters returned none".into(),
+                        })
+                    }
+                    None => {
+                        return Err(GpuError::AdapterNameNotFound {
+                            wanted,
+                            found: names.join(", "),
+                        })
+                    }
+                }
+            }
+            _ => {
+                let options = wgpu::RequestAdapterOptions {
+                    power_preference: wgpu::PowerPreference::from_env()
+                        .unwrap_or(wgpu::PowerPreference::HighPerformance),
+                    ..Default::default()
+                };
+                pollster::block_on(instance.request_adapter(&options)).map_err(|e| {
+                    GpuError::NoAdapter {
+                        backends: format!("{backends:?}"),
+                        reason: e.to_string(),
+                    }
+                })?
+            }
+        };
+        Self::from_adapter(instance, adapter)
+    }
+
+    /// Opens a device on a given adapter (for callers that pick adapters themselves).
+    pub fn from_adapter(instance: wgpu::Instance, adapter: wgpu::Adapter) -> GpuResult<Self> {
+        let wgpu_info = adapter.get_info();
+        let info = AdapterInfo::from(&wgpu_info);
+        let desc = wgpu::DeviceDescriptor {
+            label: Some("crsh"),
+            required_features: adapter.features() & OPTIONAL_FEATURES,
+            required_limits: adapter.limits(),
+            ..Default::default()
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&desc)).map_err(|e| {
+            GpuError::RequestDevice {
+                adapter: info.name.clone(),
+                reason: e.to_string(),
+            }
+        })?;
+        Ok(GpuContext {
+            instance,
+            adapter,
+            device,
+            queue,
+            info,
+            kernels: Mutex::new(HashMap::new()),
+        })
+    }
+
+    /// The wgpu instance the adapter came from.
+    pub fn instance(&self) -> &wgpu::Instance {
+        &self.instance
+    }
+
+    /// The adapter.
+    pub fn adapter(&self) -> &wgpu::Adapter {
+        &self.adapter
+    }
+
+    /// The logical device.
+    pub fn device(&self) -> &wgpu::Device {
+        &self.device
+    }
+
+    /// The device's queue.
+    pub fn queue(&self) -> &wgpu::Queue {
+        &self.queue
+    }
+
+    /// What the adapter says about itself.
+    pub fn info(&self) -> &AdapterInfo {
+        &self.info
+    }
+
+    /// The limits granted to the device (the adapter's own).
+    pub fn limits(&self) -> wgpu::Limits {
+        self.device.limits()
+    }
+
+    /// The features granted to the device (a subset of [`OPTIONAL_FEATURES`]).
+    pub fn features(&self) -> wgpu::Features {
+        self.device.features()
+    }
+
+    /// Largest storage buffer binding in bytes (`max_storage_buffer_binding_size`): the largest
+    /// buffer a kernel can read or write as one array.
+    pub fn max_storage_binding_bytes(&self) -> u64 {
+        self.device.limits().max_storage_buffer_binding_size
+    }
+
+    /// Largest buffer in bytes (`max_buffer_size`).
+    pub fn max_buffer_bytes(&self) -> u64 {
+        self.device.limits().max_buffer_size
+    }
+
+    /// Largest workgroup count per dispatch dimension.
+    pub fn max_workgroups_per_dimension(&self) -> u32 {
+        self.device.limits().max_compute_workgroups_per_dimension
+    }
+
+    /// Whether GPU timestamp queries are available (`TIMESTAMP_QUERY` was granted).
+    pub fn has_timestamp_query(&self) -> bool {
+        self.device
+            .features()
+            .contains(wgpu::Features::TIMESTAMP_QUERY)
+    }
+
+    /// Nanoseconds per timestamp tick (meaningful when [`Self::has_timestamp_query`]).
+    pub fn timestamp_period_ns(&self) -> f32 {
+        self.queue.get_timestamp_period()
+    }
+
+    /// Blocks until all submitted work has finished.
+    pub fn wait(&self) -> GpuResult<()> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| GpuError::Poll(e.to_string()))
+    }
+
+    /// Fails with [`GpuError::TooLarge`] when `bytes` cannot be bound as one storage buffer.
+    pub fn check_storage_binding(&self, what: &str, bytes: u64) -> GpuResult<()> {
+        let limit = self.max_storage_binding_bytes();
+        if bytes > limit {
+            return Err(GpuError::TooLarge {
+                what: what.to_string(),
+                bytes,
+                limit_name: "max_storage_buffer_binding_size",
+                limit,
+            });
+        }
+        Ok(())
+    }
+
+    /// Runs `f` (device calls: creating resources, submitting work) and turns any validation
+    /// or out-of-memory error the device reports for it into [`GpuError::Device`] instead of
+    /// wgpu's default uncaptured-error panic.
+    pub fn capture<R>(&self, op: &str, f: impl FnOnce() -> R) -> GpuResult<R> {
+        let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let r = f();
+        let validation = pollster::block_on(validation.pop());
+        let oom = pollster::block_on(oom.pop());
+        match validation.or(oom) {
+            Some(e) => Err(GpuError::Device {
+                op: op.to_string(),
+                reason: e.to_string(),
+            }),
+            None => Ok(r),
+        }
+    }
+
+    /// The kernel of type `K` compiled for this device, built with `init` on first use and
+    /// shared afterwards (pipelines are expensive to compile, especially on lavapipe).
+    pub fn kernel<K: Any + Send + Sync>(
+        &self,
+        init: impl FnOnce(&GpuContext) -> GpuResult<K>,
+    ) -> GpuResult<Arc<K>> {
+        let id = TypeId::of::<K>();
+        if let Some(k) = self.lock_kernels().get(&id) {
+            if let Ok(k) = Arc::clone(k).downcast::<K>() {
+                return Ok(k);
+            }
+        }
+        // Compile outside the lock; if two threads race, the first insert wins.
+        let built: Arc<dyn Any + Send + Sync> = Arc::new(init(self)?);
+        let stored = Arc::clone(self.lock_kernels().entry(id).or_insert(built));
+        stored.downcast::<K>().map_err(|_| GpuError::Device {
+            op: "kernel cache".into(),
+            reason: "type mismatch in kernel cache".into(),
+        })
+    }
+
+    fn lock_kernels(
+        &self,
+    ) -> std::sync::MutexGuard<'_, HashMap<TypeId, Arc<dyn Any + Send + Sync>>> {
+        // A panic while holding the lock cannot leave the map inconsistent (insert is atomic).
+        self.kernels.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}

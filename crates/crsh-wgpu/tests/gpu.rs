@@ -1,0 +1,376 @@
+//! Device tests: adapter discovery, the `Wgpu` backend's buffer operations, and the scan kernel
+//! against its CPU twin.
+//!
+//! Without an adapter these tests print `SKIP: no wgpu adapter (...)` and pass, unless
+//! `CRSH_REQUIRE_GPU=1` (CI), where a missing adapter fails them.
+
+use std::sync::{Arc, OnceLock};
+
+use crsh_core::{Backend, Hit, NO_HIT};
+use crsh_wgpu::kernels::scan::SCAN_BLOCK;
+use crsh_wgpu::{
+    enumerate_adapters, exclusive_scan, exclusive_scan_cpu, exclusive_scan_in_place, GpuBuffer,
+    GpuContext, GpuError, ScanKernel, Wgpu,
+};
+
+/// The shared device for all tests of this binary, or `None` (after printing `SKIP:`) when
+/// this machine has no adapter. Panics when `CRSH_REQUIRE_GPU=1` and there is none.
+fn gpu(test: &str) -> Option<Arc<GpuContext>> {
+    static CTX: OnceLock<Result<Arc<GpuContext>, String>> = OnceLock::new();
+    let ctx = CTX.get_or_init(|| GpuContext::new().map(Arc::new).map_err(|e| e.to_string()));
+    match ctx {
+        Ok(ctx) => Some(Arc::clone(ctx)),
+        Err(e) => {
+            if std::env::var("CRSH_REQUIRE_GPU").as_deref() == Ok("1") {
+                panic!("CRSH_REQUIRE_GPU=1 but no usable wgpu adapter for `{test}`: {e}");
+            }
+            println!("SKIP: no wgpu adapter ({e}) in `{test}`");
+            None
+        }
+    }
+}
+
+fn backend(test: &str) -> Option<Wgpu> {
+    gpu(test).map(Wgpu::from_context)
+}
+
+/// A tiny deterministic generator (64-bit LCG, Knuth's MMIX constants; high 32 bits out).
+struct Lcg(u64);
+
+impl Lcg {
+    fn next(&mut self) -> u32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 32) as u32
+    }
+    fn vec(&mut self, n: usize) -> Vec<u32> {
+        (0..n).map(|_| self.next()).collect()
+    }
+}
+
+// ---------------------------------------------------------------- discovery
+
+#[test]
+fn discovery_lists_the_context_adapter() {
+    let Some(ctx) = gpu("discovery_lists_the_context_adapter") else {
+        return;
+    };
+    let adapters = enumerate_adapters();
+    assert!(
+        !adapters.is_empty(),
+        "a device opened but no adapter is listed"
+    );
+    assert!(
+        adapters.iter().any(|a| a == ctx.info()),
+        "context adapter {:?} missing from {adapters:?}",
+        ctx.info()
+    );
+    for a in &adapters {
+        assert!(!a.name.is_empty());
+        assert!(
+            ["vulkan", "gl", "metal", "dx12", "webgpu", "noop"].contains(&a.backend.as_str()),
+            "{a:?}"
+        );
+        let json = serde_json::to_value(a).expect("AdapterInfo serialises");
+        for key in ["name", "backend", "device_type", "driver", "driver_info"] {
+            assert!(json.get(key).is_some(), "{key} missing in {json}");
+        }
+    }
+    println!("adapters: {adapters:#?}");
+}
+
+#[test]
+fn discovery_lists_lavapipe_when_installed() {
+    let icd_dirs = ["/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d"];
+    let lavapipe_installed = icd_dirs.iter().any(|d| {
+        std::fs::read_dir(d)
+            .map(|entries| {
+                entries
+                    .flatten()
+                    .any(|e| e.file_name().to_string_lossy().starts_with("lvp_icd"))
+            })
+            .unwrap_or(false)
+    });
+    let vulkan_allowed = crsh_wgpu::adapter::backends_from_env().contains(wgpu::Backends::VULKAN);
+    if !lavapipe_installed || !vulkan_allowed {
+        println!(
+            "SKIP: lavapipe ICD installed: {lavapipe_installed}, Vulkan allowed by WGPU_BACKEND: \
+             {vulkan_allowed}"
+        );
+        return;
+    }
+    let adapters = enumerate_adapters();
+    assert!(
+        adapters
+            .iter()
+            .any(|a| a.backend == "vulkan" && a.is_software() && a.name.contains("llvmpipe")),
+        "lavapipe ICD is installed but not listed: {adapters:?}"
+    );
+}
+
+#[test]
+fn context_reports_limits_and_features() {
+    let Some(ctx) = gpu("context_reports_limits_and_features") else {
+        return;
+    };
+    let adapter_limits = ctx.adapter().limits();
+    // The device got the adapter's own limits, not WebGPU's defaults.
+    assert_eq!(
+        ctx.max_storage_binding_bytes(),
+        adapter_limits.max_storage_buffer_binding_size
+    );
+    assert_eq!(ctx.max_buffer_bytes(), adapter_limits.max_buffer_size);
+    assert_eq!(
+        ctx.max_workgroups_per_dimension(),
+        adapter_limits.max_compute_workgroups_per_dimension
+    );
+    assert!(ctx.max_storage_binding_bytes() >= 128 << 20);
+    let has = ctx
+        .adapter()
+        .features()
+        .contains(wgpu::Features::TIMESTAMP_QUERY);
+    assert_eq!(ctx.has_timestamp_query(), has);
+    if has {
+        assert!(ctx.timestamp_period_ns() > 0.0);
+    }
+}
+
+// ---------------------------------------------------------------- backend buffers
+
+#[test]
+fn upload_download_round_trips() {
+    let Some(b) = backend("upload_download_round_trips") else {
+        return;
+    };
+    assert_eq!(b.name(), "wgpu");
+    let data = Lcg(1).vec(1001);
+    let buf = b.upload(&data).unwrap();
+    assert_eq!(b.len(&buf), 1001);
+    assert_eq!(b.download(&buf).unwrap(), data);
+
+    let hits: Vec<Hit> = (0..37)
+        .map(|i| Hit {
+            t: i as f32 * 0.5,
+            tri: if i % 3 == 0 { NO_HIT } else { i },
+            u: 0.25,
+            v: -1.0,
+        })
+        .collect();
+    let buf = b.upload(&hits).unwrap();
+    assert_eq!(b.download(&buf).unwrap(), hits);
+
+    // Element sizes that are not multiples of 4 are padded on the device.
+    let bytes: Vec<u8> = (0..13u8).collect();
+    let buf = b.upload(&bytes).unwrap();
+    assert_eq!(b.len(&buf), 13);
+    assert_eq!(b.download(&buf).unwrap(), bytes);
+    let triples: Vec<[u16; 3]> = (0..5u16).map(|i| [i, i + 1, u16::MAX - i]).collect();
+    assert_eq!(b.download(&b.upload(&triples).unwrap()).unwrap(), triples);
+    b.sync().unwrap();
+}
+
+#[test]
+fn empty_buffers_work() {
+    let Some(b) = backend("empty_buffers_work") else {
+        return;
+    };
+    let empty = b.upload::<u32>(&[]).unwrap();
+    assert_eq!(b.len(&empty), 0);
+    assert!(empty.is_empty());
+    // Still a valid, bindable allocation.
+    assert!(empty.buffer().size() >= crsh_wgpu::backend::MIN_BUFFER_BYTES);
+    assert_eq!(b.download(&empty).unwrap(), Vec::<u32>::new());
+    let filled = b.filled(0, 7u32).unwrap();
+    assert_eq!(b.len(&filled), 0);
+    assert_eq!(b.download(&filled).unwrap(), Vec::<u32>::new());
+    let none = b.concat::<Hit>(Vec::new()).unwrap();
+    assert_eq!(b.len(&none), 0);
+    let all_empty = b
+        .concat(vec![
+            b.upload::<Hit>(&[]).unwrap(),
+            b.upload::<Hit>(&[]).unwrap(),
+        ])
+        .unwrap();
+    assert_eq!(b.download(&all_empty).unwrap(), Vec::<Hit>::new());
+}
+
+#[test]
+fn filled_replicates_value() {
+    let Some(b) = backend("filled_replicates_value") else {
+        return;
+    };
+    // Zero (device zero-init), one chunk, and several chunks with a partial last copy.
+    for (len, value) in [(100usize, 0u32), (100, 0xdead_beef), (70_001, 0x0102_0304)] {
+        let buf = b.filled(len, value).unwrap();
+        assert_eq!(b.len(&buf), len);
+        let got = b.download(&buf).unwrap();
+        assert_eq!(got.len(), len);
+        assert!(
+            got.iter().all(|&v| v == value),
+            "len {len} value {value:#x}"
+        );
+    }
+    let miss = b.filled(5000, Hit::MISS).unwrap();
+    assert_eq!(b.download(&miss).unwrap(), vec![Hit::MISS; 5000]);
+    // Unaligned element size takes the host path.
+    let odd = b.filled(70_001, [1u8, 2, 3]).unwrap();
+    assert_eq!(b.download(&odd).unwrap(), vec![[1u8, 2, 3]; 70_001]);
+}
+
+#[test]
+fn concat_keeps_order_and_skips_empty_parts() {
+    let Some(b) = backend("concat_keeps_order_and_skips_empty_parts") else {
+        return;
+    };
+    let mut rng = Lcg(7);
+    let parts: Vec<Vec<u32>> = [0usize, 3, 0, 1024, 1, 0, 4097]
+        .iter()
+        .map(|&n| rng.vec(n))
+        .collect();
+    let bufs = parts.iter().map(|p| b.upload(p).unwrap()).collect();
+    let joined = b.concat(bufs).unwrap();
+    assert_eq!(b.download(&joined).unwrap(), parts.concat());
+
+    let single = b.concat(vec![b.upload(&parts[3]).unwrap()]).unwrap();
+    assert_eq!(b.download(&single).unwrap(), parts[3]);
+
+    // Unaligned element size (host path).
+    let a: Vec<u8> = vec![1, 2, 3];
+    let c: Vec<u8> = vec![4, 5];
+    let joined = b
+        .concat(vec![b.upload(&a).unwrap(), b.upload(&c).unwrap()])
+        .unwrap();
+    assert_eq!(b.download(&joined).unwrap(), vec![1, 2, 3, 4, 5]);
+}
+
+#[test]
+fn oversized_buffer_is_an_error_not_a_panic() {
+    let Some(ctx) = gpu("oversized_buffer_is_an_error_not_a_panic") else {
+        return;
+    };
+    let too_many = (ctx.max_buffer_bytes() / 4 + 1) as usize;
+    match GpuBuffer::<u32>::zeroed(&ctx, "too big", too_many) {
+        Err(GpuError::TooLarge { limit_name, .. }) => assert_eq!(limit_name, "max_buffer_size"),
+        other => panic!("expected TooLarge, got {other:?}"),
+    }
+    let b = Wgpu::from_context(ctx);
+    let err = b.filled(too_many, 1u32).unwrap_err();
+    assert!(err.to_string().contains("max_buffer_size"), "{err}");
+}
+
+// ---------------------------------------------------------------- scan
+
+fn check_scan(ctx: &GpuContext, input: &[u32], what: &str) {
+    let buf = GpuBuffer::from_slice(ctx, "scan test input", input).unwrap();
+    let (out, total) = exclusive_scan(ctx, &buf).unwrap();
+    let (want, want_total) = exclusive_scan_cpu(input);
+    assert_eq!(out.len(), input.len(), "{what}");
+    let got = out.to_vec(ctx).unwrap();
+    if let Some(i) = (0..input.len()).find(|&i| got[i] != want[i]) {
+        panic!(
+            "{what}: n = {} first mismatch at {i}: gpu {} cpu {}",
+            input.len(),
+            got[i],
+            want[i]
+        );
+    }
+    assert_eq!(total, want_total, "{what}: total, n = {}", input.len());
+    // The input is left unchanged.
+    assert_eq!(buf.to_vec(ctx).unwrap(), input, "{what}: input modified");
+}
+
+#[test]
+fn scan_matches_cpu_twin_on_random_full_range_values() {
+    let Some(ctx) = gpu("scan_matches_cpu_twin_on_random_full_range_values") else {
+        return;
+    };
+    // Full-range values: the running sum wraps around 2^32 thousands of times.
+    let mut rng = Lcg(0x5eed);
+    for n in [
+        0usize,
+        1,
+        255,
+        256,
+        257,
+        1000,
+        SCAN_BLOCK,
+        SCAN_BLOCK + 1,
+        65537,
+        1 << 20,
+        (1 << 20) + 1,
+    ] {
+        check_scan(&ctx, &rng.vec(n), "full-range");
+    }
+}
+
+#[test]
+fn scan_matches_cpu_twin_on_counts_and_extremes() {
+    let Some(ctx) = gpu("scan_matches_cpu_twin_on_counts_and_extremes") else {
+        return;
+    };
+    let mut rng = Lcg(42);
+    // Small counts, as in stream compaction (no wrap).
+    let counts: Vec<u32> = (0..65537).map(|_| rng.next() % 4).collect();
+    check_scan(&ctx, &counts, "counts");
+    // All u32::MAX: prefix[i] = -i mod 2^32.
+    check_scan(&ctx, &vec![u32::MAX; 3000], "all max");
+    check_scan(&ctx, &[u32::MAX], "single max");
+    // Values straddling the wrap point.
+    let straddle: Vec<u32> = (0..257).map(|i| u32::MAX - (i % 5)).collect();
+    check_scan(&ctx, &straddle, "straddle");
+    check_scan(&ctx, &vec![0; 1000], "zeros");
+}
+
+#[test]
+fn scan_in_place_and_2d_dispatch() {
+    let Some(ctx) = gpu("scan_in_place_and_2d_dispatch") else {
+        return;
+    };
+    let mut rng = Lcg(99);
+    let input = rng.vec(300_001);
+    let (want, want_total) = exclusive_scan_cpu(&input);
+
+    let buf = GpuBuffer::from_slice(&ctx, "in place", &input).unwrap();
+    let total = exclusive_scan_in_place(&ctx, &buf).unwrap();
+    assert_eq!(total, want_total);
+    assert_eq!(buf.to_vec(&ctx).unwrap(), want);
+
+    // Narrow rows force a 2D grid with idle workgroups in the last row (294 blocks on 5
+    // columns = 60 rows, 6 idle; the second level fits in one row).
+    let narrow = ScanKernel::new(&ctx).unwrap().with_max_groups_x(5);
+    let buf = GpuBuffer::from_slice(&ctx, "2d", &input).unwrap();
+    let (out, total) = narrow.scan(&ctx, &buf).unwrap();
+    assert_eq!(total, want_total);
+    assert_eq!(out.to_vec(&ctx).unwrap(), want);
+
+    // One column: every level is a 1 x blocks grid.
+    let column = ScanKernel::new(&ctx).unwrap().with_max_groups_x(1);
+    let small = &input[..5000];
+    let buf = GpuBuffer::from_slice(&ctx, "column", small).unwrap();
+    let (out, total) = column.scan(&ctx, &buf).unwrap();
+    let (want_small, want_small_total) = exclusive_scan_cpu(small);
+    assert_eq!(total, want_small_total);
+    assert_eq!(out.to_vec(&ctx).unwrap(), want_small);
+}
+
+#[test]
+fn scan_rejects_inputs_beyond_the_storage_binding_limit() {
+    let Some(ctx) = gpu("scan_rejects_inputs_beyond_the_storage_binding_limit") else {
+        return;
+    };
+    let limit = ctx.max_storage_binding_bytes();
+    if limit > 256 << 20 || limit + 4 > ctx.max_buffer_bytes() {
+        println!("SKIP: binding limit {limit} B too large to allocate cheaply in a test");
+        return;
+    }
+    let n = (limit / 4 + 1) as usize;
+    let buf = GpuBuffer::<u32>::zeroed(&ctx, "over binding limit", n).unwrap();
+    match exclusive_scan(&ctx, &buf) {
+        Err(GpuError::TooLarge { limit_name, .. }) => {
+            assert_eq!(limit_name, "max_storage_buffer_binding_size")
+        }
+        other => panic!("expected TooLarge, got {:?}", other.map(|(_, t)| t)),
+    }
+}
