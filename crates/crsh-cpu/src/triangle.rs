@@ -192,7 +192,9 @@ pub fn is_degenerate(a: Vec3, b: Vec3, c: Vec3) -> bool {
     let (a, b, c): (DVec3, DVec3, DVec3) = (a.as_dvec3(), b.as_dvec3(), c.as_dvec3());
     let (e1, e2) = (b - a, c - a);
     let cross = e1.cross(e2).length();
-    !(cross > DET_REL_EPS as f64 * e1.length() * e2.length())
+    let bound = DET_REL_EPS as f64 * e1.length() * e2.length();
+    // NaN (non-finite input) counts as degenerate too.
+    cross.partial_cmp(&bound) != Some(std::cmp::Ordering::Greater)
 }
 
 /// [`LANES`] triangles in structure-of-arrays form (320 bytes) for the brute-force loop.

@@ -243,17 +243,17 @@ impl Setup {
     fn project(&self, scene: &Scene, id: u32) -> Vec<ScreenTri> {
         let [a, b, c] = scene.triangle(id as usize);
         let mut poly = vec![self.clip(a), self.clip(b), self.clip(c)];
-        // Inside when >= 0: near plane, then the guard band.
         let (g, n) = (self.guard, self.near);
-        let planes: [&dyn Fn(&[f64; 3]) -> f64; 5] = [
-            &|v| v[2] - n,
-            &|v| g * v[2] - v[0],
-            &|v| g * v[2] + v[0],
-            &|v| g * v[2] - v[1],
-            &|v| g * v[2] + v[1],
+        // Planes as `(a, b, c, d)`: inside where `a·x + b·y + c·w + d >= 0`.
+        let planes = [
+            [0.0, 0.0, 1.0, -n],
+            [-1.0, 0.0, g, 0.0],
+            [1.0, 0.0, g, 0.0],
+            [0.0, -1.0, g, 0.0],
+            [0.0, 1.0, g, 0.0],
         ];
         for plane in planes {
-            poly = clip_polygon(&poly, plane);
+            poly = clip_polygon(&poly, &plane);
             if poly.len() < 3 {
                 return Vec::new();
             }
@@ -309,8 +309,10 @@ impl Setup {
     }
 }
 
-/// Sutherland-Hodgman: the part of polygon `poly` where `dist >= 0`.
-fn clip_polygon(poly: &[[f64; 3]], dist: &dyn Fn(&[f64; 3]) -> f64) -> Vec<[f64; 3]> {
+/// Sutherland-Hodgman: the part of polygon `poly` (vertices `(x, y, w)`) where
+/// `a·x + b·y + c·w + d >= 0` for `plane = (a, b, c, d)`.
+fn clip_polygon(poly: &[[f64; 3]], plane: &[f64; 4]) -> Vec<[f64; 3]> {
+    let dist = |v: &[f64; 3]| plane[0] * v[0] + plane[1] * v[1] + plane[2] * v[2] + plane[3];
     let mut out = Vec::with_capacity(poly.len() + 1);
     for i in 0..poly.len() {
         let (p, q) = (&poly[i], &poly[(i + 1) % poly.len()]);
