@@ -11,7 +11,7 @@ use crsh_cpu::raygen::whitted::{reflect, refract, refraction_direction, Whitted}
 use crsh_cpu::shade::phong::{phong_light, Phong};
 use crsh_scene::{Camera, Light, Material, Scene, SceneBuilder};
 
-const SQRT_8: f32 = 2.828_427_1;
+const SQRT_8: f32 = 2.828_427;
 
 /// A scene with the square `[-1, 1]²` at z = 0 (normal +z, material `mat`) plus the given
 /// lights; its bounding-box diagonal is √8.

@@ -5,7 +5,8 @@
 //!
 //! For every surface record that holds a hit, and every light whose shadow ray found no
 //! occluder (a light without a shadow ray, because ray generation culled it, contributes
-//! nothing), eq. 3.19:
+//! nothing; as in the thesis, any occluder blocks the light fully, transparent ones included),
+//! eq. 3.19:
 //!
 //! ```text
 //! l     = (light − p) / |light − p|                        (3.19a)
