@@ -1,0 +1,192 @@
+//! Command-line arguments (clap derive).
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use crsh_core::pipeline::MAX_IMAGE_SIDE;
+
+/// Largest `--depth` accepted: deeper Whitted trees only add rays that carry no light.
+pub const MAX_DEPTH: u32 = 64;
+
+/// Largest `--threads` accepted.
+pub const MAX_THREADS: usize = 1024;
+
+/// crsh traces secondary rays (shadow, reflection, refraction) with the Coherent Ray-Space
+/// Hierarchy and reports exactly how much work each stage did.
+#[derive(Debug, Parser)]
+#[command(name = "crsh", version, about, long_about = None, propagate_version = true)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Render a scene, print a summary and optionally write a stats JSON file.
+    Render(RenderArgs),
+    /// List the built-in scenes and the scene manifests found in a directory.
+    Scenes(ScenesArgs),
+    /// List the pipeline presets and every stage variant with its parameters.
+    Pipelines(PipelinesArgs),
+    /// List the GPU adapters wgpu can see.
+    Adapters(AdaptersArgs),
+}
+
+/// Where a pipeline runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum BackendChoice {
+    /// The CPU backend (rayon).
+    Cpu,
+    /// The wgpu backend (adapter discovery only in this version).
+    Wgpu,
+}
+
+impl BackendChoice {
+    /// Name as it appears in stats.
+    pub fn name(self) -> &'static str {
+        match self {
+            BackendChoice::Cpu => "cpu",
+            BackendChoice::Wgpu => "wgpu",
+        }
+    }
+}
+
+/// `crsh render`.
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Scene: a built-in name (see `crsh scenes`), a TOML manifest or an OBJ file.
+    #[arg(
+        long,
+        default_value = "cornell-mirrors",
+        value_name = "NAME|MANIFEST.toml|MESH.obj"
+    )]
+    pub scene: String,
+
+    /// Pipeline: a preset name (see `crsh pipelines`) or a pipeline TOML file
+    /// (a serialized `PipelineConfig`).
+    #[arg(long, default_value = "bvh", value_name = "PRESET|PIPELINE.toml")]
+    pub pipeline: String,
+
+    /// Where the pipeline runs.
+    #[arg(long, value_enum, default_value_t = BackendChoice::Cpu)]
+    pub backend: BackendChoice,
+
+    /// Image width in pixels.
+    #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=MAX_IMAGE_SIDE as i64))]
+    pub width: u32,
+
+    /// Image height in pixels.
+    #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=MAX_IMAGE_SIDE as i64))]
+    pub height: u32,
+
+    /// Reflection / refraction bounces after the primary hit (0: direct light only).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=MAX_DEPTH as i64))]
+    pub depth: u32,
+
+    /// Output image (8-bit sRGB PNG).
+    #[arg(long, default_value = "crsh.png", value_name = "FILE.png")]
+    pub out: PathBuf,
+
+    /// Also write the frame's statistics as JSON to this file (see README, "Stats JSON").
+    #[arg(long, value_name = "FILE.json")]
+    pub stats: Option<PathBuf>,
+
+    /// Trace every batch again with this intersector (e.g. `brute`, the exact reference) and
+    /// render a full reference image: reports hit agreement and PSNR.
+    #[arg(long, value_name = "INTERSECTOR")]
+    pub reference: Option<String>,
+
+    /// Override a pipeline setting: `STAGE.kind=VARIANT`, `STAGE.PARAM=VALUE` or
+    /// `STAGE=off` for optional stages (repeatable; see `crsh pipelines`).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+
+    /// Worker threads (default: rayon's choice, i.e. `RAYON_NUM_THREADS` or one per core).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=MAX_THREADS as u64))]
+    pub threads: Option<u64>,
+}
+
+/// `crsh scenes`.
+#[derive(Debug, Args)]
+pub struct ScenesArgs {
+    /// Directory searched (recursively) for scene manifests.
+    #[arg(
+        long,
+        env = "CRSH_SCENES",
+        default_value = "../shared/scenes",
+        value_name = "DIR"
+    )]
+    pub scenes_dir: PathBuf,
+
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `crsh pipelines`.
+#[derive(Debug, Args)]
+pub struct PipelinesArgs {
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `crsh adapters`.
+#[derive(Debug, Args)]
+pub struct AdaptersArgs {
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn clap_definition_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn render_defaults() {
+        let cli = Cli::try_parse_from(["crsh", "render"]).unwrap();
+        let Command::Render(r) = cli.command else {
+            panic!("expected render");
+        };
+        assert_eq!(r.scene, "cornell-mirrors");
+        assert_eq!(r.pipeline, "bvh");
+        assert_eq!((r.width, r.height, r.depth), (512, 512, 3));
+        assert_eq!(r.backend, BackendChoice::Cpu);
+        assert_eq!(r.out, PathBuf::from("crsh.png"));
+        assert!(r.stats.is_none() && r.reference.is_none() && r.threads.is_none());
+    }
+
+    #[test]
+    fn sizes_are_range_checked() {
+        for bad in [
+            &["crsh", "render", "--width", "0"][..],
+            &["crsh", "render", "--height", "100000"],
+            &["crsh", "render", "--depth", "1000"],
+            &["crsh", "render", "--threads", "0"],
+            &["crsh", "render", "--width", "-3"],
+            &["crsh", "render", "--backend", "metal"],
+        ] {
+            assert!(
+                Cli::try_parse_from(bad).is_err(),
+                "{bad:?} should be rejected"
+            );
+        }
+        let ok = Cli::try_parse_from([
+            "crsh", "render", "--width", "16384", "--set", "a=b", "--set", "c=d",
+        ]);
+        let Command::Render(r) = ok.unwrap().command else {
+            panic!("expected render");
+        };
+        assert_eq!(r.width, 16384);
+        assert_eq!(r.set, vec!["a=b".to_string(), "c=d".to_string()]);
+    }
+}

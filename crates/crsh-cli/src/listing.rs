@@ -1,0 +1,235 @@
+//! `crsh scenes`, `crsh pipelines` and `crsh adapters`.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use crsh_core::{PipelineConfig, StageKind, StageVariantInfo};
+use serde::Serialize;
+
+use crate::args::{AdaptersArgs, PipelinesArgs, ScenesArgs};
+use crate::error::{CliError, CliResult};
+use crate::output;
+use crate::report::{group, stage_line};
+
+/// A built-in scene and its counts.
+#[derive(Debug, Serialize)]
+struct BuiltinEntry {
+    name: String,
+    triangles: u64,
+    meshes: u64,
+    lights: u64,
+    materials: u64,
+}
+
+/// A manifest found under the scenes directory.
+#[derive(Debug, Serialize)]
+struct ManifestRow {
+    name: String,
+    path: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    problem: Option<String>,
+}
+
+#[derive(Debug, Serialize)]
+struct ScenesListing {
+    builtins: Vec<BuiltinEntry>,
+    scenes_dir: String,
+    manifests: Vec<ManifestRow>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    note: Option<String>,
+}
+
+/// Runs `crsh scenes`.
+pub fn scenes(args: &ScenesArgs) -> CliResult<()> {
+    let mut builtins = Vec::new();
+    for name in crsh_scene::builtin::NAMES {
+        let scene = crsh_scene::builtin::build(name)
+            .map_err(|e| CliError::runtime(format!("built-in scene `{name}`: {e}")))?;
+        builtins.push(BuiltinEntry {
+            name: name.to_string(),
+            triangles: scene.triangle_count() as u64,
+            meshes: scene.meshes.len() as u64,
+            lights: scene.lights.len() as u64,
+            materials: scene.materials.len() as u64,
+        });
+    }
+    let dir = &args.scenes_dir;
+    let (manifests, note) = manifests(dir)?;
+    let listing = ScenesListing {
+        builtins,
+        scenes_dir: dir.display().to_string(),
+        manifests,
+        note,
+    };
+    if args.json {
+        output::print_stdout(&(to_json(&listing)? + "\n"))?;
+    } else {
+        output::print_stdout(&scenes_text(&listing))?;
+    }
+    Ok(())
+}
+
+/// The manifests under `dir`, or a note saying why there are none.
+fn manifests(dir: &Path) -> CliResult<(Vec<ManifestRow>, Option<String>)> {
+    if !dir.is_dir() {
+        return Ok((
+            Vec::new(),
+            Some(format!(
+                "scenes directory {} not found; pass --scenes-dir DIR or set CRSH_SCENES",
+                dir.display()
+            )),
+        ));
+    }
+    let entries = crsh_scene::manifest::list(dir)
+        .map_err(|e| CliError::runtime(format!("listing {}: {e}", dir.display())))?;
+    let rows: Vec<ManifestRow> = entries
+        .into_iter()
+        .map(|m| ManifestRow {
+            name: m.name,
+            path: m.path.display().to_string(),
+            problem: m.problem,
+        })
+        .collect();
+    let note = rows
+        .is_empty()
+        .then(|| format!("no scene manifests (*.toml) under {}", dir.display()));
+    Ok((rows, note))
+}
+
+fn scenes_text(l: &ScenesListing) -> String {
+    let mut s = String::from("Built-in scenes (--scene NAME):\n");
+    let w = l.builtins.iter().map(|b| b.name.len()).max().unwrap_or(0);
+    for b in &l.builtins {
+        let _ = writeln!(
+            s,
+            "  {:w$}  {:>9} triangles  {:>5} meshes  {} {}",
+            b.name,
+            group(b.triangles),
+            group(b.meshes),
+            b.lights,
+            if b.lights == 1 { "light" } else { "lights" },
+        );
+    }
+    let _ = writeln!(s, "\nScene manifests in {} (--scene PATH):", l.scenes_dir);
+    let w = l.manifests.iter().map(|m| m.name.len()).max().unwrap_or(0);
+    for m in &l.manifests {
+        let _ = writeln!(s, "  {:w$}  {}", m.name, m.path);
+        if let Some(problem) = &m.problem {
+            let _ = writeln!(s, "  {:w$}  (unusable: {problem})", "");
+        }
+    }
+    if let Some(note) = &l.note {
+        let _ = writeln!(s, "  note: {note}");
+    }
+    s
+}
+
+#[derive(Debug, Serialize)]
+struct PresetEntry {
+    name: String,
+    config: PipelineConfig,
+}
+
+#[derive(Debug, Serialize)]
+struct PipelinesListing {
+    presets: Vec<PresetEntry>,
+    variants: Vec<StageVariantInfo>,
+}
+
+/// Runs `crsh pipelines`.
+pub fn pipelines(args: &PipelinesArgs) -> CliResult<()> {
+    let catalogue = crsh_cpu::catalogue();
+    let mut presets = Vec::new();
+    for name in crate::render::preset_names() {
+        let config = crate::render::pipeline_config(&name, &[], &catalogue)?;
+        presets.push(PresetEntry { name, config });
+    }
+    let listing = PipelinesListing {
+        presets,
+        variants: catalogue,
+    };
+    if args.json {
+        output::print_stdout(&(to_json(&listing)? + "\n"))?;
+    } else {
+        output::print_stdout(&pipelines_text(&listing))?;
+    }
+    Ok(())
+}
+
+fn pipelines_text(l: &PipelinesListing) -> String {
+    let mut s = String::from("Presets (--pipeline NAME):\n");
+    let w = l.presets.iter().map(|p| p.name.len()).max().unwrap_or(0);
+    for p in &l.presets {
+        let _ = writeln!(s, "  {:w$}  {}", p.name, stage_line(&p.config));
+    }
+    s.push_str(
+        "\nStage variants (--set STAGE.kind=VARIANT, --set STAGE.PARAM=VALUE, --set STAGE=off for optional stages):\n",
+    );
+    for stage in StageKind::ALL {
+        let variants: Vec<&StageVariantInfo> =
+            l.variants.iter().filter(|v| v.stage == stage).collect();
+        let _ = writeln!(
+            s,
+            "{stage}{}",
+            if stage.optional() { " (optional)" } else { "" }
+        );
+        if variants.is_empty() {
+            s.push_str("  (no variant on this backend yet)\n");
+        }
+        let w = variants.iter().map(|v| v.name.len()).max().unwrap_or(0);
+        for v in variants {
+            let _ = writeln!(s, "  {:w$}  {}", v.name, v.doc);
+            for p in &v.params {
+                let choices = if p.choices.is_empty() {
+                    String::new()
+                } else {
+                    format!(" [{}]", p.choices.join("|"))
+                };
+                let _ = writeln!(
+                    s,
+                    "      {stage}.{} = {}{choices}  {}",
+                    p.name, p.default, p.doc
+                );
+            }
+        }
+    }
+    s
+}
+
+/// One line describing a wgpu adapter: name (backend, device type, driver, PCI ids).
+pub fn adapter_line(a: &crsh_wgpu::AdapterInfo) -> String {
+    let mut parts = vec![a.backend.clone(), a.device_type.clone()];
+    let driver = format!("{} {}", a.driver, a.driver_info);
+    if !driver.trim().is_empty() {
+        parts.push(format!("driver {}", driver.trim()));
+    }
+    if a.vendor != 0 || a.device != 0 {
+        parts.push(format!("pci {:04x}:{:04x}", a.vendor, a.device));
+    }
+    if a.is_software() {
+        parts.push("software: timings say nothing about GPUs".into());
+    }
+    format!("{} ({})", a.name, parts.join(", "))
+}
+
+/// Runs `crsh adapters`.
+pub fn adapters(args: &AdaptersArgs) -> CliResult<()> {
+    let adapters = crsh_wgpu::enumerate_adapters();
+    let text = if args.json {
+        to_json(&adapters)? + "\n"
+    } else if adapters.is_empty() {
+        "no wgpu adapter found (on Linux without a GPU, install mesa-vulkan-drivers for lavapipe)\n"
+            .to_string()
+    } else {
+        let mut s = String::from("wgpu adapters:\n");
+        for a in &adapters {
+            let _ = writeln!(s, "  {}", adapter_line(a));
+        }
+        s
+    };
+    output::print_stdout(&text)
+}
+
+fn to_json<T: Serialize>(v: &T) -> CliResult<String> {
+    serde_json::to_string_pretty(v).map_err(|e| CliError::runtime(format!("JSON output: {e}")))
+}

@@ -1,0 +1,274 @@
+//! `crsh render`: resolve the pipeline, load the scene, render, compare with a reference,
+//! write the PNG and the stats, print the summary.
+
+use std::io::IsTerminal;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use crsh_core::metrics::{psnr_rgba8, to_rgba8};
+use crsh_core::{FrameOptions, PipelineConfig, Progress, StageVariantInfo};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use crate::args::{BackendChoice, RenderArgs};
+use crate::error::{CliError, CliResult};
+use crate::output;
+use crate::report::{AccuracyReport, RunInfo, SceneInfo, StatsReport};
+
+/// Runs `crsh render`.
+pub fn run(args: &RenderArgs) -> CliResult<()> {
+    if args.backend == BackendChoice::Wgpu {
+        return Err(wgpu_unavailable());
+    }
+    output::check_png_path(&args.out)?;
+    if let Some(stats) = &args.stats {
+        output::check_writable(stats, "--stats")?;
+    }
+    let catalogue = crsh_cpu::catalogue();
+    let cfg = pipeline_config(&args.pipeline, &args.set, &catalogue)?;
+    let reference = args
+        .reference
+        .as_deref()
+        .map(|name| reference_config(&cfg, name, &catalogue))
+        .transpose()?;
+    let threads = configure_threads(args.threads)?;
+
+    let (scene, load_report) = crsh_scene::load_with_report(&args.scene)
+        .map_err(|e| CliError::runtime(format!("cannot load scene `{}`: {e}", args.scene)))?;
+    for w in &load_report.warnings {
+        eprintln_warning(w);
+    }
+    let scene = Arc::new(scene);
+    let opts = FrameOptions {
+        width: args.width,
+        height: args.height,
+        max_depth: args.depth,
+        triangles: scene.triangle_count() as u64,
+    };
+
+    let bar = progress_bar();
+    bar.set_prefix(cfg.name.clone());
+    let frame = crsh_cpu::catalogue::render(
+        &scene,
+        &cfg,
+        &opts,
+        reference.as_ref().map(|r| &r.intersect),
+        &mut |p| advance(&bar, &p),
+    )
+    .map_err(|e| CliError::runtime(format!("render failed: {e}")))?;
+    let rgba = to_rgba8(&frame.image);
+
+    let accuracy = match &reference {
+        None => None,
+        Some(ref_cfg) => {
+            bar.set_prefix(format!("reference {}", ref_cfg.intersect.kind));
+            let t0 = Instant::now();
+            let ref_frame = crsh_cpu::catalogue::render(&scene, ref_cfg, &opts, None, &mut |p| {
+                advance(&bar, &p)
+            })
+            .map_err(|e| CliError::runtime(format!("reference render failed: {e}")))?;
+            let ref_ms = t0.elapsed().as_secs_f64() * 1e3;
+            let ref_rgba = to_rgba8(&ref_frame.image);
+            let counts = frame.stats.accuracy.clone().unwrap_or_default();
+            Some(accuracy_report(
+                &ref_cfg.intersect.kind,
+                &counts,
+                &rgba,
+                &ref_rgba,
+                ref_ms,
+            ))
+        }
+    };
+    bar.finish_and_clear();
+
+    output::write_png(&args.out, args.width, args.height, &rgba)?;
+    let report = StatsReport::new(
+        RunInfo {
+            scene: SceneInfo::of(&scene, &args.scene),
+            config: &cfg,
+            backend: args.backend.name(),
+            threads,
+            width: args.width,
+            height: args.height,
+            max_depth: args.depth,
+            output: args.out.display().to_string(),
+        },
+        &frame.stats,
+        accuracy,
+    );
+    if let Some(path) = &args.stats {
+        output::write_text(path, &(report.to_json() + "\n"))?;
+    }
+    let wrote = match &args.stats {
+        Some(s) => format!("wrote     {} and {}\n", args.out.display(), s.display()),
+        None => format!("wrote     {}\n", args.out.display()),
+    };
+    output::print_stdout(&(report.summary() + &wrote))
+}
+
+/// The resolved pipeline: a preset name or a pipeline TOML file, `--set` overrides applied in
+/// order, then checked against `catalogue` with defaults filled in.
+pub fn pipeline_config(
+    pipeline: &str,
+    sets: &[String],
+    catalogue: &[StageVariantInfo],
+) -> CliResult<PipelineConfig> {
+    let mut cfg = if let Some(cfg) = crsh_cpu::preset(pipeline) {
+        cfg
+    } else if pipeline.ends_with(".toml") || Path::new(pipeline).is_file() {
+        let text = std::fs::read_to_string(pipeline)
+            .map_err(|e| CliError::runtime(format!("cannot read pipeline file {pipeline}: {e}")))?;
+        toml::from_str::<PipelineConfig>(&text)
+            .map_err(|e| CliError::runtime(format!("pipeline file {pipeline}: {e}")))?
+    } else {
+        return Err(CliError::usage(format!(
+            "unknown pipeline `{pipeline}` (presets: {}; or a pipeline .toml file)",
+            preset_names().join(", ")
+        )));
+    };
+    for s in sets {
+        cfg.set(s)
+            .map_err(|e| CliError::usage(format!("--set {s}: {e}")))?;
+    }
+    cfg.resolve(catalogue)
+        .map_err(|e| CliError::usage(format!("pipeline `{}`: {e}", cfg.name)))?;
+    Ok(cfg)
+}
+
+/// The names of the CPU presets.
+pub fn preset_names() -> Vec<String> {
+    crsh_cpu::PRESETS.iter().map(|p| p.to_string()).collect()
+}
+
+/// The reference pipeline of `--reference NAME`: the same primary, ray generation and shading
+/// (with their parameters) as `cfg`, every ray traced against the whole scene by the
+/// intersector `name` (no hash / sort / hierarchy / traverse stages).
+pub fn reference_config(
+    cfg: &PipelineConfig,
+    name: &str,
+    catalogue: &[StageVariantInfo],
+) -> CliResult<PipelineConfig> {
+    let mut r = cfg.clone();
+    r.name = format!("{}-reference-{name}", cfg.name);
+    r.hash = None;
+    r.sort = None;
+    r.hierarchy = None;
+    r.traverse = None;
+    r.intersect = crsh_core::StageSpec::new(name);
+    r.resolve(catalogue)
+        .map_err(|e| CliError::usage(format!("--reference {name}: {e}")))?;
+    Ok(r)
+}
+
+/// Builds the global rayon pool (`--threads`) and returns its size.
+fn configure_threads(threads: Option<u64>) -> CliResult<usize> {
+    if let Some(n) = threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n as usize)
+            .build_global()
+            .map_err(|e| CliError::runtime(format!("--threads {n}: {e}")))?;
+    }
+    Ok(rayon::current_num_threads())
+}
+
+/// Compares the two 8-bit images and shapes the accuracy report.
+fn accuracy_report(
+    reference: &str,
+    counts: &crsh_core::AccuracyCounts,
+    rgba: &[u8],
+    ref_rgba: &[u8],
+    ref_ms: f64,
+) -> AccuracyReport {
+    let psnr = psnr_rgba8(rgba, ref_rgba);
+    let pixels_differing = rgba
+        .chunks_exact(4)
+        .zip(ref_rgba.chunks_exact(4))
+        .filter(|(a, b)| a[..3] != b[..3])
+        .count() as u64;
+    AccuracyReport {
+        reference: reference.to_string(),
+        hit_agreement: counts.hit_agreement(),
+        psnr_db: psnr.is_finite().then_some(psnr),
+        images_identical: pixels_differing == 0,
+        pixels_differing,
+        rays_compared: counts.rays,
+        agreeing: counts.agreeing,
+        hit_miss_mismatches: counts.hit_miss_mismatches,
+        nearest_mismatches: counts.nearest_mismatches,
+        reference_render_ms: ref_ms,
+    }
+}
+
+/// The error for `--backend wgpu`, naming the adapters that were found.
+fn wgpu_unavailable() -> CliError {
+    let adapters = crsh_wgpu::enumerate_adapters();
+    let found = if adapters.is_empty() {
+        "no wgpu adapter was found on this machine".to_string()
+    } else {
+        format!(
+            "wgpu adapters found: {}",
+            adapters
+                .iter()
+                .map(crate::listing::adapter_line)
+                .collect::<Vec<_>>()
+                .join("; ")
+        )
+    };
+    CliError::usage(format!(
+        "--backend wgpu: the GPU pipeline is not implemented yet (a later issue); use --backend cpu ({found})"
+    ))
+}
+
+/// Prints `warning: ...` on stderr (a closed stderr is ignored).
+fn eprintln_warning(w: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "warning: {w}");
+}
+
+/// A progress bar on stderr, hidden when stderr is not a terminal.
+fn progress_bar() -> ProgressBar {
+    let bar = ProgressBar::with_draw_target(Some(1), ProgressDrawTarget::hidden());
+    if std::io::stderr().is_terminal() {
+        bar.set_draw_target(ProgressDrawTarget::stderr());
+        if let Ok(style) =
+            ProgressStyle::with_template("{prefix:.bold} [{bar:30}] {pos}/{len} {msg} ({elapsed})")
+        {
+            bar.set_style(style.progress_chars("=> "));
+        }
+        bar.enable_steady_tick(Duration::from_millis(200));
+    }
+    bar
+}
+
+fn advance(bar: &ProgressBar, p: &Progress) {
+    bar.set_length(p.total_steps as u64);
+    bar.set_position(p.step as u64);
+    bar.set_message(p.message.clone());
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn accuracy_of_identical_and_different_images() {
+        let counts = crsh_core::AccuracyCounts {
+            rays: 10,
+            agreeing: 9,
+            hit_miss_mismatches: 1,
+            nearest_mismatches: 0,
+        };
+        let a = vec![10u8, 20, 30, 255, 40, 50, 60, 255];
+        let same = accuracy_report("brute", &counts, &a, &a, 1.0);
+        assert_eq!(same.psnr_db, None);
+        assert!(same.images_identical);
+        assert_eq!(same.pixels_differing, 0);
+        assert!((same.hit_agreement - 0.9).abs() < 1e-12);
+        let mut b = a.clone();
+        b[4] = 41;
+        let diff = accuracy_report("brute", &counts, &a, &b, 1.0);
+        assert!(!diff.images_identical);
+        assert_eq!(diff.pixels_differing, 1);
+        assert!(diff.psnr_db.unwrap() > 40.0);
+    }
+}

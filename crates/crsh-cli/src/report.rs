@@ -1,0 +1,573 @@
+//! What `crsh render` reports: the stats JSON document (`--stats`) and the stdout summary.
+//!
+//! The JSON layout is documented key by key in the README ("Stats JSON"). Every number comes
+//! from the frame's [`Stats`]; this module only derives ratios (tests per ray, Mrays/s) and
+//! shapes the document.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+
+use crsh_core::{KindStats, LevelStats, PipelineConfig, RayKind, Stats, TestCounts};
+use crsh_scene::Scene;
+use serde::Serialize;
+
+/// The scene, as reported.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SceneInfo {
+    /// Scene name (built-in name or the manifest's `name`).
+    pub name: String,
+    /// What `--scene` said (built-in name or path).
+    pub source: String,
+    /// Triangles, degenerate ones included.
+    pub triangles: u64,
+    /// Vertices.
+    pub vertices: u64,
+    /// Meshes (contiguous triangle ranges).
+    pub meshes: u64,
+    /// Point lights.
+    pub lights: u64,
+    /// Materials.
+    pub materials: u64,
+    /// Zero-area triangles (loaded, never hit).
+    pub degenerate_triangles: u64,
+}
+
+impl SceneInfo {
+    /// The counts of `scene`, loaded from `source`.
+    pub fn of(scene: &Scene, source: &str) -> SceneInfo {
+        SceneInfo {
+            name: scene.name.clone(),
+            source: source.to_string(),
+            triangles: scene.triangle_count() as u64,
+            vertices: scene.positions.len() as u64,
+            meshes: scene.meshes.len() as u64,
+            lights: scene.lights.len() as u64,
+            materials: scene.materials.len() as u64,
+            degenerate_triangles: scene.degenerate_triangles as u64,
+        }
+    }
+}
+
+/// Rays per kind, plus totals.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RaysReport {
+    /// Camera rays: one per pixel (rasterized or cast).
+    pub primary: u64,
+    /// Shadow rays (one per shaded point and light).
+    pub shadow: u64,
+    /// Reflection rays.
+    pub reflection: u64,
+    /// Refraction rays.
+    pub refraction: u64,
+    /// Rays the frame driver traced through the intersector (shadow + reflection + refraction):
+    /// the rays that `tests.brute_force` and `tests.per_traced_ray` count.
+    pub traced: u64,
+    /// All rays, primary included.
+    pub total: u64,
+}
+
+/// Intersection tests, plus derived ratios.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TestsReport {
+    /// Bounding-volume tests (BVH node boxes, hierarchy nodes vs spheres).
+    pub bounds: u64,
+    /// Exact ray-triangle tests.
+    pub ray_triangle: u64,
+    /// `bounds + ray_triangle`.
+    pub total: u64,
+    /// What brute force would need: Σ over traced rays × scene triangles.
+    pub brute_force: u64,
+    /// `total / rays.traced` (0 when nothing was traced).
+    pub per_traced_ray: f64,
+    /// `total / brute_force` (0 when nothing was traced): the fraction of the brute-force work done.
+    pub fraction_of_brute_force: f64,
+}
+
+impl TestsReport {
+    fn new(t: &TestCounts, traced: u64) -> TestsReport {
+        TestsReport {
+            bounds: t.bounds,
+            ray_triangle: t.ray_triangle,
+            total: t.total,
+            brute_force: t.brute_force,
+            per_traced_ray: ratio(t.total as f64, traced as f64),
+            fraction_of_brute_force: ratio(t.total as f64, t.brute_force as f64),
+        }
+    }
+}
+
+/// Agreement with the reference intersector (`--reference`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct AccuracyReport {
+    /// The reference intersector variant (e.g. `brute`).
+    pub reference: String,
+    /// Fraction of traced rays whose hit/miss and nearest triangle match the reference
+    /// (a different triangle at a `t` equal within 1e-6 relative counts as a match).
+    pub hit_agreement: f64,
+    /// PSNR in dB of the 8-bit image against a full render by the reference pipeline (same
+    /// config, intersector replaced); `null` when the images are identical (JSON has no
+    /// infinity), see `images_identical`.
+    pub psnr_db: Option<f64>,
+    /// Whether the 8-bit images are identical.
+    pub images_identical: bool,
+    /// Pixels whose 8-bit RGB differs from the reference image.
+    pub pixels_differing: u64,
+    /// Rays compared (every traced ray).
+    pub rays_compared: u64,
+    /// Rays that agree.
+    pub agreeing: u64,
+    /// Rays where one intersector hit and the other missed.
+    pub hit_miss_mismatches: u64,
+    /// Closest-hit rays that hit different triangles at different `t`.
+    pub nearest_mismatches: u64,
+    /// Wall time of the full reference render, ms (not part of `timings_ms`).
+    pub reference_render_ms: f64,
+}
+
+/// The whole `--stats` document.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StatsReport {
+    /// crsh version that wrote the file.
+    pub version: &'static str,
+    /// The scene.
+    pub scene: SceneInfo,
+    /// Pipeline name (the preset or the pipeline file's `name`).
+    pub pipeline: String,
+    /// The full resolved pipeline (every stage, every parameter), as `--pipeline FILE.toml` reads it.
+    pub config: PipelineConfig,
+    /// Backend that ran it (`cpu`).
+    pub backend: String,
+    /// Worker threads in the rayon pool.
+    pub threads: usize,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Bounce limit (`--depth`).
+    pub max_depth: u32,
+    /// The PNG written.
+    pub output: String,
+    /// Rays per kind.
+    pub rays: RaysReport,
+    /// Intersection tests.
+    pub tests: TestsReport,
+    /// Per ray kind: rays, bounds and ray-triangle tests, tracing wall time (ms).
+    pub per_kind: BTreeMap<String, KindStats>,
+    /// Per ray-space-hierarchy level counters (empty without a hierarchy stage).
+    pub levels: Vec<LevelStats>,
+    /// Wall time per stage, ms, plus `total` (the frame, excluding `reference`).
+    pub timings_ms: BTreeMap<String, f64>,
+    /// Millions of rays per second: per traced ray kind (rays / that kind's trace time),
+    /// `overall` (all traced rays / all trace time) and `frame` (all rays / frame total).
+    pub mrays_per_s: BTreeMap<String, f64>,
+    /// Agreement with `--reference` (absent without it).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub accuracy: Option<AccuracyReport>,
+}
+
+/// The inputs of a report besides the stats.
+pub struct RunInfo<'a> {
+    /// Scene counts.
+    pub scene: SceneInfo,
+    /// The resolved pipeline.
+    pub config: &'a PipelineConfig,
+    /// Backend name.
+    pub backend: &'a str,
+    /// Rayon pool size.
+    pub threads: usize,
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Bounce limit.
+    pub max_depth: u32,
+    /// PNG path.
+    pub output: String,
+}
+
+fn ratio(a: f64, b: f64) -> f64 {
+    if b > 0.0 {
+        a / b
+    } else {
+        0.0
+    }
+}
+
+/// Mrays/s per traced kind, `overall` and `frame` (see [`StatsReport::mrays_per_s`]).
+pub fn mrays_per_s(stats: &Stats) -> BTreeMap<String, f64> {
+    let mut out = BTreeMap::new();
+    let (mut rays, mut ms) = (0u64, 0.0f64);
+    for (kind, k) in &stats.per_kind {
+        if k.trace_ms > 0.0 {
+            out.insert(kind.clone(), k.rays as f64 / (k.trace_ms * 1e3));
+            rays += k.rays;
+            ms += k.trace_ms;
+        }
+    }
+    if ms > 0.0 {
+        out.insert("overall".into(), rays as f64 / (ms * 1e3));
+    }
+    let total = stats.time_ms("total");
+    if total > 0.0 {
+        out.insert("frame".into(), stats.rays.total() as f64 / (total * 1e3));
+    }
+    out
+}
+
+impl StatsReport {
+    /// Shapes the report of one frame.
+    pub fn new(run: RunInfo<'_>, stats: &Stats, accuracy: Option<AccuracyReport>) -> StatsReport {
+        let r = &stats.rays;
+        let traced = r.shadow + r.reflection + r.refraction;
+        StatsReport {
+            version: env!("CARGO_PKG_VERSION"),
+            scene: run.scene,
+            pipeline: run.config.name.clone(),
+            config: run.config.clone(),
+            backend: run.backend.to_string(),
+            threads: run.threads,
+            width: run.width,
+            height: run.height,
+            max_depth: run.max_depth,
+            output: run.output,
+            rays: RaysReport {
+                primary: r.primary,
+                shadow: r.shadow,
+                reflection: r.reflection,
+                refraction: r.refraction,
+                traced,
+                total: r.total(),
+            },
+            tests: TestsReport::new(&stats.tests, traced),
+            per_kind: stats.per_kind.clone(),
+            levels: stats.levels.clone(),
+            timings_ms: stats.timings_ms.clone(),
+            mrays_per_s: mrays_per_s(stats),
+            accuracy,
+        }
+    }
+
+    /// The JSON text of the report (pretty-printed).
+    pub fn to_json(&self) -> String {
+        // Every field is a plain number, string, map with string keys or list, and every f64
+        // is finite (ratios guard against 0, PSNR infinity is `null`).
+        serde_json::to_string_pretty(self).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
+    }
+
+    /// The human-readable summary printed on stdout.
+    pub fn summary(&self) -> String {
+        let mut s = String::new();
+        let sc = &self.scene;
+        let _ = writeln!(
+            s,
+            "scene     {} ({}): {} triangles ({} degenerate), {} meshes, {} {}",
+            sc.name,
+            sc.source,
+            group(sc.triangles),
+            group(sc.degenerate_triangles),
+            group(sc.meshes),
+            sc.lights,
+            if sc.lights == 1 { "light" } else { "lights" },
+        );
+        let _ = writeln!(
+            s,
+            "pipeline  {} on {} ({} threads), {}x{}, depth {}: {}",
+            self.pipeline,
+            self.backend,
+            self.threads,
+            self.width,
+            self.height,
+            self.max_depth,
+            stage_line(&self.config),
+        );
+        let r = &self.rays;
+        let _ = writeln!(
+            s,
+            "rays      primary {} | shadow {} | reflection {} | refraction {} | traced {}",
+            group(r.primary),
+            group(r.shadow),
+            group(r.reflection),
+            group(r.refraction),
+            group(r.traced),
+        );
+        let t = &self.tests;
+        let _ = writeln!(
+            s,
+            "tests     bounds {} | ray-triangle {} | total {} | brute force {} | {:.1} per traced ray ({:.4}% of brute force)",
+            group(t.bounds),
+            group(t.ray_triangle),
+            group(t.total),
+            group(t.brute_force),
+            t.per_traced_ray,
+            t.fraction_of_brute_force * 100.0,
+        );
+        let _ = writeln!(s, "time ms   {}", timing_line(&self.timings_ms));
+        let mut mr: Vec<String> = RayKind::ALL
+            .iter()
+            .filter_map(|k| {
+                self.mrays_per_s
+                    .get(k.name())
+                    .map(|v| format!("{} {v:.2}", k.name()))
+            })
+            .collect();
+        for key in ["overall", "frame"] {
+            if let Some(v) = self.mrays_per_s.get(key) {
+                mr.push(format!("{key} {v:.2}"));
+            }
+        }
+        let _ = writeln!(
+            s,
+            "Mrays/s   {}",
+            if mr.is_empty() {
+                "(no rays traced)".to_string()
+            } else {
+                mr.join(" | ")
+            }
+        );
+        if let Some(a) = &self.accuracy {
+            let psnr = match a.psnr_db {
+                Some(db) => format!(
+                    "PSNR {db:.2} dB, {} pixels differ",
+                    group(a.pixels_differing)
+                ),
+                None => "images identical".to_string(),
+            };
+            let _ = writeln!(
+                s,
+                "accuracy  vs {}: hit agreement {:.6} over {} rays ({} hit/miss, {} nearest mismatches); {}",
+                a.reference,
+                a.hit_agreement,
+                group(a.rays_compared),
+                group(a.hit_miss_mismatches),
+                group(a.nearest_mismatches),
+                psnr,
+            );
+        }
+        s
+    }
+}
+
+/// `primary=raster raygen=whitted ... intersect=bvh shade=phong`.
+pub fn stage_line(cfg: &PipelineConfig) -> String {
+    crsh_core::StageKind::ALL
+        .iter()
+        .filter_map(|&k| cfg.slot(k).map(|spec| format!("{k}={}", spec.kind)))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// Stage timings in pipeline order, then any others, then `reference` and `total`.
+fn timing_line(t: &BTreeMap<String, f64>) -> String {
+    const ORDER: [&str; 8] = [
+        "primary",
+        "ray_creation",
+        "hashing",
+        "sorting",
+        "hierarchy_creation",
+        "traversal",
+        "intersection",
+        "shading",
+    ];
+    let mut keys: Vec<&str> = ORDER
+        .iter()
+        .copied()
+        .filter(|k| t.contains_key(*k))
+        .collect();
+    keys.extend(
+        t.keys()
+            .map(String::as_str)
+            .filter(|k| !ORDER.contains(k) && *k != "reference" && *k != "total"),
+    );
+    keys.extend(
+        ["reference", "total"]
+            .into_iter()
+            .filter(|k| t.contains_key(*k)),
+    );
+    if keys.is_empty() {
+        return "(none)".into();
+    }
+    keys.iter()
+        .map(|k| format!("{k} {:.1}", t[*k]))
+        .collect::<Vec<_>>()
+        .join(" | ")
+}
+
+/// `1234567` → `1,234,567`.
+pub fn group(n: u64) -> String {
+    let digits = n.to_string();
+    let mut out = String::with_capacity(digits.len() + digits.len() / 3);
+    for (i, c) in digits.chars().enumerate() {
+        if i > 0 && (digits.len() - i).is_multiple_of(3) {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crsh_core::AccuracyCounts;
+
+    fn stats() -> Stats {
+        let mut s = Stats::default();
+        s.rays.primary = 16;
+        s.rays.shadow = 10;
+        s.rays.reflection = 4;
+        s.add_bounds(30);
+        s.add_ray_triangle(12);
+        s.tests.brute_force = 14 * 100;
+        s.per_kind.insert(
+            "primary".into(),
+            KindStats {
+                rays: 16,
+                ..Default::default()
+            },
+        );
+        s.per_kind.insert(
+            "shadow".into(),
+            KindStats {
+                rays: 10,
+                bounds: 20,
+                ray_triangle: 8,
+                trace_ms: 2.0,
+            },
+        );
+        s.per_kind.insert(
+            "reflection".into(),
+            KindStats {
+                rays: 4,
+                bounds: 10,
+                ray_triangle: 4,
+                trace_ms: 0.5,
+            },
+        );
+        s.timings_ms.insert("total".into(), 10.0);
+        s.timings_ms.insert("primary".into(), 1.0);
+        s.timings_ms.insert("intersection".into(), 2.5);
+        s.accuracy = Some(AccuracyCounts {
+            rays: 14,
+            agreeing: 14,
+            ..Default::default()
+        });
+        s
+    }
+
+    fn report(acc: Option<AccuracyReport>) -> StatsReport {
+        let cfg = PipelineConfig::whitted("bvh", "bvh");
+        let scene_info = SceneInfo {
+            name: "t".into(),
+            source: "t".into(),
+            triangles: 100,
+            vertices: 300,
+            meshes: 2,
+            lights: 1,
+            materials: 1,
+            degenerate_triangles: 0,
+        };
+        StatsReport::new(
+            RunInfo {
+                scene: scene_info,
+                config: &cfg,
+                backend: "cpu",
+                threads: 2,
+                width: 4,
+                height: 4,
+                max_depth: 1,
+                output: "x.png".into(),
+            },
+            &stats(),
+            acc,
+        )
+    }
+
+    #[test]
+    fn derived_numbers() {
+        let r = report(None);
+        assert_eq!(r.rays.traced, 14);
+        assert_eq!(r.rays.total, 30);
+        assert_eq!(r.tests.total, 42);
+        assert!((r.tests.per_traced_ray - 3.0).abs() < 1e-12);
+        assert!((r.tests.fraction_of_brute_force - 0.03).abs() < 1e-12);
+        // 10 rays in 2 ms = 5000 rays/s = 0.005 Mrays/s.
+        assert!((r.mrays_per_s["shadow"] - 0.005).abs() < 1e-12);
+        assert!((r.mrays_per_s["reflection"] - 0.008).abs() < 1e-12);
+        assert!((r.mrays_per_s["overall"] - 14.0 / 2500.0).abs() < 1e-12);
+        assert!((r.mrays_per_s["frame"] - 30.0 / 10000.0).abs() < 1e-12);
+        assert!(
+            !r.mrays_per_s.contains_key("primary"),
+            "primary has no trace time"
+        );
+    }
+
+    #[test]
+    fn json_has_required_keys_and_null_psnr() {
+        let acc = AccuracyReport {
+            reference: "brute".into(),
+            hit_agreement: 1.0,
+            psnr_db: None,
+            images_identical: true,
+            pixels_differing: 0,
+            rays_compared: 14,
+            agreeing: 14,
+            hit_miss_mismatches: 0,
+            nearest_mismatches: 0,
+            reference_render_ms: 3.0,
+        };
+        let v: serde_json::Value = serde_json::from_str(&report(Some(acc)).to_json()).unwrap();
+        for k in [
+            "scene",
+            "pipeline",
+            "config",
+            "backend",
+            "width",
+            "height",
+            "max_depth",
+            "rays",
+            "tests",
+            "per_kind",
+            "levels",
+            "timings_ms",
+            "mrays_per_s",
+            "threads",
+            "version",
+            "accuracy",
+        ] {
+            assert!(v.get(k).is_some(), "missing {k}");
+        }
+        assert!(v["accuracy"]["psnr_db"].is_null());
+        assert_eq!(v["accuracy"]["images_identical"], true);
+        assert_eq!(v["config"]["intersect"]["kind"], "bvh");
+        let no_acc: serde_json::Value = serde_json::from_str(&report(None).to_json()).unwrap();
+        assert!(no_acc.get("accuracy").is_none());
+    }
+
+    #[test]
+    fn summary_mentions_everything() {
+        let s = report(None).summary();
+        for needle in [
+            "100 triangles",
+            "2 meshes",
+            "1 light",
+            "shadow 10",
+            "bounds 30",
+            "ray-triangle 12",
+            "total 42",
+            "brute force 1,400",
+            "3.0 per traced ray",
+            "primary 1.0 | intersection 2.5 | total 10.0",
+            "Mrays/s",
+        ] {
+            assert!(s.contains(needle), "summary lacks `{needle}`:\n{s}");
+        }
+    }
+
+    #[test]
+    fn grouping() {
+        assert_eq!(group(0), "0");
+        assert_eq!(group(999), "999");
+        assert_eq!(group(1000), "1,000");
+        assert_eq!(group(1234567), "1,234,567");
+    }
+}

@@ -1,0 +1,534 @@
+//! End-to-end tests of the `crsh` binary: outputs, stats consistency, accuracy against the
+//! brute-force reference, and clear errors (never a panic) on bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+/// A fresh scratch directory for one test.
+fn scratch(test: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("crsh-cli-{}-{test}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("create scratch dir");
+    d
+}
+
+/// Runs `crsh args...` in `dir`.
+fn crsh(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_crsh"))
+        .args(args)
+        .current_dir(dir)
+        .env_remove("RAYON_NUM_THREADS")
+        .output()
+        .expect("run crsh")
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn assert_ok(o: &Output) {
+    assert!(
+        o.status.success(),
+        "crsh failed ({:?})\nstdout:\n{}\nstderr:\n{}",
+        o.status.code(),
+        stdout(o),
+        stderr(o)
+    );
+}
+
+fn u(v: &Value, path: &str) -> u64 {
+    v.pointer(path)
+        .and_then(Value::as_u64)
+        .unwrap_or_else(|| panic!("{path} is not an unsigned integer in {v:#}"))
+}
+
+fn f(v: &Value, path: &str) -> f64 {
+    v.pointer(path)
+        .and_then(Value::as_f64)
+        .unwrap_or_else(|| panic!("{path} is not a number in {v:#}"))
+}
+
+fn read_json(path: &Path) -> Value {
+    let text = std::fs::read_to_string(path).expect("stats file written");
+    serde_json::from_str(&text).expect("stats file is JSON")
+}
+
+/// Renders and returns the parsed stats.
+fn render(dir: &Path, extra: &[&str]) -> (Value, Output) {
+    let mut args = vec!["render", "--out", "img.png", "--stats", "stats.json"];
+    args.extend_from_slice(extra);
+    let o = crsh(dir, &args);
+    assert_ok(&o);
+    (read_json(&dir.join("stats.json")), o)
+}
+
+#[test]
+fn render_default_scene_writes_png_and_consistent_stats() {
+    let dir = scratch("default");
+    let (s, o) = render(&dir, &["--width", "40", "--height", "24", "--threads", "2"]);
+
+    let img = image::open(dir.join("img.png"))
+        .expect("valid PNG")
+        .to_rgba8();
+    assert_eq!(img.dimensions(), (40, 24));
+    assert!(
+        img.pixels().any(|p| p.0[..3] != [0, 0, 0]),
+        "the default scene renders something, not a black image"
+    );
+
+    for key in [
+        "/scene/name",
+        "/scene/triangles",
+        "/scene/meshes",
+        "/scene/lights",
+        "/scene/degenerate_triangles",
+        "/pipeline",
+        "/config/intersect/kind",
+        "/config/raygen/kind",
+        "/backend",
+        "/width",
+        "/height",
+        "/max_depth",
+        "/rays/primary",
+        "/rays/shadow",
+        "/rays/reflection",
+        "/rays/refraction",
+        "/tests/bounds",
+        "/tests/ray_triangle",
+        "/tests/total",
+        "/tests/brute_force",
+        "/per_kind",
+        "/levels",
+        "/timings_ms/total",
+        "/mrays_per_s/overall",
+        "/threads",
+        "/version",
+    ] {
+        assert!(s.pointer(key).is_some(), "stats lack {key}: {s:#}");
+    }
+    assert!(
+        s.get("accuracy").is_none(),
+        "no accuracy without --reference"
+    );
+    assert_eq!(s["scene"]["name"], "cornell-mirrors");
+    assert_eq!(s["pipeline"], "bvh");
+    assert_eq!(s["config"]["intersect"]["kind"], "bvh");
+    assert_eq!(s["backend"], "cpu");
+    assert_eq!(
+        (u(&s, "/width"), u(&s, "/height"), u(&s, "/max_depth")),
+        (40, 24, 3)
+    );
+    assert_eq!(u(&s, "/threads"), 2);
+    assert_eq!(s["version"], env!("CARGO_PKG_VERSION"));
+
+    let tris = u(&s, "/scene/triangles");
+    assert!(tris > 0 && u(&s, "/scene/lights") >= 1);
+    assert_eq!(u(&s, "/rays/primary"), 40 * 24);
+    let traced = u(&s, "/rays/shadow") + u(&s, "/rays/reflection") + u(&s, "/rays/refraction");
+    assert!(u(&s, "/rays/shadow") > 0, "shadow rays are traced");
+    assert!(u(&s, "/rays/reflection") > 0, "cornell-mirrors has mirrors");
+    assert_eq!(u(&s, "/rays/traced"), traced);
+    assert_eq!(
+        u(&s, "/tests/total"),
+        u(&s, "/tests/bounds") + u(&s, "/tests/ray_triangle")
+    );
+    assert_eq!(u(&s, "/tests/brute_force"), traced * tris);
+    assert!(
+        u(&s, "/tests/total") < u(&s, "/tests/brute_force"),
+        "a BVH does less work than brute force"
+    );
+
+    // Per-kind numbers add up to the totals.
+    let per_kind = s["per_kind"].as_object().expect("per_kind is an object");
+    let sum = |field: &str| -> u64 { per_kind.values().map(|k| k[field].as_u64().unwrap()).sum() };
+    assert_eq!(sum("rays"), u(&s, "/rays/primary") + traced);
+    assert_eq!(sum("bounds"), u(&s, "/tests/bounds"));
+    assert_eq!(sum("ray_triangle"), u(&s, "/tests/ray_triangle"));
+    for (kind, k) in per_kind {
+        if kind != "primary" && k["rays"].as_u64().unwrap() > 0 {
+            assert!(k["trace_ms"].as_f64().unwrap() >= 0.0);
+        }
+    }
+    assert!(f(&s, "/timings_ms/total") > 0.0);
+    assert!(f(&s, "/mrays_per_s/overall") > 0.0);
+
+    let out = stdout(&o);
+    for needle in [
+        "cornell-mirrors",
+        "triangles",
+        "meshes",
+        "shadow",
+        "ray-triangle",
+        "brute force",
+        "per traced ray",
+        "time ms",
+        "Mrays/s",
+        "img.png",
+    ] {
+        assert!(out.contains(needle), "summary lacks `{needle}`:\n{out}");
+    }
+}
+
+#[test]
+fn brute_force_pipeline_counts_every_pair() {
+    let dir = scratch("brute");
+    let (s, _) = render(
+        &dir,
+        &[
+            "--pipeline",
+            "brute",
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--depth",
+            "1",
+        ],
+    );
+    assert_eq!(s["pipeline"], "brute");
+    assert_eq!(u(&s, "/tests/bounds"), 0);
+    let tris = u(&s, "/scene/triangles");
+    // Closest-hit rays test every triangle; any-hit (shadow) rays may stop at the first hit.
+    for kind in ["reflection", "refraction"] {
+        if let Some(k) = s["per_kind"].get(kind) {
+            assert_eq!(
+                k["ray_triangle"].as_u64().unwrap(),
+                k["rays"].as_u64().unwrap() * tris,
+                "{kind}"
+            );
+        }
+    }
+    assert!(u(&s, "/per_kind/reflection/rays") > 0);
+    assert!(u(&s, "/per_kind/shadow/ray_triangle") <= u(&s, "/rays/shadow") * tris);
+    assert!(u(&s, "/tests/ray_triangle") <= u(&s, "/tests/brute_force"));
+    assert!(f(&s, "/tests/fraction_of_brute_force") <= 1.0);
+}
+
+#[test]
+fn bvh_matches_the_brute_force_reference() {
+    let dir = scratch("reference");
+    let (s, o) = render(
+        &dir,
+        &[
+            "--pipeline",
+            "bvh",
+            "--reference",
+            "brute",
+            "--width",
+            "32",
+            "--height",
+            "32",
+        ],
+    );
+    let a = &s["accuracy"];
+    assert_eq!(a["reference"], "brute");
+    assert_eq!(f(&s, "/accuracy/hit_agreement"), 1.0, "{a:#}");
+    assert_eq!(u(&s, "/accuracy/rays_compared"), u(&s, "/rays/traced"));
+    assert_eq!(u(&s, "/accuracy/hit_miss_mismatches"), 0);
+    assert_eq!(u(&s, "/accuracy/nearest_mismatches"), 0);
+    // Identical hits give identical images: PSNR is infinite, written as null.
+    assert_eq!(a["images_identical"], true, "{a:#}");
+    assert!(a["psnr_db"].is_null(), "{a:#}");
+    assert_eq!(u(&s, "/accuracy/pixels_differing"), 0);
+    assert!(stdout(&o).contains("hit agreement 1.000000"));
+}
+
+#[test]
+fn output_does_not_depend_on_thread_count() {
+    let dir = scratch("threads");
+    let mut images = Vec::new();
+    for threads in ["1", "3"] {
+        let out = format!("t{threads}.png");
+        let o = crsh(
+            &dir,
+            &[
+                "render",
+                "--width",
+                "24",
+                "--height",
+                "20",
+                "--threads",
+                threads,
+                "--out",
+                &out,
+            ],
+        );
+        assert_ok(&o);
+        images.push(std::fs::read(dir.join(&out)).unwrap());
+    }
+    assert_eq!(images[0], images[1], "PNG differs between 1 and 3 threads");
+}
+
+#[test]
+fn pipeline_file_and_set_overrides() {
+    let dir = scratch("pipeline-file");
+    let (s, _) = render(
+        &dir,
+        &[
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--set",
+            "intersect.kind=brute",
+        ],
+    );
+    assert_eq!(s["config"]["intersect"]["kind"], "brute");
+    // The resolved config of the stats file, saved as TOML, is a valid --pipeline file.
+    let cfg = &s["config"];
+    let toml_text = toml::to_string(cfg).expect("config serialises to TOML");
+    std::fs::write(dir.join("mine.toml"), toml_text).unwrap();
+    let (s2, _) = render(
+        &dir,
+        &["--width", "16", "--height", "16", "--pipeline", "mine.toml"],
+    );
+    assert_eq!(&s2["config"], cfg);
+    assert_eq!(s2["rays"], s["rays"]);
+    assert_eq!(s2["tests"]["total"], s["tests"]["total"]);
+}
+
+/// Runs a command that must fail with `code` and a one-line `error:` message containing
+/// `needle`, without panicking.
+fn expect_error(dir: &Path, args: &[&str], code: i32, needle: &str) {
+    let o = crsh(dir, args);
+    let err = stderr(&o);
+    assert_eq!(
+        o.status.code(),
+        Some(code),
+        "{args:?}: wrong exit code\nstderr:\n{err}"
+    );
+    assert!(!err.contains("panicked"), "{args:?} panicked:\n{err}");
+    assert!(
+        err.starts_with("error:"),
+        "{args:?}: stderr does not start with `error:`:\n{err}"
+    );
+    assert!(
+        err.contains(needle),
+        "{args:?}: stderr lacks `{needle}`:\n{err}"
+    );
+    assert!(
+        !dir.join("crsh.png").exists(),
+        "{args:?} wrote an image anyway"
+    );
+}
+
+#[test]
+fn bad_input_gives_clear_errors() {
+    let dir = scratch("errors");
+    std::fs::write(
+        dir.join("broken.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n",
+    )
+    .unwrap();
+    std::fs::write(dir.join("bad.toml"), "name = \"x\"\nprimary = 3\n").unwrap();
+    let cases: &[(&[&str], i32, &str)] = &[
+        (&["render", "--scene", "missing.obj"], 1, "missing.obj"),
+        (
+            &["render", "--scene", "no-such-builtin"],
+            1,
+            "no-such-builtin",
+        ),
+        (&["render", "--scene", "broken.obj"], 1, "broken.obj"),
+        (&["render", "--set", "intersect"], 2, "--set intersect"),
+        (&["render", "--set", "nonsense"], 2, "expected key=value"),
+        (&["render", "--set", "warp.speed=9"], 2, "unknown stage"),
+        (&["render", "--set", "intersect.kind=kdtree"], 2, "kdtree"),
+        (&["render", "--set", "shade.ambiant=0.1"], 2, "ambiant"),
+        (&["render", "--pipeline", "kdtree"], 2, "unknown pipeline"),
+        (&["render", "--pipeline", "bad.toml"], 1, "bad.toml"),
+        (&["render", "--pipeline", "absent.toml"], 1, "absent.toml"),
+        (&["render", "--reference", "oracle"], 2, "oracle"),
+        (&["render", "--width", "0"], 2, "--width"),
+        (&["render", "--width", "100000"], 2, "--width"),
+        (&["render", "--height", "-1"], 2, "-1"),
+        (&["render", "--depth", "100000"], 2, "--depth"),
+        (&["render", "--threads", "0"], 2, "--threads"),
+        (&["render", "--out", "picture.jpg"], 2, "PNG"),
+        (
+            &["render", "--out", "no/such/dir/x.png"],
+            2,
+            "does not exist",
+        ),
+        (&["render", "--backend", "wgpu"], 2, "not implemented"),
+        (&["render", "--backend", "vulkan"], 2, "--backend"),
+        (&["frobnicate"], 2, "frobnicate"),
+    ];
+    for (args, code, needle) in cases {
+        expect_error(&dir, args, *code, needle);
+    }
+}
+
+#[test]
+fn scenes_lists_builtins_and_notes_a_missing_dir() {
+    let dir = scratch("scenes");
+    let o = crsh(&dir, &["scenes", "--scenes-dir", "nowhere"]);
+    assert_ok(&o);
+    let out = stdout(&o);
+    for needle in ["cornell-mirrors", "office-boxes", "triangles", "not found"] {
+        assert!(
+            out.contains(needle),
+            "`crsh scenes` lacks `{needle}`:\n{out}"
+        );
+    }
+    let o = crsh(&dir, &["scenes", "--scenes-dir", "nowhere", "--json"]);
+    assert_ok(&o);
+    let v: Value = serde_json::from_str(&stdout(&o)).expect("scenes --json is JSON");
+    let builtins = v["builtins"].as_array().unwrap();
+    assert!(builtins
+        .iter()
+        .any(|b| b["name"] == "cornell-mirrors" && b["triangles"].as_u64().unwrap() > 0));
+    assert!(builtins
+        .iter()
+        .any(|b| b["name"] == "office-boxes" && b["lights"].as_u64().unwrap() >= 2));
+    assert!(v["manifests"].as_array().unwrap().is_empty());
+
+    // A directory with one manifest, through the environment variable.
+    std::fs::create_dir_all(dir.join("lib/room")).unwrap();
+    std::fs::write(
+        dir.join("lib/room/room.toml"),
+        "name = \"my-room\"\nmesh = \"room.obj\"\n\
+         [camera]\neye = [0.0, 0.0, 5.0]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\nvfov_deg = 45.0\n",
+    )
+    .unwrap();
+    std::fs::write(dir.join("lib/broken.toml"), "name = [\n").unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_crsh"))
+        .args(["scenes"])
+        .current_dir(&dir)
+        .env("CRSH_SCENES", dir.join("lib"))
+        .output()
+        .unwrap();
+    assert_ok(&o);
+    let out = stdout(&o);
+    assert!(
+        out.contains("my-room") && out.contains("room.toml"),
+        "{out}"
+    );
+}
+
+#[test]
+fn scenes_lists_the_shared_scenes() {
+    let shared = std::env::var_os("CRSH_SCENES")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes")
+        });
+    if !shared.is_dir() {
+        eprintln!(
+            "SKIP: shared scenes directory {} not found (set CRSH_SCENES)",
+            shared.display()
+        );
+        return;
+    }
+    let dir = scratch("shared-scenes");
+    let o = crsh(&dir, &["scenes", "--scenes-dir", shared.to_str().unwrap()]);
+    assert_ok(&o);
+    let out = stdout(&o);
+    assert!(out.contains("sponza.toml"), "{out}");
+    assert!(out.contains("cornell-mirror.toml"), "{out}");
+}
+
+#[test]
+fn pipelines_lists_presets_and_every_variant() {
+    let dir = scratch("pipelines");
+    let o = crsh(&dir, &["pipelines", "--json"]);
+    assert_ok(&o);
+    let v: Value = serde_json::from_str(&stdout(&o)).expect("pipelines --json is JSON");
+    let presets: Vec<&str> = v["presets"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["name"].as_str().unwrap())
+        .collect();
+    assert!(
+        presets.contains(&"brute") && presets.contains(&"bvh"),
+        "{presets:?}"
+    );
+    let variants = v["variants"].as_array().unwrap();
+    for (stage, name) in [
+        ("primary", "raster"),
+        ("primary", "raycast"),
+        ("raygen", "whitted"),
+        ("intersect", "brute"),
+        ("intersect", "bvh"),
+        ("shade", "phong"),
+    ] {
+        assert!(
+            variants
+                .iter()
+                .any(|x| x["stage"] == stage && x["name"] == name),
+            "no {stage} variant {name}"
+        );
+    }
+
+    let o = crsh(&dir, &["pipelines"]);
+    assert_ok(&o);
+    let text = stdout(&o);
+    for x in variants {
+        let (stage, name) = (x["stage"].as_str().unwrap(), x["name"].as_str().unwrap());
+        assert!(text.contains(name), "text listing lacks variant {name}");
+        for p in x["params"].as_array().unwrap() {
+            let key = format!("{stage}.{}", p["name"].as_str().unwrap());
+            assert!(
+                text.contains(&key),
+                "text listing lacks parameter {key}:\n{text}"
+            );
+        }
+    }
+}
+
+#[test]
+fn help_on_every_command() {
+    let dir = scratch("help");
+    for args in [
+        &["--help"][..],
+        &["render", "--help"],
+        &["scenes", "--help"],
+        &["pipelines", "--help"],
+        &["adapters", "--help"],
+    ] {
+        let o = crsh(&dir, args);
+        assert_ok(&o);
+        assert!(stdout(&o).contains("Usage: crsh"), "{args:?}");
+    }
+    let o = crsh(&dir, &["render", "--help"]);
+    for opt in [
+        "--scene",
+        "--pipeline",
+        "--backend",
+        "--width",
+        "--height",
+        "--depth",
+        "--out",
+        "--stats",
+        "--reference",
+        "--set",
+        "--threads",
+    ] {
+        assert!(stdout(&o).contains(opt), "render --help lacks {opt}");
+    }
+}
+
+#[test]
+fn adapters_lists_what_wgpu_finds() {
+    let dir = scratch("adapters");
+    let o = crsh(&dir, &["adapters", "--json"]);
+    assert_ok(&o);
+    let v: Value = serde_json::from_str(&stdout(&o)).expect("adapters --json is JSON");
+    let list = v.as_array().expect("a list of adapters");
+    let o = crsh(&dir, &["adapters"]);
+    assert_ok(&o);
+    let text = stdout(&o);
+    if list.is_empty() {
+        assert!(text.contains("no wgpu adapter"), "{text}");
+    } else {
+        for a in list {
+            assert!(text.contains(a["name"].as_str().unwrap()), "{text}");
+        }
+    }
+}
