@@ -2,7 +2,9 @@
 
 use std::marker::PhantomData;
 use std::mem::size_of;
+use std::sync::mpsc::RecvTimeoutError;
 use std::sync::Arc;
+use std::time::Duration;
 
 use bytemuck::Pod;
 use crsh_core::{Backend, Result};
@@ -18,6 +20,9 @@ pub const MIN_BUFFER_BYTES: u64 = 16;
 pub const STAGE_BUFFER_USAGE: wgpu::BufferUsages = wgpu::BufferUsages::STORAGE
     .union(wgpu::BufferUsages::COPY_SRC)
     .union(wgpu::BufferUsages::COPY_DST);
+
+/// Re-polls (2 ms apart, plus the poll itself) before a map callback counts as lost.
+const MAX_MAP_POLLS: u32 = 10_000;
 
 /// Staging chunk used by [`GpuBuffer::filled`] to replicate a non-zero value on the device.
 const FILL_CHUNK_BYTES: usize = 1 << 16;
@@ -114,11 +119,30 @@ pub fn map_read_bytes(ctx: &GpuContext, staging: &wgpu::Buffer, bytes: u64) -> G
         let _ = tx.send(r);
     });
     ctx.wait()?;
-    match rx.try_recv() {
-        Ok(Ok(())) => {}
-        Ok(Err(e)) => return Err(GpuError::Map(e.to_string())),
-        Err(_) => return Err(GpuError::Map("map callback did not run after wait".into())),
-    }
+    // Another thread's poll may have collected this callback and not yet invoked it when our
+    // wait returns, so wait for the callback itself (re-polling); a callback dropped without
+    // being called disconnects the channel.
+    let mut polls = 0u32;
+    let mapped = loop {
+        match rx.recv_timeout(Duration::from_millis(2)) {
+            Ok(r) => break r,
+            Err(RecvTimeoutError::Timeout) if polls < MAX_MAP_POLLS => {
+                polls += 1;
+                ctx.wait()?;
+            }
+            Err(RecvTimeoutError::Timeout) => {
+                return Err(GpuError::Map(format!(
+                    "map callback not delivered after {MAX_MAP_POLLS} polls"
+                )))
+            }
+            Err(RecvTimeoutError::Disconnected) => {
+                return Err(GpuError::Map(
+                    "map callback dropped without a result".into(),
+                ))
+            }
+        }
+    };
+    mapped.map_err(|e| GpuError::Map(e.to_string()))?;
     let out = {
         let view = staging
             .get_mapped_range(0..copy)

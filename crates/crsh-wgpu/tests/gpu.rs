@@ -246,6 +246,28 @@ fn concat_keeps_order_and_skips_empty_parts() {
 }
 
 #[test]
+fn concurrent_round_trips_from_many_threads() {
+    let Some(b) = backend("concurrent_round_trips_from_many_threads") else {
+        return;
+    };
+    // Downloads on several threads poll the same device: each must still get its own data
+    // (a map callback may be delivered by another thread's poll).
+    std::thread::scope(|s| {
+        for t in 0..8u64 {
+            let b = b.clone();
+            s.spawn(move || {
+                let mut rng = Lcg(100 + t);
+                for round in 0..25 {
+                    let data = rng.vec(1 + (round * 97 + t as usize * 13) % 3000);
+                    let buf = b.upload(&data).unwrap();
+                    assert_eq!(b.download(&buf).unwrap(), data, "thread {t} round {round}");
+                }
+            });
+        }
+    });
+}
+
+#[test]
 fn oversized_buffer_is_an_error_not_a_panic() {
     let Some(ctx) = gpu("oversized_buffer_is_an_error_not_a_panic") else {
         return;
@@ -299,7 +321,8 @@ fn scan_matches_cpu_twin_on_random_full_range_values() {
         SCAN_BLOCK + 1,
         65537,
         1 << 20,
-        (1 << 20) + 1,
+        // Three scan levels: n -> 2049 block sums -> 2 -> 1.
+        SCAN_BLOCK * SCAN_BLOCK + 1,
     ] {
         check_scan(&ctx, &rng.vec(n), "full-range");
     }
@@ -337,8 +360,8 @@ fn scan_in_place_and_2d_dispatch() {
     assert_eq!(total, want_total);
     assert_eq!(buf.to_vec(&ctx).unwrap(), want);
 
-    // Narrow rows force a 2D grid with idle workgroups in the last row (294 blocks on 5
-    // columns = 60 rows, 6 idle; the second level fits in one row).
+    // Narrow rows force a 2D grid with idle workgroups in the last row (147 blocks of 2048 on
+    // 5 columns = 30 rows, 3 idle; the second level is one block).
     let narrow = ScanKernel::new(&ctx).unwrap().with_max_groups_x(5);
     let buf = GpuBuffer::from_slice(&ctx, "2d", &input).unwrap();
     let (out, total) = narrow.scan(&ctx, &buf).unwrap();

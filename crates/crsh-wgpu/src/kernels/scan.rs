@@ -17,8 +17,11 @@ use crate::adapter::GpuContext;
 use crate::backend::{create_raw_buffer, map_read_bytes, GpuBuffer};
 use crate::error::{GpuError, GpuResult};
 
-/// Elements scanned per workgroup (256 invocations × 4 elements); must match `scan.wgsl`.
-pub const SCAN_BLOCK: usize = 1024;
+/// Elements scanned per workgroup (256 invocations × 8 elements); must match `scan.wgsl`.
+///
+/// Eight elements per invocation halve the barriers per element compared with four (2.5-4×
+/// faster on lavapipe) while the block still fits WebGPU's 16 KiB workgroup-memory minimum.
+pub const SCAN_BLOCK: usize = 2048;
 
 const SHADER: &str = include_str!("scan.wgsl");
 
@@ -314,6 +317,14 @@ mod tests {
         assert_eq!(out, vec![0, 3, 2, 4]);
         assert_eq!(total, 4);
         assert_eq!(exclusive_scan_cpu(&[]), (vec![], 0));
+    }
+
+    #[test]
+    fn block_size_matches_wgsl() {
+        assert!(SHADER.contains(&format!("const BLOCK: u32 = {SCAN_BLOCK}u;")));
+        assert!(SHADER.contains(&format!("const ITEMS: u32 = {}u;", SCAN_BLOCK / 256)));
+        assert!(SHADER.contains("const WG: u32 = 256u;"));
+        assert!(SHADER.contains("@workgroup_size(256)"));
     }
 
     #[test]

@@ -10,8 +10,8 @@
 // No subgroup operations are used, so the result is the same on every adapter.
 
 const WG: u32 = 256u;
-const ITEMS: u32 = 4u;
-const BLOCK: u32 = 1024u; // WG * ITEMS
+const ITEMS: u32 = 8u;
+const BLOCK: u32 = 2048u; // WG * ITEMS
 
 struct Params {
     // Elements in `data`.
