@@ -476,6 +476,21 @@ mod tests {
         }
     }
 
+    /// Built-in scenes (axis-aligned walls and boxes): rays leaving surfaces in random
+    /// directions, as reflection and shadow rays do.
+    #[test]
+    fn identical_to_brute_force_on_builtin_scenes() {
+        for name in ["cornell-mirrors", "office-boxes"] {
+            let scene = crsh_scene::builtin::build(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let mut rays = random_rays(&scene, 61, 1200);
+            let eps = scene.bounds.diagonal() * 1e-5;
+            for r in rays.iter_mut().skip(1).step_by(4) {
+                r.t_min = eps;
+            }
+            check_against_brute(&scene, &rays, BuildQuality::Medium);
+        }
+    }
+
     #[test]
     fn candidates_are_unsupported_and_bad_params_rejected() {
         let scene = Arc::new(soup(41, 20));
