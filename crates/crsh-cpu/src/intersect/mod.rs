@@ -1,0 +1,4 @@
+//! Intersector variants (exact ray-triangle tests, §3.2.9).
+
+pub mod brute;
+pub mod bvh;
