@@ -7,13 +7,14 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crsh_core::metrics::{psnr_rgba8, to_rgba8};
-use crsh_core::{FrameOptions, PipelineConfig, Progress, StageVariantInfo};
+use crsh_core::{render_frame, FrameOptions, PipelineConfig, Progress, StageVariantInfo};
+use crsh_cpu::Cpu;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::args::{BackendChoice, RenderArgs};
 use crate::error::{CliError, CliResult};
 use crate::output;
-use crate::report::{AccuracyReport, RunInfo, SceneInfo, StatsReport};
+use crate::report::{AccuracyReport, RunInfo, SceneInfo, SetupTimes, StatsReport};
 
 /// Runs `crsh render`.
 pub fn run(args: &RenderArgs) -> CliResult<()> {
@@ -33,8 +34,10 @@ pub fn run(args: &RenderArgs) -> CliResult<()> {
         .transpose()?;
     let threads = configure_threads(args.threads)?;
 
+    let t_load = Instant::now();
     let (scene, load_report) = crsh_scene::load_with_report(&args.scene)
         .map_err(|e| CliError::runtime(format!("cannot load scene `{}`: {e}", args.scene)))?;
+    let scene_load_ms = ms_since(t_load);
     for w in &load_report.warnings {
         eprintln_warning(w);
     }
@@ -48,14 +51,25 @@ pub fn run(args: &RenderArgs) -> CliResult<()> {
 
     let bar = progress_bar();
     bar.set_prefix(cfg.name.clone());
-    let frame = crsh_cpu::catalogue::render(
-        &scene,
-        &cfg,
+    bar.set_message("building stages");
+    let t_build = Instant::now();
+    let stages = crsh_cpu::build_stages(&cfg, &scene)
+        .map_err(|e| CliError::runtime(format!("building pipeline `{}`: {e}", cfg.name)))?;
+    let build_stages_ms = ms_since(t_build);
+    let reference_intersector = reference
+        .as_ref()
+        .map(|r| crsh_cpu::build_intersector(&r.intersect, &scene))
+        .transpose()
+        .map_err(|e| CliError::runtime(format!("building the reference intersector: {e}")))?;
+    let frame = render_frame(
+        &Cpu,
+        &stages,
         &opts,
-        reference.as_ref().map(|r| &r.intersect),
+        reference_intersector.as_deref(),
         &mut |p| advance(&bar, &p),
     )
     .map_err(|e| CliError::runtime(format!("render failed: {e}")))?;
+    drop(stages);
     let rgba = to_rgba8(&frame.image);
 
     let accuracy = match &reference {
@@ -67,7 +81,7 @@ pub fn run(args: &RenderArgs) -> CliResult<()> {
                 advance(&bar, &p)
             })
             .map_err(|e| CliError::runtime(format!("reference render failed: {e}")))?;
-            let ref_ms = t0.elapsed().as_secs_f64() * 1e3;
+            let ref_ms = ms_since(t0);
             let ref_rgba = to_rgba8(&ref_frame.image);
             let counts = frame.stats.accuracy.clone().unwrap_or_default();
             Some(accuracy_report(
@@ -92,6 +106,10 @@ pub fn run(args: &RenderArgs) -> CliResult<()> {
             height: args.height,
             max_depth: args.depth,
             output: args.out.display().to_string(),
+            setup: SetupTimes {
+                scene_load_ms,
+                build_stages_ms,
+            },
         },
         &frame.stats,
         accuracy,
@@ -169,6 +187,10 @@ fn configure_threads(threads: Option<u64>) -> CliResult<usize> {
             .map_err(|e| CliError::runtime(format!("--threads {n}: {e}")))?;
     }
     Ok(rayon::current_num_threads())
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
 }
 
 /// Compares the two 8-bit images and shapes the accuracy report.

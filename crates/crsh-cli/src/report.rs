@@ -124,6 +124,15 @@ pub struct AccuracyReport {
     pub reference_render_ms: f64,
 }
 
+/// Wall time spent before the frame (not part of `timings_ms`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SetupTimes {
+    /// Loading and validating the scene (OBJ / manifest parsing, normals, bounding spheres), ms.
+    pub scene_load_ms: f64,
+    /// Building the pipeline's stages for the scene (e.g. the object BVH of `intersect.kind=bvh`), ms.
+    pub build_stages_ms: f64,
+}
+
 /// The whole `--stats` document.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct StatsReport {
@@ -157,6 +166,8 @@ pub struct StatsReport {
     pub levels: Vec<LevelStats>,
     /// Wall time per stage, ms, plus `total` (the frame, excluding `reference`).
     pub timings_ms: BTreeMap<String, f64>,
+    /// Wall time before the frame: scene load and stage construction, ms.
+    pub setup: SetupTimes,
     /// Millions of rays per second: per traced ray kind (rays / that kind's trace time),
     /// `overall` (all traced rays / all trace time) and `frame` (all rays / frame total).
     pub mrays_per_s: BTreeMap<String, f64>,
@@ -183,6 +194,8 @@ pub struct RunInfo<'a> {
     pub max_depth: u32,
     /// PNG path.
     pub output: String,
+    /// Setup times.
+    pub setup: SetupTimes,
 }
 
 fn ratio(a: f64, b: f64) -> f64 {
@@ -242,6 +255,7 @@ impl StatsReport {
             per_kind: stats.per_kind.clone(),
             levels: stats.levels.clone(),
             timings_ms: stats.timings_ms.clone(),
+            setup: run.setup,
             mrays_per_s: mrays_per_s(stats),
             accuracy,
         }
@@ -300,6 +314,11 @@ impl StatsReport {
             group(t.brute_force),
             t.per_traced_ray,
             t.fraction_of_brute_force * 100.0,
+        );
+        let _ = writeln!(
+            s,
+            "setup ms  scene load {:.1} | build stages {:.1}",
+            self.setup.scene_load_ms, self.setup.build_stages_ms
         );
         let _ = writeln!(s, "time ms   {}", timing_line(&self.timings_ms));
         let mut mr: Vec<String> = RayKind::ALL
@@ -476,6 +495,10 @@ mod tests {
                 height: 4,
                 max_depth: 1,
                 output: "x.png".into(),
+                setup: SetupTimes {
+                    scene_load_ms: 1.5,
+                    build_stages_ms: 2.5,
+                },
             },
             &stats(),
             acc,
@@ -529,6 +552,7 @@ mod tests {
             "per_kind",
             "levels",
             "timings_ms",
+            "setup",
             "mrays_per_s",
             "threads",
             "version",
@@ -557,6 +581,7 @@ mod tests {
             "brute force 1,400",
             "3.0 per traced ray",
             "primary 1.0 | intersection 2.5 | total 10.0",
+            "scene load 1.5 | build stages 2.5",
             "Mrays/s",
         ] {
             assert!(s.contains(needle), "summary lacks `{needle}`:\n{s}");

@@ -106,6 +106,8 @@ fn render_default_scene_writes_png_and_consistent_stats() {
         "/per_kind",
         "/levels",
         "/timings_ms/total",
+        "/setup/scene_load_ms",
+        "/setup/build_stages_ms",
         "/mrays_per_s/overall",
         "/threads",
         "/version",
