@@ -295,6 +295,52 @@ fn pipeline_file_and_set_overrides() {
     assert_eq!(s2["tests"]["total"], s["tests"]["total"]);
 }
 
+#[test]
+fn renders_a_bare_obj_and_a_shared_manifest() {
+    let dir = scratch("files");
+    // Two quads facing +z, one behind the other: the front one shadows part of the back one.
+    std::fs::write(
+        dir.join("quads.obj"),
+        "o back\nv -2 -2 0\nv 2 -2 0\nv 2 2 0\nv -2 2 0\nf 1 2 3\nf 1 3 4\n\
+         o front\nv -0.5 -0.5 1\nv 0.5 -0.5 1\nv 0.5 0.5 1\nv -0.5 0.5 1\nf 5 6 7\nf 5 7 8\n",
+    )
+    .unwrap();
+    let (s, _) = render(
+        &dir,
+        &["--scene", "quads.obj", "--width", "16", "--height", "16"],
+    );
+    assert_eq!(u(&s, "/scene/triangles"), 4);
+    assert_eq!(u(&s, "/scene/meshes"), 2);
+    assert_eq!(u(&s, "/scene/lights"), 1, "a bare OBJ gets one light");
+    assert_eq!(s["scene"]["source"], "quads.obj");
+    assert!(u(&s, "/rays/shadow") > 0);
+
+    let shared = std::env::var_os("CRSH_SCENES")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes"))
+        .join("cornell/cornell-sphere.toml");
+    if !shared.is_file() {
+        eprintln!("SKIP: {} not found (set CRSH_SCENES)", shared.display());
+        return;
+    }
+    let (s, _) = render(
+        &dir,
+        &[
+            "--scene",
+            shared.to_str().unwrap(),
+            "--width",
+            "24",
+            "--height",
+            "24",
+            "--reference",
+            "brute",
+        ],
+    );
+    assert_eq!(s["scene"]["name"], "cornell-sphere");
+    assert!(u(&s, "/rays/refraction") > 0, "the glass sphere refracts");
+    assert_eq!(f(&s, "/accuracy/hit_agreement"), 1.0);
+}
+
 /// Runs a command that must fail with `code` and a one-line `error:` message containing
 /// `needle`, without panicking.
 fn expect_error(dir: &Path, args: &[&str], code: i32, needle: &str) {
