@@ -52,7 +52,13 @@
 //!   itself). When the light is closer than `2 off` the interval is empty and the light is
 //!   seen.
 //!
-//! The policy lives in one function, [`offset_point`], plus the two interval rules above.
+//! The offset moves along the *geometric* normal because the shading normal may tilt away from
+//! the face; the distance is relative so that one default serves a Cornell box (size ~2) and
+//! Sponza (size ~4000). A reflection direction computed from a tilted shading normal may point
+//! slightly below the face; it is followed as eq. 3.4 gives it (the origin then moves to the
+//! back side), not bent.
+//!
+//! The policy lives in one function, [`epsilon_segment`].
 
 use std::sync::Arc;
 
@@ -98,15 +104,67 @@ pub struct Whitted {
     offset: f32,
 }
 
-/// The ray-origin offset of the epsilon policy: `p` moved by `off` along the geometric normal
-/// `geo_normal`, to the side that `dir` points into (the front side when `dir` is parallel to
-/// the surface).
-pub fn offset_point(p: Vec3, geo_normal: Vec3, dir: Vec3, off: f32) -> Vec3 {
-    if dir.dot(geo_normal) < 0.0 {
-        p - geo_normal * off
+/// Where a secondary ray goes, relative to the surface point it belongs to.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Leg {
+    /// Away from the surface along a direction, unbounded (reflection, refraction).
+    Along(Vec3),
+    /// From the surface to a point (a shadow ray with `shadow_origin = surface`).
+    To(Vec3),
+    /// From a point to the surface (a shadow ray with `shadow_origin = light`, eq. 3.1-3.2).
+    From(Vec3),
+}
+
+/// A ray's origin, unit direction and open interval `(t_min, t_max)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Segment {
+    /// Origin.
+    pub origin: Vec3,
+    /// Unit direction.
+    pub dir: Vec3,
+    /// Start of the interval.
+    pub t_min: f32,
+    /// End of the interval (infinite for [`Leg::Along`]).
+    pub t_max: f32,
+}
+
+/// The epsilon policy, in one function (see the module docs): the segment of the ray `leg`
+/// from or to the surface point `p` with unit geometric normal `geo_normal`, where `off` is
+/// `epsilon × scene diagonal`. The surface end is `p` moved by `off` along `geo_normal` to the
+/// side the ray leaves into (the front side for a ray parallel to the surface); `t_min = off`,
+/// and a bounded segment also stops `off` short of its far end (`t_max ≥ t_min`). `None` when
+/// the direction is zero or not finite (a light at the surface point).
+pub fn epsilon_segment(p: Vec3, geo_normal: Vec3, leg: Leg, off: f32) -> Option<Segment> {
+    let leaving = match leg {
+        Leg::Along(d) => d,
+        Leg::To(q) | Leg::From(q) => q - p,
+    };
+    let side = if leaving.dot(geo_normal) < 0.0 {
+        -off
     } else {
-        p + geo_normal * off
+        off
+    };
+    let start = p + geo_normal * side;
+    let (origin, seg, bounded) = match leg {
+        Leg::Along(d) => (start, d, false),
+        Leg::To(q) => (start, q - start, true),
+        Leg::From(q) => (q, start - q, true),
+    };
+    let dir = seg.normalize_or_zero();
+    if dir == Vec3::ZERO || !dir.is_finite() {
+        return None;
     }
+    let t_max = if bounded {
+        (seg.length() - off).max(off)
+    } else {
+        f32::INFINITY
+    };
+    Some(Segment {
+        origin,
+        dir,
+        t_min: off,
+        t_max,
+    })
 }
 
 /// Mirror reflection of the incident direction `i` about the normal `n` (eq. 3.4):
@@ -232,23 +290,17 @@ impl Whitted {
         if !self.keeps(throughput) {
             return None;
         }
-        let p = offset_point(s.position, s.geo_normal, to_light, self.offset);
-        let (origin, seg) = match self.shadow_origin {
-            ShadowOrigin::Light => (l, p - l),
-            ShadowOrigin::Surface => (p, l - p),
+        let leg = match self.shadow_origin {
+            ShadowOrigin::Light => Leg::From(l),
+            ShadowOrigin::Surface => Leg::To(l),
         };
-        let len = seg.length();
-        let dir = seg.normalize_or_zero();
-        if dir == Vec3::ZERO || !len.is_finite() {
-            // The light sits on the (offset) point: nothing can lie in between.
-            return None;
-        }
-        let t_min = self.offset;
+        // `None`: the light sits on the surface point; nothing can lie in between.
+        let seg = epsilon_segment(s.position, s.geo_normal, leg, self.offset)?;
         Some(Ray {
-            origin,
-            t_min,
-            dir,
-            t_max: (len - self.offset).max(t_min),
+            origin: seg.origin,
+            t_min: seg.t_min,
+            dir: seg.dir,
+            t_max: seg.t_max,
             throughput,
             kind: RayKind::Shadow as u32,
             pixel: s.pixel,
@@ -272,14 +324,15 @@ impl Whitted {
             _ => return None,
         };
         let throughput = s.throughput * weight;
-        if !self.keeps(throughput) || dir == Vec3::ZERO || !dir.is_finite() {
+        if !self.keeps(throughput) {
             return None;
         }
+        let seg = epsilon_segment(s.position, s.geo_normal, Leg::Along(dir), self.offset)?;
         Some(Ray {
-            origin: offset_point(s.position, s.geo_normal, dir, self.offset),
-            t_min: self.offset,
-            dir,
-            t_max: f32::INFINITY,
+            origin: seg.origin,
+            t_min: seg.t_min,
+            dir: seg.dir,
+            t_max: seg.t_max,
             throughput,
             kind: kind as u32,
             pixel: s.pixel,
@@ -542,6 +595,28 @@ pub(crate) mod tests {
         assert!(refr[0].origin.z < 0.0 && refl[0].origin.z > 0.0);
         assert_eq!(refl[0].t_min, g.offset());
         assert!((g.offset() - 1e-5 * 8f32.sqrt()).abs() < 1e-9);
+    }
+
+    #[test]
+    fn epsilon_segments() {
+        let (p, n, off) = (Vec3::new(1.0, 2.0, 3.0), Vec3::Y, 0.01);
+        let l = Vec3::new(1.0, 7.0, 3.0);
+        let to = epsilon_segment(p, n, Leg::To(l), off).unwrap();
+        assert_eq!(to.origin, Vec3::new(1.0, 2.01, 3.0));
+        assert_eq!((to.dir, to.t_min), (Vec3::Y, off));
+        assert!((to.t_max - (4.99 - off)).abs() < 1e-5);
+        let from = epsilon_segment(p, n, Leg::From(l), off).unwrap();
+        assert_eq!((from.origin, from.dir), (l, -Vec3::Y));
+        assert!((from.t_max - to.t_max).abs() < 1e-5);
+        // Leaving through the back: the origin moves below.
+        let down = epsilon_segment(p, n, Leg::Along(-Vec3::Y), off).unwrap();
+        assert_eq!(down.origin, Vec3::new(1.0, 1.99, 3.0));
+        assert_eq!(down.t_max, f32::INFINITY);
+        // A light closer than 2·off: empty interval (nothing between), not a negative one.
+        let near = epsilon_segment(p, n, Leg::To(p + Vec3::Y * 0.015), off).unwrap();
+        assert_eq!(near.t_max, near.t_min);
+        assert!(epsilon_segment(p, n, Leg::From(p + n * off), off).is_none());
+        assert!(epsilon_segment(p, n, Leg::Along(Vec3::ZERO), off).is_none());
     }
 
     #[test]
