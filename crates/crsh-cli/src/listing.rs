@@ -9,7 +9,7 @@ use serde::Serialize;
 use crate::args::{AdaptersArgs, PipelinesArgs, ScenesArgs};
 use crate::error::{CliError, CliResult};
 use crate::output;
-use crate::report::{group, stage_line};
+use crate::report::{count, stage_line};
 
 /// A built-in scene and its counts.
 #[derive(Debug, Serialize)]
@@ -102,12 +102,11 @@ fn scenes_text(l: &ScenesListing) -> String {
     for b in &l.builtins {
         let _ = writeln!(
             s,
-            "  {:w$}  {:>9} triangles  {:>5} meshes  {} {}",
+            "  {:w$}  {:>17}  {:>12}  {}",
             b.name,
-            group(b.triangles),
-            group(b.meshes),
-            b.lights,
-            if b.lights == 1 { "light" } else { "lights" },
+            count(b.triangles, "triangle", "triangles"),
+            count(b.meshes, "mesh", "meshes"),
+            count(b.lights, "light", "lights"),
         );
     }
     let _ = writeln!(s, "\nScene manifests in {} (--scene PATH):", l.scenes_dir);

@@ -38,8 +38,15 @@ pub fn run(args: &RenderArgs) -> CliResult<()> {
     let (scene, load_report) = crsh_scene::load_with_report(&args.scene)
         .map_err(|e| CliError::runtime(format!("cannot load scene `{}`: {e}", args.scene)))?;
     let scene_load_ms = ms_since(t_load);
-    for w in &load_report.warnings {
+    const MAX_WARNINGS: usize = 20;
+    for w in load_report.warnings.iter().take(MAX_WARNINGS) {
         eprintln_warning(w);
+    }
+    if load_report.warnings.len() > MAX_WARNINGS {
+        eprintln_warning(&format!(
+            "... and {} more scene warnings",
+            load_report.warnings.len() - MAX_WARNINGS
+        ));
     }
     let scene = Arc::new(scene);
     let opts = FrameOptions {

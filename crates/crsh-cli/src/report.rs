@@ -274,14 +274,13 @@ impl StatsReport {
         let sc = &self.scene;
         let _ = writeln!(
             s,
-            "scene     {} ({}): {} triangles ({} degenerate), {} meshes, {} {}",
+            "scene     {} ({}): {}, {} degenerate, {}, {}",
             sc.name,
             sc.source,
-            group(sc.triangles),
+            count(sc.triangles, "triangle", "triangles"),
             group(sc.degenerate_triangles),
-            group(sc.meshes),
-            sc.lights,
-            if sc.lights == 1 { "light" } else { "lights" },
+            count(sc.meshes, "mesh", "meshes"),
+            count(sc.lights, "light", "lights"),
         );
         let _ = writeln!(
             s,
@@ -409,6 +408,11 @@ fn timing_line(t: &BTreeMap<String, f64>) -> String {
         .map(|k| format!("{k} {:.1}", t[*k]))
         .collect::<Vec<_>>()
         .join(" | ")
+}
+
+/// `n` grouped, with the singular or plural noun: `1 mesh`, `1,024 meshes`.
+pub fn count(n: u64, one: &str, many: &str) -> String {
+    format!("{} {}", group(n), if n == 1 { one } else { many })
 }
 
 /// `1234567` → `1,234,567`.
@@ -594,5 +598,8 @@ mod tests {
         assert_eq!(group(999), "999");
         assert_eq!(group(1000), "1,000");
         assert_eq!(group(1234567), "1,234,567");
+        assert_eq!(count(1, "mesh", "meshes"), "1 mesh");
+        assert_eq!(count(0, "mesh", "meshes"), "0 meshes");
+        assert_eq!(count(1000, "light", "lights"), "1,000 lights");
     }
 }
