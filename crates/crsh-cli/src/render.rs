@@ -7,7 +7,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crsh_core::metrics::{psnr_rgba8, to_rgba8};
-use crsh_core::{render_frame, FrameOptions, PipelineConfig, Progress, StageVariantInfo};
+use crsh_core::{
+    render_frame, CoreError, FrameOptions, PipelineConfig, Progress, StageVariantInfo,
+};
 use crsh_cpu::Cpu;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -61,13 +63,13 @@ pub fn run(args: &RenderArgs) -> CliResult<()> {
     bar.set_message("building stages");
     let t_build = Instant::now();
     let stages = crsh_cpu::build_stages(&cfg, &scene)
-        .map_err(|e| CliError::runtime(format!("building pipeline `{}`: {e}", cfg.name)))?;
+        .map_err(|e| stage_error(e, &format!("building pipeline `{}`", cfg.name)))?;
     let build_stages_ms = ms_since(t_build);
     let reference_intersector = reference
         .as_ref()
         .map(|r| crsh_cpu::build_intersector(&r.intersect, &scene))
         .transpose()
-        .map_err(|e| CliError::runtime(format!("building the reference intersector: {e}")))?;
+        .map_err(|e| stage_error(e, "building the reference intersector"))?;
     let frame = render_frame(
         &Cpu,
         &stages,
@@ -194,6 +196,18 @@ fn configure_threads(threads: Option<u64>) -> CliResult<usize> {
             .map_err(|e| CliError::runtime(format!("--threads {n}: {e}")))?;
     }
     Ok(rayon::current_num_threads())
+}
+
+/// A stage-construction error: a parameter value a stage rejects (NaN, out of range, a variant
+/// the backend lacks) is a usage error; anything else (allocation, backend) a runtime one.
+fn stage_error(e: CoreError, context: &str) -> CliError {
+    let msg = format!("{context}: {e}");
+    match e {
+        CoreError::InvalidParam { .. }
+        | CoreError::UnknownVariant { .. }
+        | CoreError::Unsupported { .. } => CliError::usage(msg),
+        CoreError::InvalidInput(_) | CoreError::Backend(_) => CliError::runtime(msg),
+    }
 }
 
 fn ms_since(t: Instant) -> f64 {

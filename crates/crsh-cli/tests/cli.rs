@@ -388,6 +388,21 @@ fn bad_input_gives_clear_errors() {
         (&["render", "--set", "warp.speed=9"], 2, "unknown stage"),
         (&["render", "--set", "intersect.kind=kdtree"], 2, "kdtree"),
         (&["render", "--set", "shade.ambiant=0.1"], 2, "ambiant"),
+        (
+            &["render", "--set", "shade.ambient=nan"],
+            2,
+            "shade.ambient",
+        ),
+        (
+            &["render", "--set", "raygen.epsilon=-1"],
+            2,
+            "raygen.epsilon",
+        ),
+        (
+            &["render", "--set", "primary.accel=brute"],
+            2,
+            "primary.accel",
+        ),
         (&["render", "--pipeline", "kdtree"], 2, "unknown pipeline"),
         (&["render", "--pipeline", "bad.toml"], 1, "bad.toml"),
         (&["render", "--pipeline", "absent.toml"], 1, "absent.toml"),
