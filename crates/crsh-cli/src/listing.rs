@@ -195,20 +195,18 @@ fn pipelines_text(l: &PipelinesListing) -> String {
     s
 }
 
-/// One line describing a wgpu adapter: name (backend, device type, driver, PCI ids).
+/// One line describing a wgpu adapter: `name: backend, device type, driver[, software]`
+/// (the PCI ids are in `--json`).
 pub fn adapter_line(a: &crsh_wgpu::AdapterInfo) -> String {
     let mut parts = vec![a.backend.clone(), a.device_type.clone()];
     let driver = format!("{} {}", a.driver, a.driver_info);
     if !driver.trim().is_empty() {
         parts.push(format!("driver {}", driver.trim()));
     }
-    if a.vendor != 0 || a.device != 0 {
-        parts.push(format!("pci {:04x}:{:04x}", a.vendor, a.device));
-    }
     if a.is_software() {
-        parts.push("software: timings say nothing about GPUs".into());
+        parts.push("software renderer".into());
     }
-    format!("{} ({})", a.name, parts.join(", "))
+    format!("{}: {}", a.name, parts.join(", "))
 }
 
 /// Runs `crsh adapters`.
