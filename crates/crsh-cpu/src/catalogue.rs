@@ -144,8 +144,6 @@ fn no_cpu_variant(slot: StageKind, spec: &StageSpec) -> CoreError {
 /// optional slot (hash, sort, hierarchy, traverse) gives [`CoreError::UnknownVariant`] while
 /// the CPU backend has no variant for it.
 pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<Scene>) -> Result<Stages<Cpu>> {
-    let mut cfg = cfg.clone();
-    cfg.resolve(&catalogue())?;
     for slot in [
         StageKind::Hash,
         StageKind::Sort,
@@ -156,6 +154,8 @@ pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<Scene>) -> Result<Stages<C
             return Err(no_cpu_variant(slot, spec));
         }
     }
+    let mut cfg = cfg.clone();
+    cfg.resolve(&catalogue())?;
     let primary: Box<dyn crsh_core::PrimaryVisibility<Cpu>> = match cfg.primary.kind.as_str() {
         "raster" => Box::new(Raster::new(scene, &cfg.primary)?),
         "raycast" => Box::new(RayCast::new(scene, &cfg.primary)?),

@@ -69,6 +69,9 @@ use rayon::prelude::*;
 
 use crate::backend::Cpu;
 
+/// Surfaces per parallel work item.
+const CHUNK: usize = 4096;
+
 /// Where shadow rays start.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ShadowOrigin {
@@ -362,30 +365,34 @@ impl Whitted {
                 self.materials.len()
             )));
         }
-        let hits = surfaces
-            .par_iter()
+        if kind == RayKind::Primary {
+            return Err(CoreError::Unsupported {
+                stage: "raygen",
+                variant: "whitted".into(),
+                what: "primary rays (primary visibility makes those)".into(),
+            });
+        }
+        // Fixed-size chunks, each compacted on its own, then concatenated in chunk order: the
+        // output order is the surface order whatever the thread count.
+        let nl = self.lights.len() as u32;
+        let parts: Vec<Vec<Ray>> = surfaces
+            .par_chunks(CHUNK)
             .enumerate()
-            .filter(|(_, s)| s.is_hit())
-            .map(|(i, s)| (i as u32, s, &self.materials[s.material as usize]));
-        let rays = match kind {
-            RayKind::Primary => {
-                return Err(CoreError::Unsupported {
-                    stage: "raygen",
-                    variant: "whitted".into(),
-                    what: "primary rays (primary visibility makes those)".into(),
-                })
-            }
-            RayKind::Shadow => {
-                let nl = self.lights.len() as u32;
-                hits.flat_map_iter(|(i, s, m)| {
-                    (0..nl).filter_map(move |l| self.shadow_ray(i, s, m, l))
-                })
-                .collect()
-            }
-            RayKind::Reflection | RayKind::Refraction => hits
-                .filter_map(|(i, s, m)| self.bounce_ray(i, s, m, kind))
-                .collect(),
-        };
+            .map(|(c, chunk)| {
+                let mut out = Vec::new();
+                for (j, s) in chunk.iter().enumerate().filter(|(_, s)| s.is_hit()) {
+                    let i = (c * CHUNK + j) as u32;
+                    let m = &self.materials[s.material as usize];
+                    if kind == RayKind::Shadow {
+                        out.extend((0..nl).filter_map(|l| self.shadow_ray(i, s, m, l)));
+                    } else if let Some(r) = self.bounce_ray(i, s, m, kind) {
+                        out.push(r);
+                    }
+                }
+                out
+            })
+            .collect();
+        let rays = parts.concat();
         Ok(rays)
     }
 }
