@@ -9,8 +9,8 @@ use std::sync::Arc;
 use crsh_core::glam::{DVec3, Vec3};
 use crsh_core::metrics::{psnr_rgba8, to_rgba8};
 use crsh_core::{CoreError, Frame, FrameOptions, PipelineConfig, StageSpec};
-use crsh_cpu::catalogue::{render, with_threads};
 use crsh_cpu::Cpu;
+use crsh_cpu::{render, with_threads};
 use crsh_scene::{Camera, Light, Material, Scene, SceneBuilder};
 
 const SIZE: u32 = 64;

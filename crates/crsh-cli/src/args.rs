@@ -77,9 +77,10 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=MAX_IMAGE_SIDE as i64))]
     pub width: u32,
 
-    /// Image height in pixels.
-    #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=MAX_IMAGE_SIDE as i64))]
-    pub height: u32,
+    /// Image height in pixels [default: width / the camera's framing aspect when the scene's
+    /// manifest gives one, else 512].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=MAX_IMAGE_SIDE as i64))]
+    pub height: Option<u32>,
 
     /// Reflection / refraction bounces after the primary hit (0: direct light only).
     #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=MAX_DEPTH as i64))]
@@ -159,7 +160,7 @@ mod tests {
         };
         assert_eq!(r.scene, "cornell-mirrors");
         assert_eq!(r.pipeline, "bvh");
-        assert_eq!((r.width, r.height, r.depth), (512, 512, 3));
+        assert_eq!((r.width, r.height, r.depth), (512, None, 3));
         assert_eq!(r.backend, BackendChoice::Cpu);
         assert_eq!(r.out, PathBuf::from("crsh.png"));
         assert!(r.stats.is_none() && r.reference.is_none() && r.threads.is_none());

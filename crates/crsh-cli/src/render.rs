@@ -7,6 +7,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crsh_core::metrics::{psnr_rgba8, to_rgba8};
+use crsh_core::pipeline::MAX_IMAGE_SIDE;
 use crsh_core::{
     render_frame, CoreError, FrameOptions, PipelineConfig, Progress, StageVariantInfo,
 };
@@ -17,6 +18,9 @@ use crate::args::{BackendChoice, RenderArgs};
 use crate::error::{CliError, CliResult};
 use crate::output;
 use crate::report::{AccuracyReport, RunInfo, SceneInfo, SetupTimes, StatsReport};
+
+/// Image height when neither `--height` nor the camera's framing aspect gives one.
+const DEFAULT_HEIGHT: u32 = 512;
 
 /// Runs `crsh render`.
 pub fn run(args: &RenderArgs) -> CliResult<()> {
@@ -51,9 +55,19 @@ pub fn run(args: &RenderArgs) -> CliResult<()> {
         ));
     }
     let scene = Arc::new(scene);
+    let height = args
+        .height
+        .or_else(|| scene.camera.height_for(args.width))
+        .unwrap_or(DEFAULT_HEIGHT);
+    if height > MAX_IMAGE_SIDE {
+        return Err(CliError::usage(format!(
+            "--width {} with the camera's aspect gives a height of {height}, above {MAX_IMAGE_SIDE}; pass --height",
+            args.width
+        )));
+    }
     let opts = FrameOptions {
         width: args.width,
-        height: args.height,
+        height,
         max_depth: args.depth,
         triangles: scene.triangle_count() as u64,
     };
@@ -86,10 +100,9 @@ pub fn run(args: &RenderArgs) -> CliResult<()> {
         Some(ref_cfg) => {
             bar.set_prefix(format!("reference {}", ref_cfg.intersect.kind));
             let t0 = Instant::now();
-            let ref_frame = crsh_cpu::catalogue::render(&scene, ref_cfg, &opts, None, &mut |p| {
-                advance(&bar, &p)
-            })
-            .map_err(|e| CliError::runtime(format!("reference render failed: {e}")))?;
+            let ref_frame =
+                crsh_cpu::render(&scene, ref_cfg, &opts, None, &mut |p| advance(&bar, &p))
+                    .map_err(|e| CliError::runtime(format!("reference render failed: {e}")))?;
             let ref_ms = ms_since(t0);
             let ref_rgba = to_rgba8(&ref_frame.image);
             let counts = frame.stats.accuracy.clone().unwrap_or_default();
@@ -104,7 +117,7 @@ pub fn run(args: &RenderArgs) -> CliResult<()> {
     };
     bar.finish_and_clear();
 
-    output::write_png(&args.out, args.width, args.height, &rgba)?;
+    output::write_png(&args.out, args.width, height, &rgba)?;
     let report = StatsReport::new(
         RunInfo {
             scene: SceneInfo::of(&scene, &args.scene),
@@ -112,7 +125,7 @@ pub fn run(args: &RenderArgs) -> CliResult<()> {
             backend: args.backend.name(),
             threads,
             width: args.width,
-            height: args.height,
+            height,
             max_depth: args.depth,
             output: args.out.display().to_string(),
             setup: SetupTimes {

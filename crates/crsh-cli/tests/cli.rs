@@ -341,6 +341,31 @@ fn renders_a_bare_obj_and_a_shared_manifest() {
     assert_eq!(f(&s, "/accuracy/hit_agreement"), 1.0);
 }
 
+#[test]
+fn manifest_aspect_sets_the_default_height_and_pixels_stay_square() {
+    let dir = scratch("aspect");
+    std::fs::write(
+        dir.join("quad.obj"),
+        "o q\nv -2 -1 0\nv 2 -1 0\nv 2 1 0\nv -2 1 0\nf 1 2 3\nf 1 3 4\n",
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("wide.toml"),
+        "name = \"wide\"\nmesh = \"quad.obj\"\n[camera]\neye = [0.0, 0.0, 4.0]\n\
+         target = [0.0, 0.0, 0.0]\nvfov_deg = 40.0\naspect = 2.0\n\
+         [[lights]]\nposition = [0.0, 0.0, 3.0]\n",
+    )
+    .unwrap();
+    let (s, _) = render(&dir, &["--scene", "wide.toml", "--width", "40"]);
+    assert_eq!(u(&s, "/width"), 40);
+    assert_eq!(u(&s, "/height"), 20, "height follows the framing aspect");
+    let (s, _) = render(
+        &dir,
+        &["--scene", "wide.toml", "--width", "40", "--height", "30"],
+    );
+    assert_eq!(u(&s, "/height"), 30, "an explicit --height wins");
+}
+
 /// Runs a command that must fail with `code` and a one-line `error:` message containing
 /// `needle`, without panicking.
 fn expect_error(dir: &Path, args: &[&str], code: i32, needle: &str) {

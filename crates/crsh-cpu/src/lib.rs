@@ -25,4 +25,6 @@ pub mod surface;
 pub mod triangle;
 
 pub use backend::Cpu;
-pub use catalogue::{build_intersector, build_stages, catalogue, preset, PRESETS};
+pub use catalogue::{
+    build_intersector, build_stages, catalogue, preset, render, with_threads, PRESETS,
+};

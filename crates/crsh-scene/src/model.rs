@@ -179,14 +179,23 @@ impl Camera {
 
     /// The unit direction through the point `(sx, sy)` of the image plane, in pixel units of a
     /// `width × height` image (`(0, 0)` is the top-left corner, `(width, height)` bottom-right;
-    /// pixel centres are at `+0.5`). Uses `aspect` when set, else `width / height`.
+    /// pixel centres are at `+0.5`). Pixels are square: the horizontal extent follows from the
+    /// vertical field of view and `width / height`; [`Camera::aspect`] does not stretch the
+    /// image, it only suggests the image shape ([`Camera::height_for`]).
     pub fn direction(&self, sx: f32, sy: f32, width: u32, height: u32) -> Vec3 {
         let (r, u, f) = self.basis();
-        let aspect = self.aspect.unwrap_or(width as f32 / height as f32);
+        let aspect = width as f32 / height as f32;
         let tan_half = (self.vfov_deg.to_radians() * 0.5).tan();
         let ndc_x = (2.0 * sx / width as f32 - 1.0) * tan_half * aspect;
         let ndc_y = (1.0 - 2.0 * sy / height as f32) * tan_half;
         (f + r * ndc_x + u * ndc_y).normalize()
+    }
+
+    /// The image height that matches the framing aspect for an image `width` pixels wide, if
+    /// the camera has one (at least 1 pixel).
+    pub fn height_for(&self, width: u32) -> Option<u32> {
+        self.aspect
+            .map(|a| ((width as f64 / a as f64).round() as u32).max(1))
     }
 
     /// Checks that the camera defines a view: finite vectors, eye ≠ target, `up` not parallel
@@ -799,6 +808,40 @@ fn compute_normals(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn camera_pixels_are_square_whatever_the_framing_aspect() {
+        let cam = Camera {
+            eye: Vec3::ZERO,
+            target: Vec3::new(0.0, 0.0, -1.0),
+            up: Vec3::Y,
+            vfov_deg: 90.0,
+            aspect: Some(16.0 / 9.0),
+        };
+        // A 200x100 image: the right edge centre is 2 units right of the axis at depth 1
+        // (tan 45° × width / height), the top edge centre 1 unit up.
+        let right = cam.direction(200.0, 50.0, 200, 100);
+        assert!((right - Vec3::new(2.0, 0.0, -1.0).normalize()).length() < 1e-6);
+        let top = cam.direction(100.0, 0.0, 200, 100);
+        assert!((top - Vec3::new(0.0, 1.0, -1.0).normalize()).length() < 1e-6);
+        assert_eq!(cam.height_for(512), Some(288));
+        assert_eq!(
+            Camera {
+                aspect: None,
+                ..cam.clone()
+            }
+            .height_for(512),
+            None
+        );
+        assert_eq!(
+            Camera {
+                aspect: Some(1e6),
+                ..cam
+            }
+            .height_for(10),
+            Some(1)
+        );
+    }
 
     fn camera() -> Camera {
         Camera {

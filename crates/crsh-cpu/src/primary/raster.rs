@@ -213,7 +213,7 @@ impl Setup {
     fn new(scene: &Scene, width: u32, height: u32) -> Setup {
         let cam = &scene.camera;
         let (r, u, f) = cam.basis();
-        let aspect = cam.aspect.unwrap_or(width as f32 / height as f32) as f64;
+        let aspect = width as f64 / height as f64;
         let tan_half = (cam.vfov_deg.to_radians() * 0.5).tan() as f64;
         let diag = scene.bounds.diagonal() as f64;
         Setup {
