@@ -123,46 +123,39 @@ pub fn area_ratio_weights(a: Vec3, b: Vec3, c: Vec3, p: Vec3) -> Option<[f64; 3]
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crsh_core::{Aabb, Sphere, NO_HIT};
-    use crsh_scene::{Camera, Material, Mesh};
+    use crsh_core::NO_HIT;
+    use crsh_scene::{Camera, Material, SceneBuilder};
 
-    /// A scene assembled field by field (independent of the scene crate's builder), with one
-    /// mesh holding all triangles and per-vertex `normals`.
+    /// A scene made with [`SceneBuilder`] from raw arrays: one mesh holding all `indices`
+    /// (in order) over `positions`, with per-vertex `normals` (unit length: the builder
+    /// normalizes them again, which may move a component by an ulp), two default materials,
+    /// no lights, and a camera at z = 5 looking at the origin.
+    ///
+    /// Triangle `i` uses material `i % 2`, so that material ids vary across a scene. The
+    /// builder gives all the triangles of a mesh one material, and a mesh per triangle would
+    /// renumber the vertices, so the ids are set after building: the one field not left to
+    /// the builder.
     pub(crate) fn raw_scene(
         positions: Vec<Vec3>,
         normals: Vec<Vec3>,
         indices: Vec<[u32; 3]>,
     ) -> Scene {
-        let n = indices.len();
-        let bounds = Aabb::from_points(positions.iter().copied());
-        let sphere = Sphere::new(bounds.center(), bounds.diagonal() * 0.5);
-        Scene {
-            name: "raw".into(),
-            tri_mesh: vec![0; n],
-            tri_material: (0..n as u32).map(|i| i % 2).collect(),
-            tri_spheres: vec![sphere; n],
-            meshes: vec![Mesh {
-                name: "all".into(),
-                first_tri: 0,
-                tri_count: n as u32,
-                sphere,
-                aabb: bounds,
-            }],
-            materials: vec![Material::default(), Material::default()],
-            lights: vec![],
-            camera: Camera {
-                eye: Vec3::new(0.0, 0.0, 5.0),
-                target: Vec3::ZERO,
-                up: Vec3::Y,
-                vfov_deg: 45.0,
-                aspect: None,
-            },
-            bounds,
-            degenerate_triangles: 0,
-            positions,
-            normals,
-            indices,
+        let mut b = SceneBuilder::new("raw");
+        let m = b.material(Material::default());
+        b.material(Material::default());
+        b.camera(Camera {
+            eye: Vec3::new(0.0, 0.0, 5.0),
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            vfov_deg: 45.0,
+            aspect: None,
+        });
+        b.mesh("all", &positions, Some(&normals), &indices, m);
+        let mut scene = b.build("raw test scene").unwrap();
+        for (i, id) in scene.tri_material.iter_mut().enumerate() {
+            *id = i as u32 % 2;
         }
+        scene
     }
 
     fn one_triangle(normals: [Vec3; 3]) -> Scene {

@@ -732,17 +732,9 @@ pub(crate) mod tests {
         let scene = soup(13, 200);
         let b = BruteForce::from_scene(&scene);
         let rays = random_rays(&scene, 14, 300);
-        let one = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap();
-        let three = rayon::ThreadPoolBuilder::new()
-            .num_threads(3)
-            .build()
-            .unwrap();
         for mode in [HitMode::Closest, HitMode::Any] {
-            let a = one.install(|| run(&b, &rays, Query::Scene, mode));
-            let c = three.install(|| run(&b, &rays, Query::Scene, mode));
+            let a = crate::with_threads(1, || run(&b, &rays, Query::Scene, mode)).unwrap();
+            let c = crate::with_threads(3, || run(&b, &rays, Query::Scene, mode)).unwrap();
             assert_eq!(a.0, c.0);
             assert_eq!(a.1.tests, c.1.tests);
         }

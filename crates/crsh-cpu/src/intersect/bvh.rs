@@ -560,17 +560,9 @@ mod tests {
         let scene = soup(51, 400);
         let bvh = CwBvh::build(&scene, BuildQuality::Medium);
         let rays = random_rays(&scene, 52, 700);
-        let one = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap();
-        let three = rayon::ThreadPoolBuilder::new()
-            .num_threads(3)
-            .build()
-            .unwrap();
         for mode in [HitMode::Closest, HitMode::Any] {
-            let a = one.install(|| run(&bvh, &rays, mode));
-            let b = three.install(|| run(&bvh, &rays, mode));
+            let a = crate::with_threads(1, || run(&bvh, &rays, mode)).unwrap();
+            let b = crate::with_threads(3, || run(&bvh, &rays, mode)).unwrap();
             assert_eq!(a.0, b.0);
             assert_eq!(a.1.tests, b.1.tests);
         }

@@ -614,16 +614,14 @@ mod tests {
     fn same_result_for_any_thread_count() {
         let scene = boxes(Vec3::new(3.0, 2.5, 5.0), Vec3::new(0.0, 0.5, 0.0), 50.0);
         let r = raster(&scene);
-        let one = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap();
-        let three = rayon::ThreadPoolBuilder::new()
-            .num_threads(3)
-            .build()
-            .unwrap();
-        let a = one.install(|| r.gbuffer(&Cpu, 50, 37, &mut Stats::default()).unwrap());
-        let b = three.install(|| r.gbuffer(&Cpu, 50, 37, &mut Stats::default()).unwrap());
+        let a = crate::with_threads(1, || {
+            r.gbuffer(&Cpu, 50, 37, &mut Stats::default()).unwrap()
+        })
+        .unwrap();
+        let b = crate::with_threads(3, || {
+            r.gbuffer(&Cpu, 50, 37, &mut Stats::default()).unwrap()
+        })
+        .unwrap();
         assert_eq!(a, b);
     }
 

@@ -416,47 +416,42 @@ impl RayGen<Cpu> for Whitted {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crsh_core::{Aabb, ParamValue, Sphere, NO_HIT};
-    use crsh_scene::{Camera, Light, Material, Mesh};
+    use crsh_core::{ParamValue, NO_HIT};
+    use crsh_scene::{Camera, Light, Material, SceneBuilder};
 
-    /// A one-quad scene (the square `[-1, 1]²` at z = 0, normal +z) assembled field by field,
-    /// with the given materials (the quad uses material 0) and lights.
+    /// A one-quad scene (the square `[-1, 1]²` at z = 0, normal +z) made with
+    /// [`SceneBuilder`], with the given materials (the quad uses material 0) and lights. The
+    /// builder validates them: a test of a stage's own checks on a material or light the
+    /// builder refuses sets it on the built scene.
     pub(crate) fn quad_scene(materials: Vec<Material>, lights: Vec<Light>) -> Arc<Scene> {
-        let positions = vec![
+        let positions = [
             Vec3::new(-1.0, -1.0, 0.0),
             Vec3::new(1.0, -1.0, 0.0),
             Vec3::new(1.0, 1.0, 0.0),
             Vec3::new(-1.0, 1.0, 0.0),
         ];
-        let bounds = Aabb::from_points(positions.iter().copied());
-        let sphere = Sphere::new(Vec3::ZERO, 2f32.sqrt());
-        Arc::new(Scene {
-            name: "quad".into(),
-            normals: vec![Vec3::Z; 4],
-            indices: vec![[0, 1, 2], [0, 2, 3]],
-            tri_mesh: vec![0, 0],
-            tri_material: vec![0, 0],
-            tri_spheres: vec![sphere; 2],
-            meshes: vec![Mesh {
-                name: "quad".into(),
-                first_tri: 0,
-                tri_count: 2,
-                sphere,
-                aabb: bounds,
-            }],
-            materials,
-            lights,
-            camera: Camera {
-                eye: Vec3::new(0.0, 0.0, 5.0),
-                target: Vec3::ZERO,
-                up: Vec3::Y,
-                vfov_deg: 45.0,
-                aspect: None,
-            },
-            bounds,
-            degenerate_triangles: 0,
-            positions,
-        })
+        let mut b = SceneBuilder::new("quad");
+        for m in materials {
+            b.material(m);
+        }
+        for l in lights {
+            b.light(l);
+        }
+        b.camera(Camera {
+            eye: Vec3::new(0.0, 0.0, 5.0),
+            target: Vec3::ZERO,
+            up: Vec3::Y,
+            vfov_deg: 45.0,
+            aspect: None,
+        });
+        b.mesh(
+            "quad",
+            &positions,
+            Some(&[Vec3::Z; 4]),
+            &[[0, 1, 2], [0, 2, 3]],
+            0,
+        );
+        Arc::new(b.build("quad test scene").unwrap())
     }
 
     pub(crate) fn light(position: Vec3) -> Light {
@@ -651,7 +646,11 @@ pub(crate) mod tests {
             ior: 0.0,
             ..Material::default()
         };
-        assert!(Whitted::new(&quad_scene(vec![glass], vec![]), &spec(&[])).is_err());
+        // The scene builder refuses an index of refraction of 0 (`Material::validate`): put
+        // the material on a built scene to reach the stage's own check.
+        let mut scene = (*quad_scene(vec![Material::default()], vec![])).clone();
+        scene.materials[0] = glass;
+        assert!(Whitted::new(&Arc::new(scene), &spec(&[])).is_err());
         assert_eq!(NO_HIT, Surface::background(0, Vec3::Z, Vec3::ONE, 0).tri);
     }
 }
