@@ -240,6 +240,33 @@ fn raster_and_raycast_primaries_give_the_same_image() {
     }
 }
 
+/// Every test is attributed to a ray kind, and brute force counts exactly the rays that went
+/// through intersection: camera rays only when the primary stage casts them.
+#[test]
+fn counters_add_up_for_raster_and_raycast_primaries() {
+    let scene = builtin("office-boxes");
+    let tris = scene.triangle_count() as u64;
+    let o = opts(SIZE, SIZE, 2);
+    for (sets, casts) in [(&[][..], false), (&["primary.kind=raycast"][..], true)] {
+        let s = frame(&scene, &config("bvh", sets), &o, None).stats;
+        let secondary = s.rays.shadow + s.rays.reflection + s.rays.refraction;
+        let pixels = u64::from(SIZE * SIZE);
+        let traced = secondary + if casts { pixels } else { 0 };
+        assert_eq!(s.traced_rays, traced, "raycast primaries: {casts}");
+        assert_eq!(s.tests.brute_force, traced * tris);
+        let (bounds, tri_tests): (u64, u64) = s
+            .per_kind
+            .values()
+            .fold((0, 0), |(b, t), k| (b + k.bounds, t + k.ray_triangle));
+        assert_eq!((bounds, tri_tests), (s.tests.bounds, s.tests.ray_triangle));
+        assert_eq!(s.tests.total, s.tests.bounds + s.tests.ray_triangle);
+        let primary = &s.per_kind["primary"];
+        assert_eq!(primary.rays, pixels);
+        assert_eq!(primary.bounds + primary.ray_triangle > 0, casts);
+        assert_eq!(primary.trace_ms > 0.0, casts);
+    }
+}
+
 #[test]
 fn output_does_not_depend_on_the_thread_count() {
     for name in crsh_scene::builtin::NAMES {

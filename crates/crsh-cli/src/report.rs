@@ -59,8 +59,9 @@ pub struct RaysReport {
     pub reflection: u64,
     /// Refraction rays.
     pub refraction: u64,
-    /// Rays the frame driver traced through the intersector (shadow + reflection + refraction):
-    /// the rays that `tests.brute_force` and `tests.per_traced_ray` count.
+    /// Rays the frame driver traced through intersection stages (shadow + reflection +
+    /// refraction, plus the camera rays when the primary variant casts them): the rays that
+    /// `tests.brute_force` and `tests.per_traced_ray` count.
     pub traced: u64,
     /// All rays, primary included.
     pub total: u64,
@@ -231,7 +232,7 @@ impl StatsReport {
     /// Shapes the report of one frame.
     pub fn new(run: RunInfo<'_>, stats: &Stats, accuracy: Option<AccuracyReport>) -> StatsReport {
         let r = &stats.rays;
-        let traced = r.shadow + r.reflection + r.refraction;
+        let traced = stats.traced_rays;
         StatsReport {
             version: env!("CARGO_PKG_VERSION"),
             scene: run.scene,
@@ -441,6 +442,7 @@ mod tests {
         s.add_bounds(30);
         s.add_ray_triangle(12);
         s.tests.brute_force = 14 * 100;
+        s.traced_rays = 14;
         s.per_kind.insert(
             "primary".into(),
             KindStats {

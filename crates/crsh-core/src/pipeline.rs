@@ -128,18 +128,28 @@ pub fn render_frame<B: Backend>(
     let mut image = backend.filled(pixels, [0.0f32; 4])?;
 
     driver.report(progress, "primary visibility".into());
+    let tests_before = driver.stats.tests;
+    let t_primary = Instant::now();
     let mut surfaces = driver.timed("primary", |d| {
         d.stages
             .primary
             .gbuffer(d.backend, d.opts.width, d.opts.height, &mut d.stats)
     })?;
+    let primary_ms = t_primary.elapsed().as_secs_f64() * 1e3;
     driver.stats.rays.add(RayKind::Primary, pixels as u64);
-    driver
-        .stats
-        .per_kind
-        .entry("primary".into())
-        .or_default()
-        .rays += pixels as u64;
+    let casts = stages.primary.casts_rays();
+    if casts {
+        driver.stats.traced_rays += pixels as u64;
+        driver.stats.tests.brute_force += pixels as u64 * opts.triangles;
+    }
+    let after = driver.stats.tests;
+    let ks = driver.stats.per_kind.entry("primary".into()).or_default();
+    ks.rays += pixels as u64;
+    ks.bounds += after.bounds - tests_before.bounds;
+    ks.ray_triangle += after.ray_triangle - tests_before.ray_triangle;
+    if casts {
+        ks.trace_ms += primary_ms;
+    }
 
     for depth in 0..=opts.max_depth {
         driver.report(progress, format!("shadow rays, bounce {depth}"));
@@ -298,6 +308,7 @@ impl<B: Backend> Driver<'_, B> {
         let elapsed = t0.elapsed().as_secs_f64() * 1e3;
         let after = self.stats.tests;
         self.stats.rays.add(kind, n as u64);
+        self.stats.traced_rays += n as u64;
         self.stats.tests.brute_force += n as u64 * self.opts.triangles;
         let ks = self.stats.per_kind.entry(kind.name().into()).or_default();
         ks.rays += n as u64;

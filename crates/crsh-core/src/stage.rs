@@ -22,6 +22,13 @@ use crate::stats::Stats;
 pub trait PrimaryVisibility<B: Backend>: Send + Sync {
     /// Variant name (`raster`, `raycast`).
     fn name(&self) -> &str;
+    /// Whether this variant traces camera rays through an intersector (ray casting) rather
+    /// than rasterizing. The driver then counts the camera rays as traced work: in
+    /// [`Stats::traced_rays`], in `tests.brute_force`, and with the stage's time as the
+    /// primary kind's trace time.
+    fn casts_rays(&self) -> bool {
+        false
+    }
     /// Renders the G-buffer at `width × height`.
     fn gbuffer(
         &self,

@@ -125,6 +125,10 @@ pub struct Stats {
     pub rays: RayCounts,
     /// Test totals.
     pub tests: TestCounts,
+    /// Rays that went through intersection stages: every secondary ray, plus the camera rays
+    /// when the primary variant casts them ([`crate::PrimaryVisibility::casts_rays`]). The
+    /// rays `tests.brute_force` counts.
+    pub traced_rays: u64,
     /// Per kind breakdown, keyed by [`RayKind::name`].
     pub per_kind: BTreeMap<String, KindStats>,
     /// Per hierarchy level counters (empty when no hierarchy is used).

@@ -112,6 +112,10 @@ impl PrimaryVisibility<Cpu> for RayCast {
         "raycast"
     }
 
+    fn casts_rays(&self) -> bool {
+        true
+    }
+
     fn gbuffer(
         &self,
         backend: &Cpu,
