@@ -17,11 +17,15 @@
 
 pub mod backend;
 pub mod catalogue;
+pub mod hash;
+pub mod hierarchy;
 pub mod intersect;
 pub mod primary;
 pub mod raygen;
 pub mod shade;
+pub mod sort;
 pub mod surface;
+pub mod traverse;
 pub mod triangle;
 
 pub use backend::Cpu;

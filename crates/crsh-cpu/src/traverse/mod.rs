@@ -1,0 +1,1 @@
+//! Ray-space hierarchy traversers (seed 000 §3.2.8).
