@@ -1,0 +1,1026 @@
+//! The sphere-cone ray-space hierarchy (seed 000 §3.2.7, eq. 3.8-3.15; seed 004 §4).
+//!
+//! Every node bounds a set of rays by a [`SphereCone`]: the sphere contains the ray origins,
+//! the cone (apex at the origin of direction space) contains the ray directions. Together they
+//! bound the volume the rays sweep: every point `o + t·d` (`t ≥ 0`) of a covered ray lies in
+//! the Minkowski sum *sphere ⊕ cone* (see [`swept_excess`]).
+//!
+//! # Construction
+//!
+//! The leaves are the rays in the `order` the sorter produced. The hierarchy is built bottom-up,
+//! one flat array per level, each level in parallel with rayon (one task per node; a node only
+//! reads its own children, so the result does not depend on the thread count):
+//!
+//! - **Level 0** (the thesis' lowest node level, level 1 in its numbering) groups `subdivision`
+//!   consecutive leaves (the last node may have fewer).
+//!   - *Cone*: the incremental construction of eq. 3.8-3.11 (seed 004 §4): start with the
+//!     zero-angle cone of the first ray and add the rays one by one; a ray outside the cone
+//!     rotates and widens it so that the new cone just touches the farthest generator `e` of
+//!     the old cone (eq. 3.8-3.9) and the ray `r`: axis `normalize(e + r)` (eq. 3.10),
+//!     half-angle `acos(x_new·r)` (eq. 3.11). This is computed in angle form (see
+//!     [`extend_cone`]), which is the same cone while the result is narrower than a hemisphere
+//!     and stays correct beyond it, where `e + r` would point the wrong way or vanish.
+//!   - *Sphere*: the exact minimal sphere of the origins ([`crsh_scene::bounding::min_sphere`],
+//!     Welzl); rays that share an origin (shadow rays from a light) get radius 0.
+//! - **Upper levels** group `subdivision` consecutive nodes of the level below.
+//!   - *Cone*: the union of the children's cones, folded left to right with the *tight*
+//!     pairwise union [`cone_union`] (the smallest cone containing two cones). For two cones it
+//!     is never wider than the erratum formula of eq. 3.12-3.13 (`normalize(x1 + x2)`,
+//!     `acos(x1·x2)/2 + max(φ1, φ2)`), and equal to it when `φ1 = φ2`; folding it over `n`
+//!     children generalises it without the erratum's growth by `max(φ)` at every step.
+//!   - *Sphere*: the children's spheres folded with the tight pairwise union [`sphere_union`]
+//!     (the smallest sphere containing two spheres), instead of the conservative eq. 3.14-3.15.
+//! - **Depth**: `depth` levels are kept (the thesis limits the levels because the high nodes
+//!   grow too large, §3.2.7), except that construction *stops early* once a level has a
+//!   single node: a level above it would only repeat that root. So `levels.len() =
+//!   min(depth, L)` where `L` is the number of levels down to and including the first one with
+//!   a single node, and level `l` (0-based) has `ceil(n / subdivision^(l+1))` nodes
+//!   ([`level_sizes`]).
+//!
+//! # Float rounding
+//!
+//! All construction arithmetic runs in `f64`. When a node is stored in `f32`, its bound is
+//! *re-measured* against the rounded `f32` axis and centre (half-angle = the largest angle
+//! from the stored axis to a child direction or child cone; radius = the largest distance
+//! from the stored centre to a child origin or child sphere), so containment does not depend
+//! on the accuracy of the construction formulas. Then the half-angle is enlarged by
+//! [`CONE_REL_MARGIN`] (relative) plus [`CONE_ABS_MARGIN`] radians and the radius by
+//! [`SPHERE_REL_MARGIN`] (relative), and both are rounded up to the next `f32`. Every
+//! child therefore lies inside its parent with a little room to spare for consumers that test
+//! in `f32`. Cones are clamped to half-angle π (all directions).
+//!
+//! # Degenerate input
+//!
+//! No rays give no levels (an empty hierarchy). A leaf index outside the ray buffer, or a ray
+//! with a non-finite origin or a zero-length or non-finite direction, is
+//! [`CoreError::InvalidInput`] naming the first such leaf (deterministically).
+
+use std::f64::consts::PI;
+use std::sync::Arc;
+
+use crsh_core::{
+    Cone, CoreError, HierarchyBuilder, ParamInfo, ParamValue, Ray, RayHierarchy, Result, Sphere,
+    SphereCone, StageKind, StageSpec, StageVariantInfo, Stats,
+};
+use crsh_scene::bounding::min_sphere;
+use crsh_scene::Scene;
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+
+use crate::Cpu;
+
+/// Default children per node.
+pub const DEFAULT_SUBDIVISION: u32 = 8;
+/// Accepted children per node.
+pub const SUBDIVISION_RANGE: std::ops::RangeInclusive<u32> = 2..=64;
+/// Default number of node levels kept above the leaves.
+pub const DEFAULT_DEPTH: u32 = 2;
+/// Accepted numbers of node levels.
+pub const DEPTH_RANGE: std::ops::RangeInclusive<u32> = 1..=8;
+
+/// Relative enlargement of every stored cone half-angle (rounding guard, see module docs).
+pub const CONE_REL_MARGIN: f64 = 1e-6;
+/// Absolute enlargement of every stored cone half-angle, in radians (rounding guard).
+pub const CONE_ABS_MARGIN: f64 = 1e-6;
+/// Relative enlargement of every stored sphere radius (rounding guard).
+pub const SPHERE_REL_MARGIN: f64 = 1e-6;
+
+/// Below this length the component of one axis orthogonal to another counts as zero (the
+/// axes are parallel or opposite) and a fixed perpendicular is used instead.
+const PERP_EPS: f64 = 1e-12;
+
+/// The catalogue entry of this variant.
+pub fn info() -> StageVariantInfo {
+    StageVariantInfo {
+        stage: StageKind::Hierarchy,
+        name: "sphere_cone",
+        doc: "bottom-up sphere-cone ray-space hierarchy: incremental leaf cones (seed 000 \
+              eq. 3.8-3.11, seed 004 §4), tight cone and sphere unions above (eq. 3.12-3.15 \
+              with the erratum), seed 000 §3.2.7",
+        params: vec![
+            ParamInfo {
+                name: "subdivision",
+                default: ParamValue::Int(DEFAULT_SUBDIVISION as i64),
+                choices: &[],
+                doc: "children per node (rays per lowest node), 2..=64",
+            },
+            ParamInfo {
+                name: "depth",
+                default: ParamValue::Int(DEFAULT_DEPTH as i64),
+                choices: &[],
+                doc: "node levels kept above the leaves, 1..=8 (fewer when a level already \
+                      has a single node)",
+            },
+        ],
+    }
+}
+
+/// The sphere-cone hierarchy builder (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SphereConeBuilder {
+    subdivision: u32,
+    depth: u32,
+}
+
+impl SphereConeBuilder {
+    /// The builder configured by a resolved `spec` (`subdivision`, `depth`).
+    pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<SphereConeBuilder> {
+        let _ = scene;
+        SphereConeBuilder::with_params(
+            spec.u32_in("subdivision", SUBDIVISION_RANGE)?,
+            spec.u32_in("depth", DEPTH_RANGE)?,
+        )
+    }
+
+    /// The builder with `subdivision` children per node and at most `depth` node levels.
+    pub fn with_params(subdivision: u32, depth: u32) -> Result<SphereConeBuilder> {
+        let check = |key: &str, v: u32, range: &std::ops::RangeInclusive<u32>| {
+            if range.contains(&v) {
+                Ok(())
+            } else {
+                Err(CoreError::InvalidParam {
+                    key: format!("sphere_cone.{key}"),
+                    reason: format!("{v} is outside {}..={}", range.start(), range.end()),
+                })
+            }
+        };
+        check("subdivision", subdivision, &SUBDIVISION_RANGE)?;
+        check("depth", depth, &DEPTH_RANGE)?;
+        Ok(SphereConeBuilder { subdivision, depth })
+    }
+
+    /// Children per node.
+    pub fn subdivision(&self) -> u32 {
+        self.subdivision
+    }
+
+    /// The most node levels built.
+    pub fn depth(&self) -> u32 {
+        self.depth
+    }
+
+    /// The node levels over `rays` taken in `order`, lowest first (what
+    /// [`HierarchyBuilder::build`] stores in [`RayHierarchy::levels`]).
+    pub fn build_levels(&self, rays: &[Ray], order: &[u32]) -> Result<Vec<Vec<SphereCone>>> {
+        validate(rays, order)?;
+        let s = self.subdivision as usize;
+        let mut levels: Vec<Vec<SphereCone>> = Vec::new();
+        if order.is_empty() {
+            return Ok(levels);
+        }
+        let lowest: Vec<SphereCone> = order
+            .par_chunks(s)
+            .map(|leaves| leaf_node(rays, leaves))
+            .collect();
+        levels.push(lowest);
+        while levels.len() < self.depth as usize {
+            let below = &levels[levels.len() - 1];
+            if below.len() <= 1 {
+                break;
+            }
+            let next: Vec<SphereCone> = below.par_chunks(s).map(inner_node).collect();
+            levels.push(next);
+        }
+        Ok(levels)
+    }
+}
+
+impl HierarchyBuilder<Cpu> for SphereConeBuilder {
+    fn name(&self) -> &str {
+        "sphere_cone"
+    }
+
+    fn build(
+        &self,
+        _backend: &Cpu,
+        rays: &Vec<Ray>,
+        order: Vec<u32>,
+        _stats: &mut Stats,
+    ) -> Result<RayHierarchy<Cpu>> {
+        let levels = self.build_levels(rays, &order)?;
+        Ok(RayHierarchy {
+            order,
+            levels,
+            subdivision: self.subdivision,
+        })
+    }
+}
+
+/// Node counts per level for `n` leaves: level `l` (0-based) has `ceil(n / subdivision^(l+1))`
+/// nodes; at most `depth` levels, stopping after the first level with a single node; empty for
+/// `n = 0`. `subdivision` must be at least 2.
+pub fn level_sizes(n: usize, subdivision: u32, depth: u32) -> Vec<usize> {
+    let s = subdivision.max(2) as usize;
+    let mut sizes = Vec::new();
+    let mut count = n;
+    while count > 1 || (count == 1 && sizes.is_empty()) {
+        if sizes.len() >= depth as usize {
+            break;
+        }
+        count = count.div_ceil(s);
+        sizes.push(count);
+    }
+    sizes
+}
+
+/// The first leaf whose index is out of range or whose ray is unusable, as an error.
+fn validate(rays: &[Ray], order: &[u32]) -> Result<()> {
+    if let Some(leaf) = order
+        .par_iter()
+        .position_first(|&i| i as usize >= rays.len())
+    {
+        return Err(CoreError::InvalidInput(format!(
+            "sphere_cone: leaf {leaf} refers to ray {} of a batch of {} rays",
+            order[leaf],
+            rays.len()
+        )));
+    }
+    let bad = |r: &Ray| {
+        let d = r.dir.as_dvec3();
+        !r.origin.is_finite() || !d.is_finite() || d.length_squared() == 0.0
+    };
+    if let Some(leaf) = order.par_iter().position_first(|&i| bad(&rays[i as usize])) {
+        let r = &rays[order[leaf] as usize];
+        return Err(CoreError::InvalidInput(format!(
+            "sphere_cone: ray {} (leaf {leaf}) has origin {} and direction {}: needs a finite \
+             origin and a finite non-zero direction",
+            order[leaf], r.origin, r.dir
+        )));
+    }
+    Ok(())
+}
+
+/// A cone in `f64` during construction: unit axis, half-angle in `[0, π]`.
+#[derive(Clone, Copy, Debug)]
+struct DCone {
+    axis: DVec3,
+    angle: f64,
+}
+
+impl DCone {
+    fn of(c: &Cone) -> DCone {
+        DCone {
+            axis: unit(c.axis.as_dvec3()),
+            angle: (c.half_angle as f64).clamp(0.0, PI),
+        }
+    }
+
+    fn to_cone(self) -> Cone {
+        Cone {
+            axis: self.axis.as_vec3(),
+            half_angle: self.angle as f32,
+        }
+    }
+}
+
+/// `v` normalized; a zero or non-finite `v` gives `+z` (never reached with validated input).
+fn unit(v: DVec3) -> DVec3 {
+    let n = v.normalize_or_zero();
+    if n == DVec3::ZERO {
+        DVec3::Z
+    } else {
+        n
+    }
+}
+
+/// The angle between two non-zero vectors, accurate for small and large angles.
+fn angle(a: DVec3, b: DVec3) -> f64 {
+    a.cross(b).length().atan2(a.dot(b))
+}
+
+/// The tight union of two cones (the smallest cone containing both), in `f64`.
+fn union_d(a: DCone, b: DCone) -> DCone {
+    if a.angle >= PI || b.angle >= PI {
+        return DCone {
+            axis: a.axis,
+            angle: PI,
+        };
+    }
+    let theta = angle(a.axis, b.axis);
+    if theta + b.angle <= a.angle {
+        return a;
+    }
+    if theta + a.angle <= b.angle {
+        return b;
+    }
+    let phi = 0.5 * (a.angle + theta + b.angle);
+    if phi >= PI {
+        return DCone {
+            axis: a.axis,
+            angle: PI,
+        };
+    }
+    // Rotate a's axis towards b's by the amount that puts a's far generator on the new
+    // boundary: alpha = phi - a.angle, strictly between 0 and theta here.
+    let alpha = phi - a.angle;
+    let ortho = b.axis - a.axis * a.axis.dot(b.axis);
+    let u = if ortho.length() > PERP_EPS {
+        ortho.normalize()
+    } else {
+        a.axis.any_orthonormal_vector()
+    };
+    DCone {
+        axis: unit(a.axis * alpha.cos() + u * alpha.sin()),
+        angle: phi,
+    }
+}
+
+/// The cone `cone` extended to contain the direction `dir` (seed 000 eq. 3.8-3.11, seed 004
+/// §4), exact (no margin), computed in `f64`.
+///
+/// If `dir` lies outside, the new cone is the narrowest one containing the old cone and `dir`:
+/// its boundary passes through `dir` and through the old cone's generator `e` farthest from
+/// `dir` (eq. 3.8-3.9), so its half-angle is `(φ + θ) / 2` with `θ` the angle from the axis to
+/// `dir`, and the axis turns from `x` towards `dir` by `(θ - φ) / 2`. Below a hemisphere this
+/// is exactly eq. 3.10-3.11 (`normalize(e + r)`, `acos(x_new·r)`); in angle form it also holds
+/// when `φ + θ ≥ π` (where `e + r` flips or vanishes), up to the full sphere (half-angle π).
+/// A direction opposite to the axis turns it about a fixed perpendicular
+/// ([`glam::DVec3::any_orthonormal_vector`]). `dir` need not be unit length.
+pub fn extend_cone(cone: &Cone, dir: Vec3) -> Cone {
+    let ray = DCone {
+        axis: unit(dir.as_dvec3()),
+        angle: 0.0,
+    };
+    union_d(DCone::of(cone), ray).to_cone()
+}
+
+/// The smallest cone containing cones `a` and `b` (exact, no margin, computed in `f64`).
+///
+/// With `θ` the angle between the axes: if one cone contains the other (`θ + φb ≤ φa` or the
+/// reverse), that cone; otherwise half-angle `(φa + θ + φb) / 2` (clamped to π) and the axis
+/// turned from `a`'s towards `b`'s by `(θ + φb − φa) / 2`, in the plane of both axes (any
+/// plane through `a`'s axis when the axes are opposite). This is never wider than the erratum
+/// form of seed 000 eq. 3.12-3.13 (`θ/2 + max(φa, φb)`) and equals it when `φa = φb`.
+pub fn cone_union(a: &Cone, b: &Cone) -> Cone {
+    union_d(DCone::of(a), DCone::of(b)).to_cone()
+}
+
+/// The smallest sphere containing spheres `a` and `b` (exact, no margin, computed in `f64`):
+/// the larger if it contains the other, else the sphere through the two far points on the line
+/// of centres, radius `(|c2 − c1| + r1 + r2) / 2`. Seed 000 eq. 3.14-3.15 give a sphere that
+/// contains this one.
+pub fn sphere_union(a: &Sphere, b: &Sphere) -> Sphere {
+    let (c, r) = sphere_union_d(
+        (a.center.as_dvec3(), a.radius as f64),
+        (b.center.as_dvec3(), b.radius as f64),
+    );
+    Sphere::new(c.as_vec3(), r as f32)
+}
+
+fn sphere_union_d(a: (DVec3, f64), b: (DVec3, f64)) -> (DVec3, f64) {
+    let d = a.0.distance(b.0);
+    if d + b.1 <= a.1 {
+        return a;
+    }
+    if d + a.1 <= b.1 {
+        return b;
+    }
+    let r = 0.5 * (d + a.1 + b.1);
+    // d > 0 here: with d = 0 one sphere contains the other.
+    let c = a.0 + (b.0 - a.0) * ((r - a.1) / d);
+    (c, r)
+}
+
+/// `x` as the smallest `f32` not below it (for radii and angles, which must not shrink).
+fn f32_up(x: f64) -> f32 {
+    let f = x as f32;
+    if (f as f64) < x {
+        f.next_up()
+    } else {
+        f
+    }
+}
+
+/// The stored cone: `axis` rounded to `f32`, half-angle re-measured as the largest of
+/// `angle(stored axis, child axis) + child angle`, enlarged by the margins, clamped to π.
+fn store_cone(axis: DVec3, full: bool, children: impl Iterator<Item = (DVec3, f64)>) -> Cone {
+    let stored = axis.as_vec3().normalize();
+    let a = stored.as_dvec3();
+    let measured = if full {
+        PI
+    } else {
+        children.fold(0.0f64, |m, (x, p)| m.max(angle(a, x) + p))
+    };
+    let widened = measured * (1.0 + CONE_REL_MARGIN) + CONE_ABS_MARGIN;
+    Cone {
+        axis: stored,
+        half_angle: f32_up(widened.min(PI)),
+    }
+}
+
+/// The stored sphere: centre rounded to `f32`, radius re-measured as the largest of
+/// `|stored centre − child centre| + child radius`, enlarged by the margin.
+fn store_sphere(center: DVec3, children: impl Iterator<Item = (DVec3, f64)>) -> Sphere {
+    let stored = center.as_vec3();
+    let c = stored.as_dvec3();
+    let measured = children.fold(0.0f64, |m, (p, r)| m.max(c.distance(p) + r));
+    Sphere::new(stored, f32_up(measured * (1.0 + SPHERE_REL_MARGIN)))
+}
+
+/// A lowest-level node over the rays `leaves` (validated, non-empty).
+fn leaf_node(rays: &[Ray], leaves: &[u32]) -> SphereCone {
+    let ray = |i: &u32| &rays[*i as usize];
+    let dir = |i: &u32| unit(ray(i).dir.as_dvec3());
+    let first = DCone {
+        axis: dir(&leaves[0]),
+        angle: 0.0,
+    };
+    let cone = leaves[1..].iter().fold(first, |c, i| {
+        union_d(
+            c,
+            DCone {
+                axis: dir(i),
+                angle: 0.0,
+            },
+        )
+    });
+    let origins: Vec<Vec3> = leaves.iter().map(|i| ray(i).origin).collect();
+    let ball = min_sphere(&origins);
+    SphereCone {
+        sphere: store_sphere(
+            ball.center.as_dvec3(),
+            origins.iter().map(|o| (o.as_dvec3(), 0.0)),
+        ),
+        cone: store_cone(
+            cone.axis,
+            cone.angle >= PI,
+            leaves.iter().map(|i| (dir(i), 0.0)),
+        ),
+    }
+}
+
+/// A node over the nodes `children` of the level below (non-empty).
+fn inner_node(children: &[SphereCone]) -> SphereCone {
+    let cones = children.iter().map(|n| DCone::of(&n.cone));
+    let cone = cones.clone().reduce(union_d).expect("non-empty chunk");
+    let spheres = children
+        .iter()
+        .map(|n| (n.sphere.center.as_dvec3(), n.sphere.radius as f64));
+    let (center, _) = spheres
+        .clone()
+        .reduce(sphere_union_d)
+        .expect("non-empty chunk");
+    SphereCone {
+        sphere: store_sphere(center, spheres),
+        cone: store_cone(
+            cone.axis,
+            cone.angle >= PI,
+            cones.map(|c| (c.axis, c.angle)),
+        ),
+    }
+}
+
+/// Whether the ray (`origin`, `dir`) is bounded by `node`: `origin` in the sphere and `dir`
+/// in the cone, tested exactly in `f64` without tolerance (the builder's margins are part of
+/// the stored node). `dir` need not be unit length; a zero direction is covered only by a
+/// full cone.
+pub fn covers(node: &SphereCone, origin: Vec3, dir: Vec3) -> bool {
+    let s = &node.sphere;
+    let in_sphere = s.center.as_dvec3().distance(origin.as_dvec3()) <= s.radius as f64;
+    let c = &node.cone;
+    let d = dir.as_dvec3();
+    let in_cone = c.half_angle as f64 >= PI
+        || (d != DVec3::ZERO && angle(c.axis.as_dvec3(), d) <= c.half_angle as f64);
+    in_sphere && in_cone
+}
+
+/// How far `p` lies outside the volume swept by the rays `node` bounds (negative or zero:
+/// inside), computed in `f64`.
+///
+/// The rays' points `o + t·d` (`o` in the sphere `S(c, r)`, `d` in the cone `K` with apex at
+/// the coordinate origin, `t ≥ 0`) all lie in the Minkowski sum `c + K + B(r)`, the set of
+/// points within `r` of the translated cone `c + K`. So `p` is inside exactly when
+/// `dist(v, K) ≤ r` with `v = p − c`. With `β` the angle between `v` and the axis and `φ` the
+/// half-angle, the distance from `v` to the (solid, possibly wider than a hemisphere) cone is
+/// `0` if `β ≤ φ`, `|v|·sin(β − φ)` (distance to the nearest generator line) if
+/// `β − φ < π/2`, and `|v|` (the apex is nearest) otherwise. The result is `dist(v, K) − r`.
+pub fn swept_excess(node: &SphereCone, p: DVec3) -> f64 {
+    let v = p - node.sphere.center.as_dvec3();
+    let r = node.sphere.radius as f64;
+    let len = v.length();
+    let phi = node.cone.half_angle as f64;
+    if len == 0.0 || phi >= PI {
+        return -r;
+    }
+    let beta = angle(node.cone.axis.as_dvec3(), v);
+    let dist = if beta <= phi {
+        0.0
+    } else if beta - phi < 0.5 * PI {
+        len * (beta - phi).sin()
+    } else {
+        len
+    };
+    dist - r
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crsh_core::{Hit, RayKind};
+
+    /// SplitMix64 for reproducible test data.
+    struct Rng(u64);
+
+    impl Rng {
+        fn next(&mut self) -> u64 {
+            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = self.0;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^ (z >> 31)
+        }
+        fn unit(&mut self) -> f32 {
+            (self.next() >> 40) as f32 / (1u64 << 24) as f32
+        }
+        fn range(&mut self, lo: f32, hi: f32) -> f32 {
+            lo + (hi - lo) * self.unit()
+        }
+        fn dir(&mut self) -> Vec3 {
+            loop {
+                let v = Vec3::new(
+                    self.range(-1.0, 1.0),
+                    self.range(-1.0, 1.0),
+                    self.range(-1.0, 1.0),
+                );
+                let l = v.length();
+                if l > 0.1 && l <= 1.0 {
+                    return v / l;
+                }
+            }
+        }
+        fn point(&mut self, extent: f32) -> Vec3 {
+            Vec3::new(
+                self.range(-extent, extent),
+                self.range(-extent, extent),
+                self.range(-extent, extent),
+            )
+        }
+    }
+
+    fn ray(origin: Vec3, dir: Vec3) -> Ray {
+        Ray {
+            origin,
+            t_min: 0.0,
+            dir,
+            t_max: f32::INFINITY,
+            throughput: Vec3::ONE,
+            kind: RayKind::Reflection as u32,
+            pixel: 0,
+            light: u32::MAX,
+            depth: 1,
+            source: 0,
+        }
+    }
+
+    /// Coherent bundles: groups of 16 rays around a random direction (spread ≤ ~0.05 rad) from
+    /// nearby origins.
+    fn coherent(rng: &mut Rng, n: usize) -> Vec<Ray> {
+        let mut rays = Vec::with_capacity(n);
+        let mut base = (Vec3::ZERO, Vec3::Z);
+        for i in 0..n {
+            if i % 16 == 0 {
+                base = (rng.point(50.0), rng.dir());
+            }
+            let d = (base.1 + rng.dir() * 0.05).normalize();
+            rays.push(ray(base.0 + rng.point(0.5), d));
+        }
+        rays
+    }
+
+    fn random(rng: &mut Rng, n: usize) -> Vec<Ray> {
+        (0..n).map(|_| ray(rng.point(50.0), rng.dir())).collect()
+    }
+
+    /// Pairs of opposite directions side by side, so that every node holds opposite rays.
+    fn opposite(rng: &mut Rng, n: usize) -> Vec<Ray> {
+        (0..n)
+            .map(|i| {
+                let d = if i % 2 == 0 { Vec3::X } else { -Vec3::X };
+                let d = if i % 6 < 2 {
+                    d
+                } else {
+                    rng.dir() * (i % 2) as f32 + d
+                };
+                ray(rng.point(3.0), d.normalize_or(Vec3::Y))
+            })
+            .collect()
+    }
+
+    /// Rays from one point (a light), random directions over a hemisphere-ish fan.
+    fn one_point(rng: &mut Rng, n: usize) -> Vec<Ray> {
+        let light = Vec3::new(1.5, 7.25, -3.0);
+        (0..n)
+            .map(|_| {
+                let d = rng.dir();
+                ray(light, Vec3::new(d.x, -d.y.abs() - 0.2, d.z))
+            })
+            .collect()
+    }
+
+    fn identity(n: usize) -> Vec<u32> {
+        (0..n as u32).collect()
+    }
+
+    fn shuffled(rng: &mut Rng, n: usize) -> Vec<u32> {
+        let mut o = identity(n);
+        for i in (1..n).rev() {
+            o.swap(i, (rng.next() % (i as u64 + 1)) as usize);
+        }
+        o
+    }
+
+    /// Leaves covered by node `k` of `level` (0-based).
+    fn leaf_range(k: usize, level: usize, s: usize, n: usize) -> std::ops::Range<usize> {
+        let span = s.pow(level as u32 + 1);
+        (k * span).min(n)..((k + 1) * span).min(n)
+    }
+
+    /// Every node at every level covers every ray below it (origin and direction), every node
+    /// contains its children's spheres and cones, and sampled ray points lie in the swept volume.
+    fn check_containment(rays: &[Ray], order: &[u32], s: u32, depth: u32) -> Vec<usize> {
+        let b = SphereConeBuilder::with_params(s, depth).unwrap();
+        let levels = b.build_levels(rays, order).unwrap();
+        let sizes: Vec<usize> = levels.iter().map(Vec::len).collect();
+        assert_eq!(sizes, level_sizes(order.len(), s, depth));
+        for (l, level) in levels.iter().enumerate() {
+            for (k, node) in level.iter().enumerate() {
+                assert!(node.cone.half_angle >= 0.0 && node.cone.half_angle <= PI as f32);
+                assert!((node.cone.axis.length() - 1.0).abs() < 1e-6);
+                for leaf in leaf_range(k, l, s as usize, order.len()) {
+                    let r = &rays[order[leaf] as usize];
+                    assert!(
+                        covers(node, r.origin, r.dir),
+                        "level {l} node {k} misses leaf {leaf}: {node:?} {r:?}"
+                    );
+                    for j in 0..=10 {
+                        let t = j as f64 * 10.0;
+                        let p = r.origin.as_dvec3() + r.dir.as_dvec3().normalize() * t;
+                        let excess = swept_excess(node, p);
+                        assert!(
+                            excess <= 1e-9 * (1.0 + p.length()),
+                            "level {l} node {k}, leaf {leaf}, t {t}: {excess}"
+                        );
+                    }
+                }
+                if l > 0 {
+                    let s = s as usize;
+                    for child in &levels[l - 1][k * s..((k + 1) * s).min(levels[l - 1].len())] {
+                        let gap = node
+                            .sphere
+                            .center
+                            .as_dvec3()
+                            .distance(child.sphere.center.as_dvec3())
+                            + child.sphere.radius as f64;
+                        assert!(gap <= node.sphere.radius as f64);
+                        let spread = angle(node.cone.axis.as_dvec3(), child.cone.axis.as_dvec3())
+                            + child.cone.half_angle as f64;
+                        assert!(spread.min(PI) <= node.cone.half_angle as f64);
+                    }
+                }
+            }
+        }
+        sizes
+    }
+
+    #[test]
+    fn children_inside_parents_on_varied_ray_sets() {
+        let mut rng = Rng(0x1234_5678);
+        let sets: Vec<(&str, Vec<Ray>)> = vec![
+            ("coherent", coherent(&mut rng, 1000)),
+            ("random", random(&mut rng, 777)),
+            ("opposite", opposite(&mut rng, 500)),
+            ("one point", one_point(&mut rng, 640)),
+        ];
+        for (name, rays) in &sets {
+            for (s, depth) in [(2, 8), (3, 4), (8, 2), (8, 8), (64, 3)] {
+                let order = shuffled(&mut rng, rays.len());
+                let sizes = check_containment(rays, &order, s, depth);
+                println!(
+                    "{name}: {} rays, subdivision {s}, depth {depth}: nodes per level {sizes:?}",
+                    rays.len()
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn one_point_rays_have_zero_radius_and_coherent_cones_stay_tight() {
+        let mut rng = Rng(7);
+        let rays = one_point(&mut rng, 64);
+        let b = SphereConeBuilder::with_params(8, 3).unwrap();
+        let levels = b.build_levels(&rays, &identity(64)).unwrap();
+        for node in levels.iter().flatten() {
+            assert_eq!(node.sphere.radius, 0.0);
+            assert_eq!(node.sphere.center, rays[0].origin);
+        }
+        // Parallel rays: the cone is the margin only.
+        let par: Vec<Ray> = (0..16)
+            .map(|i| ray(Vec3::new(i as f32, 0.0, 0.0), Vec3::new(0.3, 0.4, -1.2)))
+            .collect();
+        let levels = b.build_levels(&par, &identity(16)).unwrap();
+        for node in levels.iter().flatten() {
+            assert!(node.cone.half_angle < 1e-5, "{node:?}");
+            assert!(node
+                .cone
+                .axis
+                .abs_diff_eq(Vec3::new(0.3, 0.4, -1.2).normalize(), 1e-6));
+        }
+        // Leaf sphere of 8 collinear origins 0..7: centre 3.5, radius 3.5 (+ margin).
+        let s = levels[0][0].sphere;
+        assert!(
+            (s.center.x - 3.5).abs() < 1e-6 && (s.radius - 3.5).abs() < 1e-5,
+            "{s:?}"
+        );
+        // Upper sphere over origins 0..15: tight union gives centre 7.5, radius 7.5.
+        let s = levels[1][0].sphere;
+        assert!(
+            (s.center.x - 7.5).abs() < 1e-5 && (s.radius - 7.5).abs() < 1e-4,
+            "{s:?}"
+        );
+    }
+
+    #[test]
+    fn incremental_cone_is_tight_for_two_rays_and_a_fan() {
+        let mut rng = Rng(99);
+        for _ in 0..200 {
+            let (a, b) = (rng.dir(), rng.dir());
+            let start = Cone {
+                axis: a,
+                half_angle: 0.0,
+            };
+            let c = extend_cone(&start, b);
+            let between = angle(a.as_dvec3(), b.as_dvec3());
+            assert!(
+                (c.half_angle as f64 - between / 2.0).abs() < 1e-6,
+                "{c:?} {between}"
+            );
+            // The axis bisects the two rays.
+            let ca = angle(c.axis.as_dvec3(), a.as_dvec3());
+            let cb = angle(c.axis.as_dvec3(), b.as_dvec3());
+            assert!((ca - between / 2.0).abs() < 1e-6 && (cb - between / 2.0).abs() < 1e-6);
+        }
+        // Symmetric fan: 12 directions at 0.3 rad around -y, in any order.
+        let axis = -Vec3::Y;
+        let fan: Vec<Vec3> = (0..12)
+            .map(|k| {
+                let a = k as f32 * std::f32::consts::TAU / 12.0;
+                (axis * 0.3f32.cos() + Vec3::new(a.cos(), 0.0, a.sin()) * 0.3f32.sin()).normalize()
+            })
+            .collect();
+        let mut perm = [0, 6, 3, 9, 1, 7, 4, 10, 2, 8, 5, 11];
+        for round in 0..2 {
+            let mut c = Cone {
+                axis: fan[perm[0]],
+                half_angle: 0.0,
+            };
+            for &k in &perm[1..] {
+                c = extend_cone(&c, fan[k]);
+            }
+            assert!((c.half_angle - 0.3).abs() < 1e-5, "round {round}: {c:?}");
+            assert!(c.axis.abs_diff_eq(axis, 1e-5), "round {round}: {c:?}");
+            perm.reverse();
+        }
+        // Opposite rays: a hemisphere about a perpendicular axis.
+        let c = extend_cone(
+            &Cone {
+                axis: Vec3::X,
+                half_angle: 0.0,
+            },
+            -Vec3::X,
+        );
+        assert!((c.half_angle as f64 - PI / 2.0).abs() < 1e-6);
+        assert!(c.axis.dot(Vec3::X).abs() < 1e-6);
+        // Past a hemisphere: a 2.5 rad cone plus its opposite direction is (2.5 + π) / 2 wide
+        // (not the full sphere); a direction at 2 rad is inside; one at 2.8 rad gives
+        // (2.5 + 2.8) / 2; a full cone stays full.
+        let wide = Cone {
+            axis: Vec3::Z,
+            half_angle: 2.5,
+        };
+        let c = extend_cone(&wide, -Vec3::Z);
+        assert!(
+            (c.half_angle as f64 - (2.5 + PI) / 2.0).abs() < 1e-6,
+            "{c:?}"
+        );
+        assert!(angle(c.axis.as_dvec3(), -DVec3::Z) <= c.half_angle as f64 + 1e-6);
+        let full = Cone {
+            axis: Vec3::Y,
+            half_angle: PI as f32,
+        };
+        assert_eq!(extend_cone(&full, -Vec3::Y).half_angle, PI as f32);
+        let d = Vec3::new(2.0f32.sin(), 0.0, 2.0f32.cos());
+        let inside = extend_cone(&wide, d);
+        assert_eq!(inside, wide);
+        let d = Vec3::new(2.8f32.sin(), 0.0, 2.8f32.cos());
+        let c = extend_cone(&wide, d);
+        assert!((c.half_angle - 2.65).abs() < 1e-5, "{c:?}");
+        assert!(angle(c.axis.as_dvec3(), d.as_dvec3()) <= c.half_angle as f64 + 1e-6);
+    }
+
+    /// The erratum form of eq. 3.12-3.13.
+    fn errata_union(a: &Cone, b: &Cone) -> f64 {
+        (angle(a.axis.as_dvec3(), b.axis.as_dvec3()) / 2.0
+            + (a.half_angle.max(b.half_angle)) as f64)
+            .min(PI)
+    }
+
+    #[test]
+    fn cone_union_contains_both_and_beats_the_erratum() {
+        let mut rng = Rng(2024);
+        for i in 0..300 {
+            let a = Cone {
+                axis: rng.dir(),
+                half_angle: rng
+                    .range(0.0, if i % 3 == 0 { 3.2 } else { 0.8 })
+                    .min(PI as f32),
+            };
+            let b = Cone {
+                axis: if i % 10 == 0 { -a.axis } else { rng.dir() },
+                half_angle: rng.range(0.0, 0.8),
+            };
+            let u = cone_union(&a, &b);
+            assert!(
+                u.half_angle as f64 <= errata_union(&a, &b) + 1e-6,
+                "{a:?} {b:?} {u:?}"
+            );
+            if a.half_angle == b.half_angle {
+                assert!((u.half_angle as f64 - errata_union(&a, &b)).abs() < 1e-5);
+            }
+            // Brute force: directions sampled on and inside both cones lie in the union.
+            for c in [&a, &b] {
+                let basis = c.axis.any_orthonormal_pair();
+                for k in 0..24 {
+                    let rot = k as f32 * std::f32::consts::TAU / 24.0;
+                    for frac in [0.0, 0.5, 1.0] {
+                        let phi = c.half_angle * frac;
+                        let side = basis.0 * rot.cos() + basis.1 * rot.sin();
+                        let d = c.axis * phi.cos() + side * phi.sin();
+                        let off = angle(u.axis.as_dvec3(), d.as_dvec3()) - u.half_angle as f64;
+                        assert!(off <= 1e-5, "{a:?} {b:?} {u:?}: {d} off by {off}");
+                    }
+                }
+            }
+        }
+        // The union of two equal-angle cones is the erratum's exactly.
+        let a = Cone {
+            axis: Vec3::X,
+            half_angle: 0.2,
+        };
+        let b = Cone {
+            axis: Vec3::Y,
+            half_angle: 0.2,
+        };
+        let u = cone_union(&a, &b);
+        assert!((u.half_angle as f64 - (PI / 4.0 + 0.2)).abs() < 1e-6);
+        assert!(u
+            .axis
+            .abs_diff_eq(Vec3::new(1.0, 1.0, 0.0).normalize(), 1e-6));
+        // Nested cones: the wider one.
+        let c = Cone {
+            axis: Vec3::X,
+            half_angle: 1.0,
+        };
+        assert_eq!(cone_union(&c, &a), c);
+        assert_eq!(cone_union(&a, &c), c);
+    }
+
+    #[test]
+    fn sphere_union_is_tight_and_contains_both() {
+        let a = Sphere::new(Vec3::ZERO, 1.0);
+        let b = Sphere::new(Vec3::new(4.0, 0.0, 0.0), 2.0);
+        let u = sphere_union(&a, &b);
+        assert_eq!(u, Sphere::new(Vec3::new(2.5, 0.0, 0.0), 3.5));
+        assert_eq!(sphere_union(&b, &Sphere::new(Vec3::X * 4.5, 0.5)), b);
+        let mut rng = Rng(5);
+        for _ in 0..200 {
+            let a = Sphere::new(rng.point(10.0), rng.range(0.0, 5.0));
+            let b = Sphere::new(rng.point(10.0), rng.range(0.0, 5.0));
+            let u = sphere_union(&a, &b);
+            for s in [a, b] {
+                let far = u.center.distance(s.center) + s.radius;
+                assert!(far <= u.radius * (1.0 + 1e-6) + 1e-5);
+            }
+            // Never larger than eq. 3.14-3.15.
+            let thesis = a.center.distance(b.center) / 2.0 + a.radius.max(b.radius);
+            assert!(u.radius <= thesis * (1.0 + 1e-6));
+        }
+    }
+
+    #[test]
+    fn node_counts_per_level() {
+        assert_eq!(level_sizes(0, 8, 2), Vec::<usize>::new());
+        assert_eq!(level_sizes(1, 8, 2), vec![1]);
+        assert_eq!(level_sizes(8, 8, 2), vec![1]);
+        assert_eq!(level_sizes(9, 8, 2), vec![2, 1]);
+        assert_eq!(level_sizes(1000, 8, 2), vec![125, 16]);
+        assert_eq!(level_sizes(1000, 8, 8), vec![125, 16, 2, 1]);
+        assert_eq!(level_sizes(1001, 2, 3), vec![501, 251, 126]);
+        let b = SphereConeBuilder::with_params(4, 8).unwrap();
+        let mut rng = Rng(1);
+        for n in [1usize, 3, 4, 5, 16, 17, 100, 1025] {
+            let rays = random(&mut rng, n);
+            let levels = b.build_levels(&rays, &identity(n)).unwrap();
+            for (l, level) in levels.iter().enumerate() {
+                assert_eq!(level.len(), n.div_ceil(4usize.pow(l as u32 + 1)));
+            }
+            assert_eq!(levels.last().unwrap().len(), 1);
+        }
+    }
+
+    #[test]
+    fn deterministic_across_thread_counts() {
+        let mut rng = Rng(77);
+        let mut rays = coherent(&mut rng, 3000);
+        rays.extend(random(&mut rng, 3000));
+        let order = shuffled(&mut rng, rays.len());
+        let b = SphereConeBuilder::with_params(8, 4).unwrap();
+        let one = crate::with_threads(1, || b.build_levels(&rays, &order).unwrap()).unwrap();
+        let three = crate::with_threads(3, || b.build_levels(&rays, &order).unwrap()).unwrap();
+        assert_eq!(one.len(), 4);
+        assert!(one == three, "levels differ between 1 and 3 threads");
+    }
+
+    #[test]
+    fn bad_input_is_an_error() {
+        let b = SphereConeBuilder::with_params(8, 2).unwrap();
+        let mut rays = vec![ray(Vec3::ZERO, Vec3::Z); 20];
+        assert!(b.build_levels(&rays, &[]).unwrap().is_empty());
+        let err = b.build_levels(&rays, &[0, 1, 20]).unwrap_err();
+        assert!(matches!(err, CoreError::InvalidInput(_)), "{err}");
+        rays[5].dir = Vec3::ZERO;
+        rays[9].dir = Vec3::new(f32::NAN, 0.0, 1.0);
+        let err = b.build_levels(&rays, &identity(20)).unwrap_err();
+        assert!(err.to_string().contains("ray 5 "), "{err}");
+        let err = b.build_levels(&rays, &[9, 5]).unwrap_err();
+        assert!(err.to_string().contains("ray 9 "), "{err}");
+        rays[5].dir = Vec3::Z;
+        rays[9].dir = Vec3::Z;
+        rays[3].origin.y = f32::INFINITY;
+        assert!(b.build_levels(&rays, &identity(20)).is_err());
+        assert!(SphereConeBuilder::with_params(1, 2).is_err());
+        assert!(SphereConeBuilder::with_params(65, 2).is_err());
+        assert!(SphereConeBuilder::with_params(8, 0).is_err());
+        assert!(SphereConeBuilder::with_params(8, 9).is_err());
+    }
+
+    #[test]
+    fn stage_builds_through_the_trait_and_reads_its_spec() {
+        let scene = Arc::new(crsh_scene::builtin::build("cornell-mirrors").unwrap());
+        let mut spec = StageSpec::new("sphere_cone");
+        for p in info().params {
+            spec.params.insert(p.name.to_string(), p.default);
+        }
+        let b = SphereConeBuilder::new(&scene, &spec).unwrap();
+        assert_eq!((b.subdivision(), b.depth()), (8, 2));
+        spec.params.insert("subdivision".into(), ParamValue::Int(4));
+        spec.params.insert("depth".into(), ParamValue::Int(3));
+        let b = SphereConeBuilder::new(&scene, &spec).unwrap();
+        assert_eq!((b.subdivision(), b.depth()), (4, 3));
+        spec.params.insert("depth".into(), ParamValue::Int(9));
+        assert!(SphereConeBuilder::new(&scene, &spec).is_err());
+
+        let mut rng = Rng(3);
+        let rays = coherent(&mut rng, 100);
+        let order = shuffled(&mut rng, 100);
+        let mut stats = Stats::default();
+        let h = HierarchyBuilder::<Cpu>::build(&b, &Cpu, &rays, order.clone(), &mut stats).unwrap();
+        assert_eq!(HierarchyBuilder::<Cpu>::name(&b), info().name);
+        assert_eq!(h.order, order);
+        assert_eq!(h.subdivision, 4);
+        assert_eq!(
+            h.levels.iter().map(Vec::len).collect::<Vec<_>>(),
+            vec![25, 7, 2]
+        );
+        let _ = Hit::MISS;
+    }
+
+    #[test]
+    fn covers_and_swept_excess_reject_outside_rays() {
+        let node = SphereCone {
+            sphere: Sphere::new(Vec3::ZERO, 1.0),
+            cone: Cone {
+                axis: Vec3::Z,
+                half_angle: 0.5,
+            },
+        };
+        assert!(covers(
+            &node,
+            Vec3::new(0.5, 0.5, 0.5),
+            Vec3::new(0.0, 0.4, 1.0)
+        ));
+        assert!(!covers(&node, Vec3::new(1.0, 1.0, 0.0), Vec3::Z));
+        assert!(!covers(&node, Vec3::ZERO, Vec3::X));
+        assert!(!covers(&node, Vec3::ZERO, Vec3::ZERO));
+        // Along the axis and inside the widening: inside; beside the cone, beyond r: outside.
+        assert!(swept_excess(&node, DVec3::new(0.0, 0.0, 100.0)) <= 0.0);
+        assert!(swept_excess(&node, DVec3::new(0.0, 100.0 * 0.5f64.tan(), 100.0)) <= 0.0);
+        let beside = DVec3::new(0.0, 10.0, 0.0);
+        let e = swept_excess(&node, beside);
+        assert!(
+            (e - (10.0 * (PI / 2.0 - 0.5).sin() - 1.0)).abs() < 1e-9,
+            "{e}"
+        );
+        // Behind the apex region: distance to the centre.
+        assert!((swept_excess(&node, DVec3::new(0.0, 0.0, -5.0)) - 4.0).abs() < 1e-12);
+    }
+}
