@@ -425,15 +425,23 @@ fn leaf_node(rays: &[Ray], leaves: &[u32]) -> SphereCone {
         axis: dir(&leaves[0]),
         angle: 0.0,
     };
-    let cone = leaves[1..].iter().fold(first, |c, i| {
-        union_d(
-            c,
-            DCone {
-                axis: dir(i),
-                angle: 0.0,
-            },
-        )
-    });
+    // Eq. 3.8-3.11 one ray at a time; a ray already inside (x·r ≥ cos φ) leaves the cone as
+    // it is. Rounding in this test cannot lose a ray: the stored angle is re-measured.
+    let mut cone = first;
+    let mut cos_phi = 1.0;
+    for i in &leaves[1..] {
+        let d = dir(i);
+        if cone.axis.dot(d) < cos_phi {
+            cone = union_d(
+                cone,
+                DCone {
+                    axis: d,
+                    angle: 0.0,
+                },
+            );
+            cos_phi = cone.angle.cos();
+        }
+    }
     let origins: Vec<Vec3> = leaves.iter().map(|i| ray(i).origin).collect();
     let ball = min_sphere(&origins);
     SphereCone {
