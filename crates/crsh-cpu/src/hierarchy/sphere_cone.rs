@@ -700,14 +700,56 @@ mod tests {
             ("one point", one_point(&mut rng, 640)),
         ];
         for (name, rays) in &sets {
-            for (s, depth) in [(2, 8), (3, 4), (8, 2), (8, 8), (64, 3)] {
-                let order = shuffled(&mut rng, rays.len());
+            for (k, (s, depth)) in [(2, 8), (3, 4), (8, 2), (8, 8), (64, 3)]
+                .into_iter()
+                .enumerate()
+            {
+                // Leaves in batch order (neighbours share a node: the opposite pairs meet)
+                // and shuffled.
+                let order = if k % 2 == 0 {
+                    identity(rays.len())
+                } else {
+                    shuffled(&mut rng, rays.len())
+                };
                 let sizes = check_containment(rays, &order, s, depth);
                 println!(
                     "{name}: {} rays, subdivision {s}, depth {depth}: nodes per level {sizes:?}",
                     rays.len()
                 );
             }
+        }
+    }
+
+    #[test]
+    fn opposite_rays_in_one_node_give_a_hemisphere_or_more() {
+        let rays = [
+            ray(Vec3::ZERO, Vec3::X),
+            ray(Vec3::Y, -Vec3::X),
+            ray(Vec3::Z, Vec3::X),
+            ray(Vec3::ONE, -Vec3::X),
+        ];
+        for s in [2, 4] {
+            let b = SphereConeBuilder::with_params(s, 2).unwrap();
+            let levels = b.build_levels(&rays, &identity(4)).unwrap();
+            for node in levels.iter().flatten() {
+                let half = node.cone.half_angle as f64;
+                assert!(half >= PI / 2.0 && half < PI / 2.0 + 1e-5, "{node:?}");
+                assert!(node.cone.axis.dot(Vec3::X).abs() < 1e-6, "{node:?}");
+            }
+        }
+        // Three directions spanning more than a hemisphere.
+        let wide = [
+            ray(Vec3::ZERO, Vec3::X),
+            ray(Vec3::ZERO, -Vec3::X),
+            ray(Vec3::ZERO, Vec3::new(0.0, -1.0, -1.0)),
+            ray(Vec3::ZERO, Vec3::new(0.0, 1.0, -1.0)),
+            ray(Vec3::ZERO, Vec3::Z),
+        ];
+        let b = SphereConeBuilder::with_params(8, 1).unwrap();
+        let node = b.build_levels(&wide, &identity(5)).unwrap()[0][0];
+        assert!(node.cone.half_angle as f64 > PI / 2.0);
+        for r in &wide {
+            assert!(covers(&node, r.origin, r.dir), "{node:?} {r:?}");
         }
     }
 
