@@ -733,7 +733,7 @@ mod tests {
             let levels = b.build_levels(&rays, &identity(4)).unwrap();
             for node in levels.iter().flatten() {
                 let half = node.cone.half_angle as f64;
-                assert!(half >= PI / 2.0 && half < PI / 2.0 + 1e-5, "{node:?}");
+                assert!((PI / 2.0..PI / 2.0 + 1e-5).contains(&half), "{node:?}");
                 assert!(node.cone.axis.dot(Vec3::X).abs() < 1e-6, "{node:?}");
             }
         }
