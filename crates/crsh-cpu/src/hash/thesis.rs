@@ -1,0 +1,273 @@
+//! `thesis`: the per-kind ray hashes of seed 000 §3.2.3 (figs 3.8-3.9).
+//!
+//! - Shadow rays: [`crate::hash::thesis_shadow`], light index then spherical direction in
+//!   `shadow_bits` (32 by default, as in the thesis); the light field is sized to the scene's
+//!   light count.
+//! - Reflection and refraction rays (and camera rays, should a pipeline hash them):
+//!   [`crate::hash::thesis_bounce`], origin quantized in the scene bounds (`origin_bits` per
+//!   axis) then spherical direction (`direction_bits`); 32 bits by default.
+//!
+//! A batch holds one kind; each ray is hashed by its own [`Ray::kind`], so a mixed batch is
+//! hashed consistently too. [`Hasher::key_bits`] is the wider of the two layouts. Keys depend
+//! only on the ray and the scene, so they do not depend on the thread count.
+//!
+//! # Errors
+//! [`CoreError::InvalidInput`] for a ray with an unknown kind, a shadow ray whose light index
+//! is not a light of the scene, or a shadow ray with a non-finite segment.
+
+use std::sync::Arc;
+
+use crsh_core::{
+    CoreError, Hasher, ParamInfo, ParamValue, Ray, RayKind, Result, StageKind, StageSpec,
+    StageVariantInfo, Stats,
+};
+use crsh_scene::Scene;
+use glam::Vec3;
+use rayon::prelude::*;
+
+use crate::backend::Cpu;
+use crate::hash::thesis_bounce::{BounceLayout, MAX_ORIGIN_BITS};
+use crate::hash::thesis_shadow::{light_to_point_direction, ShadowLayout};
+
+/// Default bits per origin axis of the bounce hash (`3·6 + 14 = 32`).
+pub const DEFAULT_ORIGIN_BITS: u32 = 6;
+/// Default direction bits of the bounce hash (θ 7, φ 7).
+pub const DEFAULT_DIRECTION_BITS: u32 = 14;
+/// Default total bits of the shadow hash (the thesis's 32-bit key).
+pub const DEFAULT_SHADOW_BITS: u32 = 32;
+
+/// The `thesis` hasher.
+#[derive(Clone, Debug)]
+pub struct ThesisHasher {
+    shadow: ShadowLayout,
+    bounce: BounceLayout,
+    lights: Vec<Vec3>,
+}
+
+/// The catalogue entry of the `thesis` hasher.
+pub fn info() -> StageVariantInfo {
+    StageVariantInfo {
+        stage: StageKind::Hash,
+        name: "thesis",
+        doc: "per-kind ray hash of seed 000 §3.2.3 (figs 3.8-3.9): shadow = light index + \
+              spherical direction, reflection/refraction = quantized origin + spherical direction",
+        params: vec![
+            ParamInfo {
+                name: "origin_bits",
+                default: ParamValue::Int(DEFAULT_ORIGIN_BITS as i64),
+                choices: &[],
+                doc: "bits per origin axis in the scene bounds, reflection/refraction rays (0-21)",
+            },
+            ParamInfo {
+                name: "direction_bits",
+                default: ParamValue::Int(DEFAULT_DIRECTION_BITS as i64),
+                choices: &[],
+                doc: "bits of the spherical direction (θ gets the odd bit), reflection/refraction \
+                      rays; clamped so the key fits 64 bits (0-64)",
+            },
+            ParamInfo {
+                name: "shadow_bits",
+                default: ParamValue::Int(DEFAULT_SHADOW_BITS as i64),
+                choices: &[],
+                doc: "total bits of a shadow key: light index (sized to the scene's lights) + \
+                      spherical direction (2-64)",
+            },
+        ],
+    }
+}
+
+impl ThesisHasher {
+    /// The hasher for `scene` with the parameters of a resolved `spec`.
+    ///
+    /// # Errors
+    /// [`CoreError::InvalidParam`] for a parameter out of range, or `shadow_bits` too small
+    /// for the scene's light count plus 2 direction bits.
+    pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<ThesisHasher, CoreError> {
+        let origin_bits = spec.u32_in("origin_bits", 0..=MAX_ORIGIN_BITS)?;
+        let direction_bits = spec.u32_in("direction_bits", 0..=64)?;
+        let shadow_bits = spec.u32_in("shadow_bits", 2..=64)?;
+        ThesisHasher::from_parts(scene, origin_bits, direction_bits, shadow_bits)
+    }
+
+    /// The hasher for `scene` with explicit bit budgets (see [`info`]).
+    ///
+    /// # Errors
+    /// As [`ThesisHasher::new`].
+    pub fn from_parts(
+        scene: &Scene,
+        origin_bits: u32,
+        direction_bits: u32,
+        shadow_bits: u32,
+    ) -> Result<ThesisHasher> {
+        Ok(ThesisHasher {
+            shadow: ShadowLayout::new(scene.lights.len(), shadow_bits)?,
+            bounce: BounceLayout::new(scene.bounds, origin_bits, direction_bits)?,
+            lights: scene.lights.iter().map(|l| l.position).collect(),
+        })
+    }
+
+    /// The shadow-ray layout.
+    pub fn shadow_layout(&self) -> &ShadowLayout {
+        &self.shadow
+    }
+
+    /// The reflection / refraction layout.
+    pub fn bounce_layout(&self) -> &BounceLayout {
+        &self.bounce
+    }
+
+    /// The key of one ray.
+    ///
+    /// # Errors
+    /// As the module docs say.
+    pub fn key(&self, ray: &Ray) -> Result<u64> {
+        match RayKind::from_u32(ray.kind) {
+            Some(RayKind::Shadow) => {
+                let light = self.lights.get(ray.light as usize).ok_or_else(|| {
+                    CoreError::InvalidInput(format!(
+                        "shadow ray names light {} but the scene has {} lights",
+                        ray.light,
+                        self.lights.len()
+                    ))
+                })?;
+                let dir = light_to_point_direction(ray, *light)?;
+                Ok(self.shadow.key(ray.light, dir))
+            }
+            Some(_) => Ok(self.bounce.key(ray.origin, ray.dir)),
+            None => Err(CoreError::InvalidInput(format!(
+                "ray with unknown kind {}",
+                ray.kind
+            ))),
+        }
+    }
+}
+
+impl Hasher<Cpu> for ThesisHasher {
+    fn name(&self) -> &str {
+        "thesis"
+    }
+
+    fn key_bits(&self) -> u32 {
+        self.shadow.key_bits().max(self.bounce.key_bits())
+    }
+
+    fn hash(&self, _backend: &Cpu, rays: &Vec<Ray>, _stats: &mut Stats) -> Result<Vec<u64>> {
+        rays.par_iter().map(|r| self.key(r)).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::with_threads;
+
+    fn test_scene(lights: usize) -> Arc<Scene> {
+        crate::hash::test_util::scene_with_lights(lights)
+    }
+
+    fn spec(origin: i64, direction: i64, shadow: i64) -> StageSpec {
+        let mut s = StageSpec::new("thesis");
+        s.params
+            .insert("origin_bits".into(), ParamValue::Int(origin));
+        s.params
+            .insert("direction_bits".into(), ParamValue::Int(direction));
+        s.params
+            .insert("shadow_bits".into(), ParamValue::Int(shadow));
+        s
+    }
+
+    fn ray(kind: RayKind, origin: Vec3, dir: Vec3, light: u32) -> Ray {
+        Ray {
+            origin,
+            t_min: 1e-4,
+            dir,
+            t_max: 3.0,
+            throughput: Vec3::ONE,
+            kind: kind as u32,
+            pixel: 0,
+            light,
+            depth: 1,
+            source: 0,
+        }
+    }
+
+    #[test]
+    fn info_defaults_build_a_32_bit_hasher() {
+        let scene = test_scene(3);
+        let i = info();
+        let mut s = StageSpec::new("thesis");
+        for p in &i.params {
+            s.params.insert(p.name.to_string(), p.default.clone());
+        }
+        let h = ThesisHasher::new(&scene, &s).unwrap();
+        assert_eq!(Hasher::<Cpu>::key_bits(&h), 32);
+        assert_eq!(h.shadow_layout().light_bits, 2);
+        assert_eq!(h.bounce_layout().key_bits(), 32);
+        assert!(ThesisHasher::new(&scene, &spec(22, 14, 32)).is_err());
+        assert!(ThesisHasher::new(&scene, &spec(6, 65, 32)).is_err());
+        assert!(ThesisHasher::new(&scene, &spec(6, 14, 3)).is_err());
+        assert!(ThesisHasher::new(&scene, &StageSpec::new("thesis")).is_err());
+    }
+
+    #[test]
+    fn shadow_rays_use_light_and_direction_bounce_rays_use_origin() {
+        let scene = test_scene(2);
+        let h = ThesisHasher::new(&scene, &spec(6, 14, 32)).unwrap();
+        let l1 = scene.lights[1].position;
+        let d = Vec3::new(0.1, -1.0, 0.2).normalize();
+        let s = ray(RayKind::Shadow, l1, d, 1);
+        assert_eq!(h.key(&s).unwrap(), h.shadow_layout().key(1, d));
+        assert_eq!(h.key(&s).unwrap() >> 31, 1, "light 1 in the top bit");
+        // The surface convention hashes the same light→point direction.
+        let p = l1 + d * 3.0;
+        let s2 = ray(RayKind::Shadow, p, -d, 1);
+        assert_eq!(h.key(&s2).unwrap(), h.key(&s).unwrap());
+        let o = Vec3::new(0.2, 0.3, 0.4);
+        for kind in [RayKind::Reflection, RayKind::Refraction, RayKind::Primary] {
+            let r = ray(kind, o, d, u32::MAX);
+            assert_eq!(h.key(&r).unwrap(), h.bounce_layout().key(o, d));
+        }
+        let bad_light = ray(RayKind::Shadow, l1, d, 2);
+        assert!(h.key(&bad_light).is_err());
+        let mut bad_kind = ray(RayKind::Reflection, o, d, 0);
+        bad_kind.kind = 9;
+        assert!(h.key(&bad_kind).is_err());
+        let mut stats = Stats::default();
+        assert!(h.hash(&Cpu, &vec![s, bad_kind], &mut stats).is_err());
+    }
+
+    #[test]
+    fn hash_is_deterministic_across_thread_counts() {
+        let scene = test_scene(2);
+        let h = ThesisHasher::new(&scene, &spec(6, 14, 32)).unwrap();
+        let rays: Vec<Ray> = (0..5000)
+            .map(|i| {
+                let a = i as f32 * 0.37;
+                let dir = Vec3::new(a.sin(), a.cos(), (a * 0.3).sin()).normalize();
+                if i % 2 == 0 {
+                    let light = (i / 2 % 2) as u32;
+                    ray(
+                        RayKind::Shadow,
+                        scene.lights[light as usize].position,
+                        dir,
+                        light,
+                    )
+                } else {
+                    let o = Vec3::new((a * 0.1).sin(), (a * 0.2).cos(), (a * 0.05).sin());
+                    ray(RayKind::Reflection, o, dir, u32::MAX)
+                }
+            })
+            .collect();
+        let one = with_threads(1, || h.hash(&Cpu, &rays, &mut Stats::default()))
+            .unwrap()
+            .unwrap();
+        let three = with_threads(3, || h.hash(&Cpu, &rays, &mut Stats::default()))
+            .unwrap()
+            .unwrap();
+        assert_eq!(one, three);
+        assert_eq!(one.len(), rays.len());
+        let serial: Vec<u64> = rays.iter().map(|r| h.key(r).unwrap()).collect();
+        assert_eq!(one, serial);
+        assert!(one.iter().all(|&k| k < 1 << 32));
+    }
+}

@@ -1,0 +1,236 @@
+//! `radix`: sorts every (key, ray index) pair directly with an LSD/MSD radix sort (rdst), the
+//! baseline for `compress` (seed 000 §3.2.5 sorts chunks with the same radix sort [13]).
+//!
+//! # Stability
+//!
+//! Each key is sorted together with its index as one composite radix key: the index fills the
+//! 4 least significant bytes, the key's significant bytes (`⌈key_bits / 8⌉`, so a 32-bit key
+//! costs 4 passes, not 8) the bytes above. Composite keys are unique, so whatever algorithm rdst
+//! picks (some of its sorts are unstable) the result is the one order that sorts by key and
+//! then by index: the stable order, the same for any thread count.
+//!
+//! # Errors
+//! [`CoreError::InvalidInput`] when `key_bits > 64`, a key has bits set above `key_bits`, or
+//! there are more than `u32::MAX` keys.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use crsh_core::{CoreError, Result, Sorter, StageKind, StageSpec, StageVariantInfo, Stats};
+use crsh_scene::Scene;
+use rayon::prelude::*;
+use rdst::{RadixKey, RadixSort};
+
+use crate::backend::Cpu;
+
+/// A key and its index, radix sorted on `4 + KB` bytes (index bytes least significant).
+#[derive(Clone, Copy, Debug)]
+struct Pair<const KB: usize> {
+    key: u64,
+    index: u32,
+}
+
+impl<const KB: usize> RadixKey for Pair<KB> {
+    const LEVELS: usize = 4 + KB;
+
+    #[inline]
+    fn get_level(&self, level: usize) -> u8 {
+        if level < 4 {
+            (self.index >> (8 * level)) as u8
+        } else {
+            (self.key >> (8 * (level - 4))) as u8
+        }
+    }
+}
+
+fn sort_pairs<const KB: usize>(keys: &[u64]) -> Vec<u32> {
+    let mut pairs: Vec<Pair<KB>> = keys
+        .par_iter()
+        .enumerate()
+        .map(|(i, &key)| Pair {
+            key,
+            index: i as u32,
+        })
+        .collect();
+    pairs.radix_sort_unstable();
+    pairs.par_iter().map(|p| p.index).collect()
+}
+
+/// Checks `keys` against `key_bits` (see the module's errors).
+pub fn check_keys(keys: &[u64], key_bits: u32) -> Result<()> {
+    if key_bits > 64 {
+        return Err(CoreError::InvalidInput(format!(
+            "key_bits {key_bits} is more than 64"
+        )));
+    }
+    if keys.len() > u32::MAX as usize {
+        return Err(CoreError::InvalidInput(format!(
+            "{} keys do not fit 32-bit indices",
+            keys.len()
+        )));
+    }
+    if key_bits < 64 {
+        let mask = !((1u64 << key_bits) - 1);
+        if let Some(k) = keys.par_iter().find_first(|&&k| k & mask != 0) {
+            return Err(CoreError::InvalidInput(format!(
+                "key {k:#x} has bits set above key_bits = {key_bits}"
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// The stable order of `keys` by their low `key_bits` bits: `order[i]` is the index of the
+/// key at sorted position `i`, equal keys in input order. See the module docs.
+///
+/// # Errors
+/// As the module docs say.
+pub fn stable_radix_order(keys: &[u64], key_bits: u32) -> Result<Vec<u32>> {
+    check_keys(keys, key_bits)?;
+    Ok(match key_bits.div_ceil(8) {
+        0 => (0..keys.len() as u32).collect(),
+        1 => sort_pairs::<1>(keys),
+        2 => sort_pairs::<2>(keys),
+        3 => sort_pairs::<3>(keys),
+        4 => sort_pairs::<4>(keys),
+        5 => sort_pairs::<5>(keys),
+        6 => sort_pairs::<6>(keys),
+        7 => sort_pairs::<7>(keys),
+        _ => sort_pairs::<8>(keys),
+    })
+}
+
+/// The `radix` sorter (no parameters).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RadixSorter;
+
+/// The catalogue entry of the `radix` sorter.
+pub fn info() -> StageVariantInfo {
+    StageVariantInfo {
+        stage: StageKind::Sort,
+        name: "radix",
+        doc: "stable radix sort of every (key, ray) pair, no compression (baseline for \
+              seed 000 §3.2.4-3.2.6)",
+        params: vec![],
+    }
+}
+
+impl RadixSorter {
+    /// The sorter; `scene` and `spec` have nothing it needs.
+    pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<RadixSorter, CoreError> {
+        let _ = (scene, spec);
+        Ok(RadixSorter)
+    }
+}
+
+impl Sorter<Cpu> for RadixSorter {
+    fn name(&self) -> &str {
+        "radix"
+    }
+
+    /// Records the sort as the `radix_sort` timing.
+    fn sort(
+        &self,
+        _backend: &Cpu,
+        keys: &Vec<u64>,
+        key_bits: u32,
+        stats: &mut Stats,
+    ) -> Result<Vec<u32>> {
+        let t = Instant::now();
+        let order = stable_radix_order(keys, key_bits)?;
+        stats.add_time("radix_sort", t.elapsed());
+        Ok(order)
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// A small deterministic generator (xorshift64*).
+    pub(crate) struct Rng(pub(crate) u64);
+
+    impl Rng {
+        pub(crate) fn next(&mut self) -> u64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        }
+    }
+
+    /// `n` keys below `2^bits` from `distinct` values, in runs of 1-12 equal keys.
+    pub(crate) fn runs_with_duplicates(n: usize, bits: u32, distinct: u64, seed: u64) -> Vec<u64> {
+        let mut rng = Rng(seed | 1);
+        let values: Vec<u64> = (0..distinct)
+            .map(|_| {
+                let v = rng.next();
+                if bits == 64 {
+                    v
+                } else {
+                    v & ((1u64 << bits) - 1)
+                }
+            })
+            .collect();
+        let mut keys = Vec::with_capacity(n);
+        while keys.len() < n {
+            let v = values[(rng.next() % distinct) as usize];
+            let run = 1 + (rng.next() % 12) as usize;
+            for _ in 0..run.min(n - keys.len()) {
+                keys.push(v);
+            }
+        }
+        keys
+    }
+
+    /// The oracle: the stable std sort of the indices by key.
+    pub(crate) fn oracle(keys: &[u64]) -> Vec<u32> {
+        let mut idx: Vec<u32> = (0..keys.len() as u32).collect();
+        idx.sort_by_key(|&i| keys[i as usize]);
+        idx
+    }
+
+    #[test]
+    fn matches_the_stable_oracle_for_every_key_width() {
+        for (bits, distinct) in [(1, 2), (8, 20), (13, 300), (32, 1000), (50, 5000), (64, 64)] {
+            let keys = runs_with_duplicates(20_000, bits, distinct, bits as u64 * 7919);
+            let order = stable_radix_order(&keys, bits).unwrap();
+            assert_eq!(order, oracle(&keys), "{bits} bits");
+        }
+    }
+
+    #[test]
+    fn empty_single_and_zero_bit_inputs() {
+        let mut stats = Stats::default();
+        assert!(RadixSorter
+            .sort(&Cpu, &vec![], 32, &mut stats)
+            .unwrap()
+            .is_empty());
+        assert_eq!(
+            RadixSorter.sort(&Cpu, &vec![7], 32, &mut stats).unwrap(),
+            vec![0]
+        );
+        assert_eq!(stable_radix_order(&[0, 0, 0], 0).unwrap(), vec![0, 1, 2]);
+        assert!(stats.timings_ms.contains_key("radix_sort"));
+    }
+
+    #[test]
+    fn rejects_keys_wider_than_key_bits() {
+        assert!(stable_radix_order(&[1, 1 << 20], 16).is_err());
+        assert!(stable_radix_order(&[1], 65).is_err());
+        assert!(stable_radix_order(&[u64::MAX], 64).is_ok());
+    }
+
+    #[test]
+    fn same_order_for_one_and_three_threads() {
+        let keys = runs_with_duplicates(100_000, 32, 2000, 42);
+        let one = crate::with_threads(1, || stable_radix_order(&keys, 32))
+            .unwrap()
+            .unwrap();
+        let three = crate::with_threads(3, || stable_radix_order(&keys, 32))
+            .unwrap()
+            .unwrap();
+        assert_eq!(one, three);
+        assert_eq!(one, oracle(&keys));
+    }
+}
