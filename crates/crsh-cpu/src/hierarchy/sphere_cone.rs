@@ -721,6 +721,36 @@ mod tests {
     }
 
     #[test]
+    fn coherent_bundles_give_narrow_nodes() {
+        // Bundles of 16 rays (direction jitter ≤ 0.05, origins within a 1-unit cube) align
+        // with the nodes of 8 leaves in batch order: each lowest node stays narrow and small.
+        let mut rng = Rng(11);
+        let rays = coherent(&mut rng, 4096);
+        let b = SphereConeBuilder::with_params(8, 3).unwrap();
+        let levels = b.build_levels(&rays, &identity(rays.len())).unwrap();
+        for node in &levels[0] {
+            assert!(node.cone.half_angle < 0.11, "{node:?}");
+            assert!(node.sphere.radius < 0.87, "{node:?}");
+        }
+        let random = random(&mut rng, 4096);
+        let wide = b.build_levels(&random, &identity(4096)).unwrap();
+        for (l, (a, b)) in levels.iter().zip(&wide).enumerate() {
+            let mean = |v: &[SphereCone]| {
+                let n = v.len() as f64;
+                (
+                    v.iter().map(|x| x.cone.half_angle as f64).sum::<f64>() / n,
+                    v.iter().map(|x| x.sphere.radius as f64).sum::<f64>() / n,
+                )
+            };
+            println!(
+                "level {l}: coherent mean (half-angle, radius) {:?}, random {:?}",
+                mean(a),
+                mean(b)
+            );
+        }
+    }
+
+    #[test]
     fn opposite_rays_in_one_node_give_a_hemisphere_or_more() {
         let rays = [
             ray(Vec3::ZERO, Vec3::X),
