@@ -23,7 +23,10 @@
 //! whose rays are `hierarchy.order[leaf]`. Pairs are sorted and de-duplicated first, so the
 //! result does not depend on their order; per ray the triangles are tested in increasing id
 //! order with the same merge rules as above (any-hit: the lowest-id hit, stop at the first).
-//! Each (ray, triangle) test performed is counted.
+//! Each (ray, triangle) test performed is counted, and also recorded as the hierarchy's
+//! level-0 entry of [`Stats::levels`] (`Stats::add_level(kind, 0, tests, hits)`, the kind
+//! taken from the rays, `hits` the tests that found an intersection): the final-test row of
+//! seed 000's tables 4.1-4.24.
 //!
 //! # Errors
 //!
@@ -35,8 +38,8 @@
 use std::sync::Arc;
 
 use crsh_core::{
-    Candidate, CoreError, Hit, HitMode, Intersector, Query, Ray, RayHierarchy, Result, StageSpec,
-    Stats,
+    Candidate, CoreError, Hit, HitMode, Intersector, Query, Ray, RayHierarchy, RayKind, Result,
+    StageSpec, Stats,
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
@@ -151,9 +154,9 @@ impl BruteForce {
         pairs: &[Candidate],
         mode: HitMode,
         hits: &mut [Hit],
-    ) -> Result<u64> {
+    ) -> Result<(u64, u64)> {
         if pairs.is_empty() {
-            return Ok(0);
+            return Ok((0, 0));
         }
         let n_rays = rays.len();
         let sub = hierarchy.subdivision as usize;
@@ -213,12 +216,13 @@ impl BruteForce {
             rest = tail;
         }
         let tris = self.tris.triangles();
-        let tests: u64 = groups
+        let (tests, found): (u64, u64) = groups
             .par_iter()
             .zip(slices.into_par_iter())
             .map(|(&(p0, p1, first, _), out)| {
                 let node_pairs = &sorted[p0..p1];
                 let mut tests = 0u64;
+                let mut found = 0u64;
                 for (j, best) in out.iter_mut().enumerate() {
                     let ray = &rays[order[first + j] as usize];
                     if mode == HitMode::Any && best.is_hit() {
@@ -228,6 +232,7 @@ impl BruteForce {
                     for c in node_pairs {
                         tests += 1;
                         if let Some(h) = tris[c.tri as usize].hit(&r, ray.t_min, ray.t_max, c.tri) {
+                            found += 1;
                             if mode == HitMode::Any {
                                 *best = h;
                                 break;
@@ -238,9 +243,9 @@ impl BruteForce {
                         }
                     }
                 }
-                tests
+                (tests, found)
             })
-            .sum();
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
         // Scatter back.
         let mut k = 0;
         for &(_, _, first, leaves) in &groups {
@@ -249,7 +254,7 @@ impl BruteForce {
                 k += 1;
             }
         }
-        Ok(tests)
+        Ok((tests, found))
     }
 }
 
@@ -313,7 +318,17 @@ impl Intersector<Cpu> for BruteForce {
                 .map(|(r, h)| self.scene_packet(r, h, mode))
                 .sum(),
             Query::Candidates { hierarchy, batch } => {
-                self.candidates(rays, hierarchy, &batch.pairs, mode, hits)?
+                let (tests, found) = self.candidates(rays, hierarchy, &batch.pairs, mode, hits)?;
+                if !batch.pairs.is_empty() {
+                    let kind = RayKind::from_u32(rays[0].kind).ok_or_else(|| {
+                        CoreError::InvalidInput(format!(
+                            "ray 0 has an unknown kind {}",
+                            rays[0].kind
+                        ))
+                    })?;
+                    stats.add_level(kind, 0, tests, found);
+                }
+                tests
             }
         };
         stats.add_ray_triangle(tests);
@@ -327,7 +342,7 @@ pub(crate) mod tests {
     use crate::surface::tests::raw_scene;
     use crate::triangle::tests::TestRng;
     use crsh_core::glam::Vec3;
-    use crsh_core::{CandidateBatch, RayKind, SphereCone};
+    use crsh_core::{CandidateBatch, SphereCone};
 
     /// A random triangle soup in `[-1, 1]³` with a few degenerate and duplicated triangles
     /// (exact ties).
@@ -618,6 +633,14 @@ pub(crate) mod tests {
         )
         .unwrap();
         assert_eq!(stats.tests.ray_triangle, 8, "4 rays x 2 distinct triangles");
+        // The final tests are the hierarchy's level-0 row: 8 tests, as many hits as found.
+        assert_eq!(stats.levels.len(), 1);
+        let row = &stats.levels[0];
+        assert_eq!(
+            (row.ray_kind.as_str(), row.level, row.tests),
+            ("reflection", 0, 8)
+        );
+        assert_eq!(row.hits + row.misses, 8);
         for (i, (ray, hit)) in rays.iter().zip(&hits).enumerate() {
             let r = RayPre::of(ray);
             let mut want = Hit::MISS;
