@@ -442,8 +442,18 @@ fn leaf_node(rays: &[Ray], leaves: &[u32]) -> SphereCone {
             cos_phi = cone.angle.cos();
         }
     }
-    let origins: Vec<Vec3> = leaves.iter().map(|i| ray(i).origin).collect();
-    let ball = min_sphere(&origins);
+    // At most `SUBDIVISION_RANGE.end()` origins: no allocation per node.
+    let mut buf = [Vec3::ZERO; *SUBDIVISION_RANGE.end() as usize];
+    let origins = &mut buf[..leaves.len()];
+    for (o, i) in origins.iter_mut().zip(leaves) {
+        *o = ray(i).origin;
+    }
+    // Rays from one point (shadow rays leaving a light) need no Welzl.
+    let ball = if origins.iter().all(|o| *o == origins[0]) {
+        Sphere::new(origins[0], 0.0)
+    } else {
+        min_sphere(origins)
+    };
     SphereCone {
         sphere: store_sphere(
             ball.center.as_dvec3(),
