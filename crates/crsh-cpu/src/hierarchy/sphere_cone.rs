@@ -223,6 +223,23 @@ pub fn level_sizes(n: usize, subdivision: u32, depth: u32) -> Vec<usize> {
     sizes
 }
 
+/// The leaves (positions in [`RayHierarchy::order`]) under node `node` of level `level`
+/// (0-based, lowest first) of a hierarchy over `leaves` rays with `subdivision` children per
+/// node: `node·s^(level+1) .. (node+1)·s^(level+1)`, clipped to `leaves` (empty past the end).
+pub fn leaf_range(
+    level: usize,
+    node: usize,
+    subdivision: u32,
+    leaves: usize,
+) -> std::ops::Range<usize> {
+    let span = (subdivision as usize)
+        .checked_pow(level as u32 + 1)
+        .unwrap_or(usize::MAX);
+    let start = node.saturating_mul(span).min(leaves);
+    let end = node.saturating_add(1).saturating_mul(span).min(leaves);
+    start..end
+}
+
 /// The first leaf whose index is out of range or whose ray is unusable, as an error.
 fn validate(rays: &[Ray], order: &[u32]) -> Result<()> {
     if let Some(leaf) = order
@@ -647,12 +664,6 @@ mod tests {
         o
     }
 
-    /// Leaves covered by node `k` of `level` (0-based).
-    fn leaf_range(k: usize, level: usize, s: usize, n: usize) -> std::ops::Range<usize> {
-        let span = s.pow(level as u32 + 1);
-        (k * span).min(n)..((k + 1) * span).min(n)
-    }
-
     /// Every node at every level covers every ray below it (origin and direction), every node
     /// contains its children's spheres and cones, and sampled ray points lie in the swept volume.
     fn check_containment(rays: &[Ray], order: &[u32], s: u32, depth: u32) -> Vec<usize> {
@@ -664,7 +675,7 @@ mod tests {
             for (k, node) in level.iter().enumerate() {
                 assert!(node.cone.half_angle >= 0.0 && node.cone.half_angle <= PI as f32);
                 assert!((node.cone.axis.length() - 1.0).abs() < 1e-6);
-                for leaf in leaf_range(k, l, s as usize, order.len()) {
+                for leaf in leaf_range(l, k, s, order.len()) {
                     let r = &rays[order[leaf] as usize];
                     assert!(
                         covers(node, r.origin, r.dir),
@@ -1005,6 +1016,10 @@ mod tests {
         assert_eq!(level_sizes(1000, 8, 2), vec![125, 16]);
         assert_eq!(level_sizes(1000, 8, 8), vec![125, 16, 2, 1]);
         assert_eq!(level_sizes(1001, 2, 3), vec![501, 251, 126]);
+        assert_eq!(leaf_range(0, 2, 8, 100), 16..24);
+        assert_eq!(leaf_range(1, 1, 8, 100), 64..100);
+        assert_eq!(leaf_range(1, 2, 8, 100), 100..100);
+        assert_eq!(leaf_range(7, usize::MAX, 64, 5), 5..5);
         let b = SphereConeBuilder::with_params(4, 8).unwrap();
         let mut rng = Rng(1);
         for n in [1usize, 3, 4, 5, 16, 17, 100, 1025] {
