@@ -51,9 +51,10 @@
 //!
 //! # Degenerate input
 //!
-//! No rays give no levels (an empty hierarchy). A leaf index outside the ray buffer, or a ray
-//! with a non-finite origin or a zero-length or non-finite direction, is
-//! [`CoreError::InvalidInput`] naming the first such leaf (deterministically).
+//! No rays give no levels (an empty hierarchy). An `order` that is not a permutation of the
+//! batch (wrong length, an index out of range, a repeated ray), or a ray with a non-finite
+//! origin or a zero-length or non-finite direction, is [`CoreError::InvalidInput`] naming the
+//! first such leaf (deterministically).
 
 use std::f64::consts::PI;
 use std::sync::Arc;
@@ -251,6 +252,21 @@ fn validate(rays: &[Ray], order: &[u32]) -> Result<()> {
             order[leaf],
             rays.len()
         )));
+    }
+    if order.len() != rays.len() {
+        return Err(CoreError::InvalidInput(format!(
+            "sphere_cone: {} leaves for a batch of {} rays (the order must be a permutation)",
+            order.len(),
+            rays.len()
+        )));
+    }
+    let mut seen = vec![false; rays.len()];
+    for (leaf, &i) in order.iter().enumerate() {
+        if std::mem::replace(&mut seen[i as usize], true) {
+            return Err(CoreError::InvalidInput(format!(
+                "sphere_cone: ray {i} appears twice in the order (again at leaf {leaf})"
+            )));
+        }
     }
     let bad = |r: &Ray| {
         let d = r.dir.as_dvec3();
@@ -1049,14 +1065,27 @@ mod tests {
     fn bad_input_is_an_error() {
         let b = SphereConeBuilder::with_params(8, 2).unwrap();
         let mut rays = vec![ray(Vec3::ZERO, Vec3::Z); 20];
-        assert!(b.build_levels(&rays, &[]).unwrap().is_empty());
-        let err = b.build_levels(&rays, &[0, 1, 20]).unwrap_err();
-        assert!(matches!(err, CoreError::InvalidInput(_)), "{err}");
+        assert!(b.build_levels(&[], &[]).unwrap().is_empty());
+        for order in [vec![0, 1, 20], identity(19), {
+            let mut o = identity(20);
+            o[7] = 3;
+            o
+        }] {
+            let err = b.build_levels(&rays, &order).unwrap_err();
+            assert!(matches!(err, CoreError::InvalidInput(_)), "{err}");
+        }
+        let mut o = identity(20);
+        o.swap(0, 19);
+        o[4] = 0;
+        let err = b.build_levels(&rays, &o).unwrap_err();
+        assert!(err.to_string().contains("ray 0 appears twice"), "{err}");
         rays[5].dir = Vec3::ZERO;
         rays[9].dir = Vec3::new(f32::NAN, 0.0, 1.0);
         let err = b.build_levels(&rays, &identity(20)).unwrap_err();
         assert!(err.to_string().contains("ray 5 "), "{err}");
-        let err = b.build_levels(&rays, &[9, 5]).unwrap_err();
+        let mut o = identity(20);
+        o.swap(0, 9);
+        let err = b.build_levels(&rays, &o).unwrap_err();
         assert!(err.to_string().contains("ray 9 "), "{err}");
         rays[5].dir = Vec3::Z;
         rays[9].dir = Vec3::Z;
@@ -1096,7 +1125,67 @@ mod tests {
             h.levels.iter().map(Vec::len).collect::<Vec<_>>(),
             vec![25, 7, 2]
         );
-        let _ = Hit::MISS;
+    }
+
+    #[test]
+    fn brute_candidates_over_the_hierarchy_match_the_scene_query() {
+        use crate::intersect::brute::BruteForce;
+        use crsh_core::{Candidate, CandidateBatch, HitMode, Intersector, Query};
+        let scene = crsh_scene::builtin::build("cornell-mirrors").unwrap();
+        let mut rng = Rng(8);
+        let c = scene.bounds.center();
+        let half = scene.bounds.size() * 0.4;
+        let rays: Vec<Ray> = (0..300)
+            .map(|_| {
+                let p = c + half
+                    * Vec3::new(
+                        rng.range(-1.0, 1.0),
+                        rng.range(-1.0, 1.0),
+                        rng.range(-1.0, 1.0),
+                    );
+                ray(p, rng.dir())
+            })
+            .collect();
+        let order = shuffled(&mut rng, rays.len());
+        let b = SphereConeBuilder::with_params(8, 2).unwrap();
+        let h =
+            HierarchyBuilder::<Cpu>::build(&b, &Cpu, &rays, order, &mut Stats::default()).unwrap();
+        let pairs: Vec<Candidate> = (0..h.levels[0].len() as u32)
+            .flat_map(|node| {
+                (0..scene.triangle_count() as u32).map(move |tri| Candidate { node, tri })
+            })
+            .collect();
+        let brute = BruteForce::from_scene(&scene);
+        let mut stats = Stats::default();
+        let mut via_nodes = vec![Hit::MISS; rays.len()];
+        let batch = CandidateBatch { pairs };
+        let query = Query::Candidates {
+            hierarchy: &h,
+            batch: &batch,
+        };
+        brute
+            .intersect(
+                &Cpu,
+                &rays,
+                query,
+                HitMode::Closest,
+                &mut via_nodes,
+                &mut stats,
+            )
+            .unwrap();
+        let mut direct = vec![Hit::MISS; rays.len()];
+        brute
+            .intersect(
+                &Cpu,
+                &rays,
+                Query::Scene,
+                HitMode::Closest,
+                &mut direct,
+                &mut stats,
+            )
+            .unwrap();
+        assert_eq!(via_nodes, direct);
+        assert!(direct.iter().any(|h| h.tri != crsh_core::NO_HIT));
     }
 
     #[test]
