@@ -1071,6 +1071,68 @@ mod tests {
     }
 
     #[test]
+    fn sphere_cone_builder_hierarchies_give_the_brute_force_hits() {
+        use crate::hierarchy::sphere_cone::SphereConeBuilder;
+        let scene = Arc::new(clustered(71, 6, 30));
+        let brute = BruteForce::from_scene(&scene);
+        let rays = test_rays(&scene, 72, 300);
+        let refs = [HitMode::Closest, HitMode::Any].map(|m| reference(&brute, &rays, m));
+        for (sub, depth) in [(2u32, 3u32), (4, 1), (4, 3), (8, 2)] {
+            let builder = SphereConeBuilder::with_params(sub, depth).unwrap();
+            let order = shuffled(rays.len(), 73);
+            let h = RayHierarchy::<Cpu> {
+                levels: builder.build_levels(&rays, &order).unwrap(),
+                order,
+                subdivision: sub,
+            };
+            for culling in [true, false] {
+                let trav = Crsh::with_options(&scene, culling, 0.05).unwrap();
+                for (mode, want) in [HitMode::Closest, HitMode::Any].iter().zip(&refs) {
+                    let (hits, _, _, _) = trace(&trav, &brute, &rays, &h, *mode);
+                    let what = format!("sub {sub} depth {depth} culling {culling} {mode:?}");
+                    assert_same(&hits, want, *mode, &what);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn frames_with_crsh_traversal_equal_brute_force_frames() {
+        use crate::hierarchy::sphere_cone::SphereConeBuilder;
+        use crsh_core::{render_frame, FrameOptions, PipelineConfig};
+        let scene = Arc::new(crsh_scene::builtin::build("office-boxes").unwrap());
+        let cfg = PipelineConfig::whitted("brute", "brute");
+        let opts = FrameOptions {
+            width: 40,
+            height: 30,
+            max_depth: 2,
+            triangles: scene.triangle_count() as u64,
+        };
+        let plain = crate::build_stages(&cfg, &scene).unwrap();
+        let want = render_frame(&Cpu, &plain, &opts, None, &mut |_| {}).unwrap();
+        let reference = BruteForce::from_scene(&scene);
+        for (culling, budget_mb) in [(true, 64.0), (false, 0.05)] {
+            let mut stages = crate::build_stages(&cfg, &scene).unwrap();
+            stages.hierarchy = Some(Box::new(SphereConeBuilder::with_params(4, 3).unwrap()));
+            stages.traverser = Some(Box::new(
+                Crsh::with_options(&scene, culling, budget_mb).unwrap(),
+            ));
+            let got = render_frame(&Cpu, &stages, &opts, Some(&reference), &mut |_| {}).unwrap();
+            assert_eq!(got.image, want.image, "culling {culling}");
+            let acc = got.stats.accuracy.clone().unwrap();
+            assert!(acc.rays > 0);
+            assert_eq!(acc.agreeing, acc.rays, "{acc:?}");
+            // Fewer ray-triangle tests than brute force, and per-level rows for both kinds.
+            let s = &got.stats;
+            assert!(s.tests.ray_triangle < s.tests.brute_force, "{:?}", s.tests);
+            for kind in ["shadow", "reflection"] {
+                assert!(s.levels.iter().any(|l| l.ray_kind == kind && l.level == 0));
+                assert!(s.levels.iter().any(|l| l.ray_kind == kind && l.level == 3));
+            }
+        }
+    }
+
+    #[test]
     fn bad_input_is_an_error() {
         let scene = Arc::new(soup(41, 20));
         let rays = random_rays(&scene, 42, 20);
