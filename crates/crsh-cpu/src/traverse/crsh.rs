@@ -65,15 +65,30 @@
 //!
 //! # Memory bound
 //!
-//! The candidate arrays (8-byte [`Candidate`] pairs) of one level hold at most
-//! `nodes_at_level × batch_triangles` pairs. While a level is computed its input and output
-//! arrays are alive, and the final level is concatenated into one batch, so the worst case is
-//! `2 × nodes(levels[0]) × batch_triangles × 8` bytes (the lowest level has the most nodes).
-//! The batch size is the largest that keeps this within `candidate_budget_mb` (MiB, 2²⁰
-//! bytes), and at least one triangle: with a budget below `16 × nodes(levels[0])` bytes the
-//! peak is bounded by that one-triangle figure instead. [`Crsh::traverse_with_report`]
-//! returns the peak actually reached ([`TraversalReport::peak_candidate_bytes`], measured
-//! from the arrays' capacities after compaction), so the bound is testable.
+//! The candidate arrays (8-byte [`Candidate`] pairs) of a batch of `B` triangles hold at most
+//! `nodes_at_level × B` pairs per level; while a level is computed its input and output arrays
+//! are alive, and the last level is concatenated into one batch for the sink. Sizing `B` from
+//! the lowest level's node count alone (`2 × nodes(levels[0]) × B × 8` bytes) would be safe but
+//! far too pessimistic (a 1920×1080 batch with subdivision 8 would get 16-triangle batches, so
+//! thousands of sink calls), so the bound is enforced level by level instead:
+//!
+//! - `B` starts at the largest count whose top-level worst case `2 × nodes(top) × B × 8` bytes
+//!   fits `candidate_budget_mb` (MiB, 2²⁰ bytes), at least one triangle
+//!   ([`Crsh::batch_triangles`]).
+//! - Before each lower level is computed, its worst case is known exactly from the pairs in
+//!   hand: `input + pairs × subdivision × 8` bytes (for the last level also
+//!   `2 × pairs × subdivision × 8`, the concatenation). If that exceeds the budget and the batch
+//!   has more than one triangle, the batch is abandoned and retried with
+//!   `min(B / 2, B × budget / needed)` triangles ([`TraversalReport::retries`]; the bounds tests
+//!   already done count in [`Stats::add_bounds`], the level rows only come from completed
+//!   batches, so the row identities below hold). After a batch whose peak stayed under a quarter
+//!   of the budget, `B` doubles again (up to the start value).
+//! - So the live candidate arrays never exceed the budget, except for one-triangle batches,
+//!   which always proceed (their arrays are at most `2 × nodes(levels[0]) × 8` bytes).
+//!   [`Crsh::traverse_with_report`] returns the peak actually reached
+//!   ([`TraversalReport::peak_candidate_bytes`], from the arrays' capacities after
+//!   compaction), so the bound is testable. The batch sizes depend only on the counts, never on
+//!   the thread count.
 //!
 //! # Errors
 //!
@@ -223,10 +238,13 @@ impl NodeBound {
 /// What one traversal did, for tests and tuning.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct TraversalReport {
-    /// Triangles per batch (the last batch may be smaller).
+    /// Triangles in the largest batch completed.
     pub batch_triangles: usize,
-    /// Triangle batches processed.
+    /// Triangle batches completed (each handed its candidates to the sink).
     pub batches: usize,
+    /// Batches abandoned because a level's worst case would have exceeded the budget (and
+    /// retried with fewer triangles).
+    pub retries: usize,
     /// The budget in bytes the batch size was chosen for.
     pub budget_bytes: u64,
     /// Largest total size, in bytes, of the candidate arrays alive at once (input and output
@@ -288,11 +306,12 @@ impl Crsh {
         self.budget_bytes
     }
 
-    /// Triangles per batch for a hierarchy whose lowest level has `lowest_nodes` nodes: the
-    /// largest count whose worst case `2 × lowest_nodes × count × 8` bytes fits the budget,
-    /// at least 1, at most the scene's triangle count.
-    pub fn batch_triangles(&self, lowest_nodes: usize) -> usize {
-        let per_tri = 2 * PAIR_BYTES * lowest_nodes.max(1) as u64;
+    /// The largest triangle batch for a hierarchy with `top_nodes` top-level nodes: the
+    /// largest count whose top-level worst case `2 × top_nodes × count × 8` bytes (the
+    /// array, and its concatenation when the top is the only level) fits the budget, at
+    /// least 1, at most the scene's triangle count. Lower levels are checked as they come.
+    pub fn batch_triangles(&self, top_nodes: usize) -> usize {
+        let per_tri = 2 * PAIR_BYTES * top_nodes.max(1) as u64;
         let n = (self.budget_bytes / per_tri).max(1);
         (n.min(self.scene.triangle_count().max(1) as u64)) as usize
     }
@@ -354,7 +373,6 @@ impl Crsh {
         let sub = hierarchy.subdivision as usize;
         let top_level = nodes.len() as u32; // thesis number of the top level
         let top = nodes.last().expect("checked non-empty");
-        let tri_spheres = &self.scene.tri_spheres;
         let meshes = &self.scene.meshes;
 
         // Mesh culling, once: keep[node * meshes + m].
@@ -372,98 +390,174 @@ impl Crsh {
             Vec::new()
         };
 
-        let batch = self.batch_triangles(nodes[0].len());
-        report.batch_triangles = batch;
+        let ctx = BatchContext {
+            nodes: &nodes,
+            sub,
+            keep: &keep,
+            kind,
+        };
+        let max_batch = self.batch_triangles(top.len());
+        let mut batch = max_batch;
         let mut t0 = 0usize;
         while t0 < n_tris {
             let t1 = (t0 + batch).min(n_tris);
-            report.batches += 1;
-            // Triangle ranges of this batch, with their mesh (None without mesh culling).
-            let ranges: Vec<(Option<usize>, usize, usize)> = if self.mesh_culling {
-                meshes
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(i, m)| {
-                        let a = (m.first_tri as usize).max(t0);
-                        let b = (m.first_tri as usize + m.tri_count as usize).min(t1);
-                        (a < b).then_some((Some(i), a, b))
-                    })
-                    .collect()
-            } else {
-                vec![(None, t0, t1)]
-            };
-            // Top level: each top node against the kept triangles' spheres.
-            let results: Vec<(Vec<Candidate>, u64)> = top
-                .par_iter()
-                .enumerate()
-                .map(|(n, nb)| {
-                    let mut out = Vec::new();
-                    let mut tests = 0u64;
-                    for &(mesh, a, b) in &ranges {
-                        if let Some(m) = mesh {
-                            if !keep[n * meshes.len() + m] {
-                                continue;
-                            }
-                        }
-                        tests += (b - a) as u64;
-                        for (tri, sphere) in (a..b).zip(&tri_spheres[a..b]) {
-                            if nb.may_hit(sphere) {
-                                out.push(Candidate {
-                                    node: n as u32,
-                                    tri: tri as u32,
-                                });
-                            }
-                        }
-                    }
-                    out.shrink_to_fit();
-                    (out, tests)
-                })
-                .collect();
-            let tests: u64 = results.iter().map(|r| r.1).sum();
-            let mut level: Chunks = results
-                .into_iter()
-                .map(|r| r.0)
-                .filter(|c| !c.is_empty())
-                .collect();
-            let survivors = pairs(&level);
-            stats.add_bounds(tests);
-            stats.add_level(kind, top_level, tests, survivors);
-            report.peak_candidate_bytes = report.peak_candidate_bytes.max(bytes(&level));
-
-            // Descent: level index li (thesis li + 1) to li - 1.
-            for li in (1..nodes.len()).rev() {
-                let children = &nodes[li - 1];
-                let results: Vec<(Chunks, u64)> = level
-                    .par_iter()
-                    .map(|chunk| descend(chunk, children, sub, tri_spheres))
-                    .collect();
-                let tests: u64 = results.iter().map(|r| r.1).sum();
-                let next: Chunks = results.into_iter().flat_map(|r| r.0).collect();
-                stats.add_bounds(tests);
-                stats.add_level(kind, li as u32, tests, pairs(&next));
-                report.peak_candidate_bytes = report
-                    .peak_candidate_bytes
-                    .max(bytes(&level) + bytes(&next));
-                level = next;
-            }
-
-            // Final candidates of this batch: one contiguous array for the sink.
-            let total = pairs(&level) as usize;
-            if total > 0 {
-                let mut flat = Vec::with_capacity(total);
-                for c in &level {
-                    flat.extend_from_slice(c);
+            match self.run_batch(&ctx, t0, t1)? {
+                BatchOutcome::Aborted { needed, tests } => {
+                    // Only the bounds tests done count; the rows come from the retry.
+                    stats.add_bounds(tests);
+                    report.retries += 1;
+                    let scaled = (batch as f64 * self.budget_bytes as f64 / needed as f64) as usize;
+                    batch = scaled.min(batch / 2).max(1);
                 }
-                report.peak_candidate_bytes = report
-                    .peak_candidate_bytes
-                    .max(bytes(&level) + flat.capacity() as u64 * PAIR_BYTES);
-                drop(level);
-                report.candidates += total as u64;
-                sink(CandidateBatch { pairs: flat }, stats)?;
+                BatchOutcome::Done { pairs, local, peak } => {
+                    stats.add_bounds(local.tests.bounds);
+                    for row in &local.levels {
+                        stats.add_level(kind, row.level, row.tests, row.hits);
+                    }
+                    report.batches += 1;
+                    report.batch_triangles = report.batch_triangles.max(t1 - t0);
+                    report.peak_candidate_bytes = report.peak_candidate_bytes.max(peak);
+                    if !pairs.is_empty() {
+                        report.candidates += pairs.len() as u64;
+                        sink(CandidateBatch { pairs }, stats)?;
+                    }
+                    if peak <= self.budget_bytes / 4 {
+                        batch = (batch * 2).min(max_batch);
+                    }
+                    t0 = t1;
+                }
             }
-            t0 = t1;
         }
         Ok(report)
+    }
+}
+
+/// What [`Crsh::run_batch`] needs besides the triangle range.
+struct BatchContext<'a> {
+    nodes: &'a [Vec<NodeBound>],
+    sub: usize,
+    keep: &'a [bool],
+    kind: RayKind,
+}
+
+/// The result of one triangle batch.
+enum BatchOutcome {
+    /// The final candidates, the batch's counters, and its peak candidate bytes.
+    Done {
+        pairs: Vec<Candidate>,
+        local: Stats,
+        peak: u64,
+    },
+    /// A level's worst case would exceed the budget: `needed` bytes; `tests` were done.
+    Aborted { needed: u64, tests: u64 },
+}
+
+impl Crsh {
+    /// Traverses all levels for the triangles `t0..t1`. Before each level is computed, its
+    /// worst case (input pairs × subdivision, doubled at the last level for the
+    /// concatenation) is checked against the budget; a batch of more than one triangle that
+    /// would exceed it is abandoned so the caller retries with a smaller batch.
+    fn run_batch(&self, ctx: &BatchContext<'_>, t0: usize, t1: usize) -> Result<BatchOutcome> {
+        let nodes = ctx.nodes;
+        let sub = ctx.sub;
+        let kind = ctx.kind;
+        let top = nodes.last().expect("checked non-empty");
+        let top_level = nodes.len() as u32;
+        let tri_spheres = &self.scene.tri_spheres;
+        let meshes = &self.scene.meshes;
+        let keep = ctx.keep;
+        let mut local = Stats::default();
+        let mut peak = 0u64;
+        // Triangle ranges of this batch, with their mesh (None without mesh culling).
+        let ranges: Vec<(Option<usize>, usize, usize)> = if self.mesh_culling {
+            meshes
+                .iter()
+                .enumerate()
+                .filter_map(|(i, m)| {
+                    let a = (m.first_tri as usize).max(t0);
+                    let b = (m.first_tri as usize + m.tri_count as usize).min(t1);
+                    (a < b).then_some((Some(i), a, b))
+                })
+                .collect()
+        } else {
+            vec![(None, t0, t1)]
+        };
+        // Top level: each top node against the kept triangles' spheres.
+        let results: Vec<(Vec<Candidate>, u64)> = top
+            .par_iter()
+            .enumerate()
+            .map(|(n, nb)| {
+                let mut out = Vec::new();
+                let mut tests = 0u64;
+                for &(mesh, a, b) in &ranges {
+                    if let Some(m) = mesh {
+                        if !keep[n * meshes.len() + m] {
+                            continue;
+                        }
+                    }
+                    tests += (b - a) as u64;
+                    for (tri, sphere) in (a..b).zip(&tri_spheres[a..b]) {
+                        if nb.may_hit(sphere) {
+                            out.push(Candidate {
+                                node: n as u32,
+                                tri: tri as u32,
+                            });
+                        }
+                    }
+                }
+                out.shrink_to_fit();
+                (out, tests)
+            })
+            .collect();
+        let tests: u64 = results.iter().map(|r| r.1).sum();
+        let mut level: Chunks = results
+            .into_iter()
+            .map(|r| r.0)
+            .filter(|c| !c.is_empty())
+            .collect();
+        local.add_bounds(tests);
+        local.add_level(kind, top_level, tests, pairs(&level));
+        peak = peak.max(bytes(&level));
+
+        // Descent: level index li (thesis li + 1) to li - 1.
+        for li in (1..nodes.len()).rev() {
+            let worst_out = pairs(&level) * sub as u64 * PAIR_BYTES;
+            let needed = if li == 1 {
+                (bytes(&level) + worst_out).max(2 * worst_out)
+            } else {
+                bytes(&level) + worst_out
+            };
+            if needed > self.budget_bytes && t1 - t0 > 1 {
+                return Ok(BatchOutcome::Aborted {
+                    needed,
+                    tests: local.tests.bounds,
+                });
+            }
+            let children = &nodes[li - 1];
+            let results: Vec<(Chunks, u64)> = level
+                .par_iter()
+                .map(|chunk| descend(chunk, children, sub, tri_spheres))
+                .collect();
+            let tests: u64 = results.iter().map(|r| r.1).sum();
+            let next: Chunks = results.into_iter().flat_map(|r| r.0).collect();
+            local.add_bounds(tests);
+            local.add_level(kind, li as u32, tests, pairs(&next));
+            peak = peak.max(bytes(&level) + bytes(&next));
+            level = next;
+        }
+
+        // Final candidates of this batch: one contiguous array for the sink.
+        let total = pairs(&level) as usize;
+        let mut flat = Vec::with_capacity(total);
+        for c in &level {
+            flat.extend_from_slice(c);
+        }
+        peak = peak.max(bytes(&level) + flat.capacity() as u64 * PAIR_BYTES);
+        Ok(BatchOutcome::Done {
+            pairs: flat,
+            local,
+            peak,
+        })
     }
 }
 
@@ -540,7 +634,7 @@ mod tests {
     use crate::intersect::brute::BruteForce;
     use crate::triangle::tests::TestRng;
     use crsh_core::glam::Vec3;
-    use crsh_core::{Cone, Hit, HitMode, Intersector, Query};
+    use crsh_core::{Cone, Hit, HitMode, Intersector, LevelStats, Query};
     use crsh_scene::bounding::min_sphere;
     use crsh_scene::{Camera, Material, SceneBuilder};
 
@@ -908,41 +1002,46 @@ mod tests {
     }
 
     #[test]
-    fn tiny_budget_gives_one_triangle_batches_within_budget() {
+    fn small_budgets_split_batches_and_stay_within_budget() {
         let scene = Arc::new(clustered(8, 4, 25));
         let brute = BruteForce::from_scene(&scene);
         let rays = test_rays(&scene, 9, 150);
         let h = build(&rays, shuffled(rays.len(), 3), 4, 2);
         let lowest = h.levels[0].len() as f64;
         let big = Crsh::with_options(&scene, true, 64.0).unwrap();
-        // 1.5 × the one-triangle worst case: the batch must be a single triangle.
-        let tiny_mb = 1.5 * 16.0 * lowest / (1u64 << 20) as f64;
-        let tiny = Crsh::with_options(&scene, true, tiny_mb).unwrap();
-        // Ten triangles' worth.
-        let mid_mb = 10.5 * 16.0 * lowest / (1u64 << 20) as f64;
-        let mid = Crsh::with_options(&scene, true, mid_mb).unwrap();
+        let mib = (1u64 << 20) as f64;
         for mode in [HitMode::Closest, HitMode::Any] {
             let want = reference(&brute, &rays, mode);
-            let (h_big, b_big, _, r_big) = trace(&big, &brute, &rays, &h, mode);
-            assert_eq!(r_big.batches, 1);
+            let (h_big, b_big, s_big, r_big) = trace(&big, &brute, &rays, &h, mode);
+            assert_eq!((r_big.batches, r_big.retries), (1, 0));
+            assert_eq!(r_big.batch_triangles, scene.triangle_count());
             assert_same(&h_big, &want, mode, "big");
-            for (trav, tris) in [(&tiny, 1), (&mid, 10)] {
-                let (hits, batches, _, report) = trace(trav, &brute, &rays, &h, mode);
-                assert_eq!(report.batch_triangles, tris);
-                assert_eq!(report.batches, scene.triangle_count().div_ceil(tris));
+            let mut all_big: Vec<Candidate> = b_big.concat();
+            all_big.sort_unstable();
+            // 1.5 × the one-triangle worst case (tiny), and ten triangles' worth.
+            for factor in [1.5, 10.5] {
+                let trav = Crsh::with_options(&scene, true, factor * 16.0 * lowest / mib).unwrap();
+                let (hits, batches, stats, report) = trace(&trav, &brute, &rays, &h, mode);
+                assert!(report.batches > 1 && report.retries > 0, "{report:?}");
+                assert!(report.batch_triangles < scene.triangle_count());
                 assert!(
                     report.peak_candidate_bytes <= trav.budget_bytes(),
                     "{report:?}"
                 );
                 assert!(report.peak_candidate_bytes > 0);
-                assert_same(&hits, &want, mode, "tiny budget");
+                assert_same(&hits, &want, mode, "small budget");
                 // The same candidates overall, only split by triangle range.
                 let mut all: Vec<Candidate> = batches.concat();
                 all.sort_unstable();
-                let mut all_big: Vec<Candidate> = b_big.concat();
-                all_big.sort_unstable();
                 assert_eq!(all, all_big);
                 assert_eq!(report.candidates as usize, all.len());
+                // The level rows sum over batches to the unbatched ones (abandoned attempts
+                // only add bounds tests).
+                let node_rows = |s: &Stats| -> Vec<LevelStats> {
+                    s.levels.iter().filter(|l| l.level > 0).cloned().collect()
+                };
+                assert_eq!(node_rows(&stats), node_rows(&s_big));
+                assert!(stats.tests.bounds > s_big.tests.bounds);
             }
         }
     }
