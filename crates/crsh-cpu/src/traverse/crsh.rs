@@ -81,8 +81,8 @@
 //!   has more than one triangle, the batch is abandoned and retried with
 //!   `min(B / 2, B × budget / needed)` triangles ([`TraversalReport::retries`]; the bounds tests
 //!   already done count in [`Stats::add_bounds`], the level rows only come from completed
-//!   batches, so the row identities below hold). After a batch whose peak stayed under a quarter
-//!   of the budget, `B` doubles again (up to the start value).
+//!   batches, so the row identities below hold). After a batch whose checked worst cases all
+//!   stayed within half the budget, `B` doubles again (up to the start value).
 //! - So the live candidate arrays never exceed the budget, except for one-triangle batches,
 //!   which always proceed (their arrays are at most `2 × nodes(levels[0]) × 8` bytes).
 //!   [`Crsh::traverse_with_report`] returns the peak actually reached
@@ -142,8 +142,8 @@ pub fn info() -> StageVariantInfo {
                 name: "candidate_budget_mb",
                 default: ParamValue::Float(64.0),
                 choices: &[],
-                doc: "memory bound of the candidate arrays in MiB (> 0); sets the triangle \
-                      batch size (at least 1 triangle)",
+                doc: "memory bound of the candidate arrays in MiB (> 0); triangle batches \
+                      shrink (down to 1 triangle) so that no level's worst case exceeds it",
             },
         ],
     }
@@ -409,7 +409,12 @@ impl Crsh {
                     let scaled = (batch as f64 * self.budget_bytes as f64 / needed as f64) as usize;
                     batch = scaled.min(batch / 2).max(1);
                 }
-                BatchOutcome::Done { pairs, local, peak } => {
+                BatchOutcome::Done {
+                    pairs,
+                    local,
+                    peak,
+                    worst,
+                } => {
                     stats.add_bounds(local.tests.bounds);
                     for row in &local.levels {
                         stats.add_level(kind, row.level, row.tests, row.hits);
@@ -421,7 +426,7 @@ impl Crsh {
                         report.candidates += pairs.len() as u64;
                         sink(CandidateBatch { pairs }, stats)?;
                     }
-                    if peak <= self.budget_bytes / 4 {
+                    if worst <= self.budget_bytes / 2 {
                         batch = (batch * 2).min(max_batch);
                     }
                     t0 = t1;
@@ -442,11 +447,13 @@ struct BatchContext<'a> {
 
 /// The result of one triangle batch.
 enum BatchOutcome {
-    /// The final candidates, the batch's counters, and its peak candidate bytes.
+    /// The final candidates, the batch's counters, its peak candidate bytes and the largest
+    /// worst case checked against the budget.
     Done {
         pairs: Vec<Candidate>,
         local: Stats,
         peak: u64,
+        worst: u64,
     },
     /// A level's worst case would exceed the budget: `needed` bytes; `tests` were done.
     Aborted { needed: u64, tests: u64 },
@@ -468,6 +475,7 @@ impl Crsh {
         let keep = ctx.keep;
         let mut local = Stats::default();
         let mut peak = 0u64;
+        let mut worst = 0u64;
         // Triangle ranges of this batch, with their mesh (None without mesh culling).
         let ranges: Vec<(Option<usize>, usize, usize)> = if self.mesh_culling {
             meshes
@@ -527,6 +535,7 @@ impl Crsh {
             } else {
                 bytes(&level) + worst_out
             };
+            worst = worst.max(needed);
             if needed > self.budget_bytes && t1 - t0 > 1 {
                 return Ok(BatchOutcome::Aborted {
                     needed,
@@ -557,6 +566,7 @@ impl Crsh {
             pairs: flat,
             local,
             peak,
+            worst,
         })
     }
 }
