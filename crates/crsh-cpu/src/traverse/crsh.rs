@@ -451,7 +451,7 @@ enum BatchOutcome {
     /// worst case checked against the budget.
     Done {
         pairs: Vec<Candidate>,
-        local: Stats,
+        local: Box<Stats>,
         peak: u64,
         worst: u64,
     },
@@ -564,7 +564,7 @@ impl Crsh {
         peak = peak.max(bytes(&level) + flat.capacity() as u64 * PAIR_BYTES);
         Ok(BatchOutcome::Done {
             pairs: flat,
-            local,
+            local: Box::new(local),
             peak,
             worst,
         })
