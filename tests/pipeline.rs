@@ -118,6 +118,71 @@ fn brute_and_bvh_agree_on_the_shared_cornell_boxes() {
     }
 }
 
+/// The ray-space hierarchy pipelines (seed 000's CRSH and its RAH baseline) are exact: the
+/// same hits as a brute-force reference on every traced ray and the same image, with fewer
+/// ray-triangle tests, and per-level counters that add up.
+fn check_hierarchy_pipelines_are_exact(scene: &Arc<Scene>) {
+    let o = opts(SIZE, SIZE, 3);
+    let brute = frame(scene, &config("brute", &[]), &o, None);
+    for (name, sets) in [
+        ("crsh", &[][..]),
+        ("rah", &[][..]),
+        ("crsh", &["hash.kind=morton", "sort.kind=radix"][..]),
+        (
+            "crsh",
+            &[
+                "hierarchy.subdivision=16",
+                "hierarchy.depth=3",
+                "traverse.candidate_budget_mb=0.01",
+            ][..],
+        ),
+    ] {
+        let f = frame(scene, &config(name, sets), &o, Some("brute"));
+        let acc = f.stats.accuracy.clone().unwrap();
+        assert_eq!(
+            acc.hit_agreement(),
+            1.0,
+            "{} {name} {sets:?}: {acc:?}",
+            scene.name
+        );
+        assert_eq!(f.stats.rays, brute.stats.rays, "{} {name}", scene.name);
+        assert!(
+            bits(&f.image) == bits(&brute.image),
+            "{} {name} {sets:?}: image differs from brute force",
+            scene.name
+        );
+        assert!(
+            f.stats.tests.ray_triangle < brute.stats.tests.ray_triangle,
+            "{} {name}: the hierarchy should prune",
+            scene.name
+        );
+        assert!(!f.stats.levels.is_empty(), "{name}: no level counters");
+        for l in &f.stats.levels {
+            assert_eq!(l.tests, l.hits + l.misses, "{name}: {l:?}");
+        }
+        for key in ["hierarchy_creation", "traversal", "intersection"] {
+            assert!(
+                f.stats.timings_ms.contains_key(key),
+                "{name}: no {key} timing"
+            );
+        }
+    }
+}
+
+#[test]
+fn crsh_and_rah_are_exact_on_every_builtin_scene() {
+    for name in crsh_scene::builtin::NAMES {
+        check_hierarchy_pipelines_are_exact(&builtin(name));
+    }
+}
+
+#[test]
+fn crsh_and_rah_are_exact_on_the_shared_cornell_boxes() {
+    for path in crsh_tests::shared_scenes_in("cornell", "toml") {
+        check_hierarchy_pipelines_are_exact(&load(&path));
+    }
+}
+
 #[test]
 fn every_ray_kind_occurs_where_expected() {
     let f = frame(
@@ -435,10 +500,25 @@ fn bad_pipelines_are_errors_not_panics() {
         run(&unknown, None),
         Err(CoreError::UnknownVariant { .. })
     ));
-    let no_cpu_hash = config("bvh", &["hash.kind=morton"]);
-    let err = run(&no_cpu_hash, None).unwrap_err();
+    let unknown_hash = config("crsh", &["hash.kind=zorder"]);
+    let err = run(&unknown_hash, None).unwrap_err();
     assert!(matches!(err, CoreError::UnknownVariant { .. }));
-    assert!(err.to_string().contains("cpu backend"), "{err}");
+    assert!(
+        err.to_string().contains("thesis"),
+        "lists the known hashers: {err}"
+    );
+    // Sorting only orders the rays of a hierarchy; without one it is a configuration error.
+    let hash_without_hierarchy = config("bvh", &["hash.kind=morton", "sort.kind=radix"]);
+    assert!(matches!(
+        run(&hash_without_hierarchy, None),
+        Err(CoreError::InvalidInput(_))
+    ));
+    // The object BVH answers whole-scene queries only, not a hierarchy's candidate pairs.
+    let bvh_under_hierarchy = config("crsh", &["intersect.kind=bvh"]);
+    assert!(matches!(
+        run(&bvh_under_hierarchy, None),
+        Err(CoreError::Unsupported { .. })
+    ));
     let bad_param = config("bvh", &["raygen.epsilon=bright"]);
     assert!(matches!(
         run(&bad_param, None),

@@ -15,15 +15,21 @@ use crsh_core::{
 use crsh_scene::Scene;
 
 use crate::backend::Cpu;
+use crate::hash::morton_octa::{self, MortonOcta};
+use crate::hash::thesis::{self, ThesisHasher};
+use crate::hierarchy::sphere_cone::{self, SphereConeBuilder};
 use crate::intersect::brute::BruteForce;
 use crate::intersect::bvh::CwBvh;
 use crate::primary::raster::Raster;
 use crate::primary::raycast::RayCast;
 use crate::raygen::whitted::Whitted;
 use crate::shade::phong::Phong;
+use crate::sort::compress::{self, CompressSorter};
+use crate::sort::radix::{self, RadixSorter};
+use crate::traverse::crsh::{self, Crsh};
 
 /// Names of the pipelines [`preset`] knows (the CLI's `--pipeline`).
-pub const PRESETS: &[&str] = &["brute", "bvh"];
+pub const PRESETS: &[&str] = &["brute", "bvh", "crsh", "rah"];
 
 /// Every stage variant the CPU backend offers, with parameters, defaults and choices.
 pub fn catalogue() -> Vec<StageVariantInfo> {
@@ -117,16 +123,44 @@ pub fn catalogue() -> Vec<StageVariantInfo> {
                 },
             ],
         },
+        thesis::info(),
+        morton_octa::info(),
+        compress::info(),
+        radix::info(),
+        sphere_cone::info(),
+        crsh::info(),
     ]
 }
 
-/// The named pipeline `name` (one of [`PRESETS`]), unresolved: Whitted pipelines with raster
-/// primaries, Whitted ray generation and Phong shading, tracing with brute force (`brute`) or
-/// the obvhs BVH (`bvh`).
+/// The named pipeline `name` (one of [`PRESETS`]), unresolved. All use raster primaries,
+/// Whitted ray generation and Phong shading; they differ in how rays are traced:
+/// - `brute`: every ray against every triangle;
+/// - `bvh`: the obvhs CWBVH;
+/// - `crsh`: seed 000's Coherent Ray-Space Hierarchy: thesis hashes, compress-sort-decompress,
+///   sphere-cone hierarchy (subdivision 8, depth 2), traversal with whole-mesh culling, and the
+///   final tests on the surviving candidates;
+/// - `rah`: Roger et al.'s ray-space hierarchy (seed 000 §2.4): the same hierarchy over rays in
+///   generation order (no hashing or sorting) and no mesh culling.
 pub fn preset(name: &str) -> Option<PipelineConfig> {
+    let hierarchy_pipeline = |name: &str, sorted: bool| {
+        let mut cfg = PipelineConfig::whitted(name, "brute");
+        if sorted {
+            cfg.hash = Some(StageSpec::new("thesis"));
+            cfg.sort = Some(StageSpec::new("compress"));
+        }
+        cfg.hierarchy = Some(StageSpec::new("sphere_cone"));
+        let mut traverse = StageSpec::new("crsh");
+        traverse
+            .params
+            .insert("mesh_culling".into(), ParamValue::Bool(sorted));
+        cfg.traverse = Some(traverse);
+        cfg
+    };
     match name {
         "brute" => Some(PipelineConfig::whitted("brute", "brute")),
         "bvh" => Some(PipelineConfig::whitted("bvh", "bvh")),
+        "crsh" => Some(hierarchy_pipeline("crsh", true)),
+        "rah" => Some(hierarchy_pipeline("rah", false)),
         _ => None,
     }
 }
@@ -135,25 +169,18 @@ fn no_cpu_variant(slot: StageKind, spec: &StageSpec) -> CoreError {
     CoreError::UnknownVariant {
         stage: slot.key().into(),
         name: spec.kind.clone(),
-        known: "none on the cpu backend yet".into(),
+        known: catalogue()
+            .iter()
+            .filter(|v| v.stage == slot)
+            .map(|v| v.name)
+            .collect::<Vec<_>>()
+            .join(", "),
     }
 }
 
 /// Builds the stages of `cfg` for `scene`. A clone of `cfg` is resolved against [`catalogue`]
-/// first (unknown variants or parameters are errors; defaults are filled in). A filled
-/// optional slot (hash, sort, hierarchy, traverse) gives [`CoreError::UnknownVariant`] while
-/// the CPU backend has no variant for it.
+/// first (unknown variants or parameters are errors; defaults are filled in).
 pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<Scene>) -> Result<Stages<Cpu>> {
-    for slot in [
-        StageKind::Hash,
-        StageKind::Sort,
-        StageKind::Hierarchy,
-        StageKind::Traverse,
-    ] {
-        if let Some(spec) = cfg.slot(slot) {
-            return Err(no_cpu_variant(slot, spec));
-        }
-    }
     let mut cfg = cfg.clone();
     cfg.resolve(&catalogue())?;
     let primary: Box<dyn crsh_core::PrimaryVisibility<Cpu>> = match cfg.primary.kind.as_str() {
@@ -169,13 +196,57 @@ pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<Scene>) -> Result<Stages<C
         "phong" => Box::new(Phong::new(scene, &cfg.shade)?),
         _ => return Err(no_cpu_variant(StageKind::Shade, &cfg.shade)),
     };
+    let hasher = cfg
+        .hash
+        .as_ref()
+        .map(|spec| -> Result<Box<dyn crsh_core::Hasher<Cpu>>> {
+            Ok(match spec.kind.as_str() {
+                "thesis" => Box::new(ThesisHasher::new(scene, spec)?),
+                "morton" => Box::new(MortonOcta::new(scene, spec)?),
+                _ => return Err(no_cpu_variant(StageKind::Hash, spec)),
+            })
+        })
+        .transpose()?;
+    let sorter = cfg
+        .sort
+        .as_ref()
+        .map(|spec| -> Result<Box<dyn crsh_core::Sorter<Cpu>>> {
+            Ok(match spec.kind.as_str() {
+                "compress" => Box::new(CompressSorter::new(scene, spec)?),
+                "radix" => Box::new(RadixSorter::new(scene, spec)?),
+                _ => return Err(no_cpu_variant(StageKind::Sort, spec)),
+            })
+        })
+        .transpose()?;
+    let hierarchy = cfg
+        .hierarchy
+        .as_ref()
+        .map(
+            |spec| -> Result<Box<dyn crsh_core::HierarchyBuilder<Cpu>>> {
+                Ok(match spec.kind.as_str() {
+                    "sphere_cone" => Box::new(SphereConeBuilder::new(scene, spec)?),
+                    _ => return Err(no_cpu_variant(StageKind::Hierarchy, spec)),
+                })
+            },
+        )
+        .transpose()?;
+    let traverser = cfg
+        .traverse
+        .as_ref()
+        .map(|spec| -> Result<Box<dyn crsh_core::Traverser<Cpu>>> {
+            Ok(match spec.kind.as_str() {
+                "crsh" => Box::new(Crsh::new(scene, spec)?),
+                _ => return Err(no_cpu_variant(StageKind::Traverse, spec)),
+            })
+        })
+        .transpose()?;
     Ok(Stages {
         primary,
         raygen,
-        hasher: None,
-        sorter: None,
-        hierarchy: None,
-        traverser: None,
+        hasher,
+        sorter,
+        hierarchy,
+        traverser,
         intersector: make_intersector(&cfg.intersect, scene)?,
         shader,
     })
@@ -241,7 +312,17 @@ mod tests {
         for name in PRESETS {
             let mut cfg = preset(name).expect("listed preset exists");
             cfg.resolve(&catalogue()).unwrap();
-            assert_eq!(cfg.intersect.kind, *name);
+            let expect = if ["brute", "bvh"].contains(name) {
+                *name
+            } else {
+                "brute"
+            };
+            assert_eq!(cfg.intersect.kind, expect);
+            assert_eq!(cfg.hierarchy.is_some(), ["crsh", "rah"].contains(name));
+            assert_eq!(cfg.hash.is_some(), *name == "crsh");
+            if let Some(t) = &cfg.traverse {
+                assert_eq!(t.bool("mesh_culling").unwrap(), *name == "crsh");
+            }
             assert_eq!(cfg.raygen.str("shadow_origin").unwrap(), "light");
             assert_eq!(cfg.shade.f64("ambient").unwrap(), 0.05);
         }
