@@ -90,6 +90,11 @@ pub struct RayHierarchy<B: Backend> {
     pub levels: Vec<B::Buffer<SphereCone>>,
     /// Children per node.
     pub subdivision: u32,
+    /// Per level (indexed like `levels`), per node: an upper bound on the distance from the
+    /// node's sphere centre to any point its rays reach within their `(t_min, t_max)`
+    /// (`f32::INFINITY` when a ray is unbounded). Lets traversal cull geometry beyond the
+    /// end of finite rays, such as shadow segments. Empty: no bound is known.
+    pub reach: Vec<B::Buffer<f32>>,
 }
 
 /// Hierarchy creation (seed 000 §3.2.7, eq. 3.8-3.15).

@@ -199,12 +199,68 @@ impl HierarchyBuilder<Cpu> for SphereConeBuilder {
         _stats: &mut Stats,
     ) -> Result<RayHierarchy<Cpu>> {
         let levels = self.build_levels(rays, &order)?;
+        let reach = reach_levels(rays, &order, &levels, self.subdivision);
         Ok(RayHierarchy {
             order,
             levels,
             subdivision: self.subdivision,
+            reach,
         })
     }
+}
+
+/// [`RayHierarchy::reach`] for `levels` built over `rays` in `order`: for a lowest-level node,
+/// the largest `|origin − centre| + t_max·|dir|` over its rays; for an upper node, the largest
+/// `|child centre − centre| + child reach`. Computed in `f64` and rounded up to `f32`, so that
+/// every point a ray reaches lies within the bound; `f32::INFINITY` where a ray is unbounded.
+pub fn reach_levels(
+    rays: &[Ray],
+    order: &[u32],
+    levels: &[Vec<SphereCone>],
+    subdivision: u32,
+) -> Vec<Vec<f32>> {
+    let s = subdivision as usize;
+    let round_up = |x: f64| -> f32 {
+        if !x.is_finite() {
+            return f32::INFINITY;
+        }
+        let up = x * (1.0 + 1e-6) + 1e-6 * x.abs().max(1.0) * f32::EPSILON as f64;
+        (up as f32).next_up()
+    };
+    let mut out: Vec<Vec<f32>> = Vec::with_capacity(levels.len());
+    for (l, level) in levels.iter().enumerate() {
+        let reach: Vec<f32> = if l == 0 {
+            level
+                .par_iter()
+                .zip(order.par_chunks(s))
+                .map(|(node, leaves)| {
+                    let c = node.sphere.center.as_dvec3();
+                    let far = leaves.iter().fold(0.0f64, |m, &i| {
+                        let r = &rays[i as usize];
+                        let len = r.t_max as f64 * r.dir.as_dvec3().length();
+                        m.max((r.origin.as_dvec3() - c).length() + len)
+                    });
+                    round_up(far)
+                })
+                .collect()
+        } else {
+            let below = &levels[l - 1];
+            let below_reach = &out[l - 1];
+            level
+                .par_iter()
+                .zip(below.par_chunks(s).zip(below_reach.par_chunks(s)))
+                .map(|(node, (children, reaches))| {
+                    let c = node.sphere.center.as_dvec3();
+                    let far = children.iter().zip(reaches).fold(0.0f64, |m, (k, &r)| {
+                        m.max((k.sphere.center.as_dvec3() - c).length() + r as f64)
+                    });
+                    round_up(far)
+                })
+                .collect()
+        };
+        out.push(reach);
+    }
+    out
 }
 
 /// Node counts per level for `n` leaves: level `l` (0-based) has `ceil(n / subdivision^(l+1))`
@@ -725,6 +781,55 @@ mod tests {
             }
         }
         sizes
+    }
+
+    /// Every point a finite ray reaches lies within its nodes' reach, at every level; an
+    /// unbounded ray makes its nodes' reach infinite.
+    #[test]
+    fn reach_bounds_every_point_of_finite_rays() {
+        let mut rng = Rng(77);
+        for (s, depth) in [(2u32, 4u32), (8, 3), (16, 2)] {
+            let mut rays = one_point(&mut rng, 300);
+            rays.extend(coherent(&mut rng, 300));
+            for (i, r) in rays.iter_mut().enumerate() {
+                r.t_max = rng.range(0.01, 40.0);
+                r.dir *= 1.0 + (i % 3) as f32; // non-unit directions scale the reach too
+            }
+            let order = identity(rays.len());
+            let b = SphereConeBuilder::with_params(s, depth).unwrap();
+            let levels = b.build_levels(&rays, &order).unwrap();
+            let reach = reach_levels(&rays, &order, &levels, s);
+            assert_eq!(reach.len(), levels.len());
+            for (l, level) in levels.iter().enumerate() {
+                assert_eq!(reach[l].len(), level.len());
+                for (n, node) in level.iter().enumerate() {
+                    for leaf in leaf_range(l, n, s, rays.len()) {
+                        let r = &rays[order[leaf] as usize];
+                        for k in 0..=8 {
+                            let p = r.at(r.t_max * k as f32 / 8.0);
+                            let d = p.as_dvec3().distance(node.sphere.center.as_dvec3());
+                            assert!(
+                                d <= reach[l][n] as f64,
+                                "level {l} node {n}: point at distance {d} beyond reach {}",
+                                reach[l][n]
+                            );
+                        }
+                    }
+                }
+            }
+            // Shadow-like segments from one light reach about as far as the longest segment.
+            let top = reach.last().unwrap();
+            assert!(top.iter().all(|r| r.is_finite()));
+        }
+        let mut rays = random(&mut rng, 40);
+        rays[5].t_max = 3.0;
+        let order = identity(rays.len());
+        let levels = SphereConeBuilder::with_params(4, 2)
+            .unwrap()
+            .build_levels(&rays, &order)
+            .unwrap();
+        let reach = reach_levels(&rays, &order, &levels, 4);
+        assert!(reach[0][0].is_infinite() && reach[1][0].is_infinite());
     }
 
     #[test]

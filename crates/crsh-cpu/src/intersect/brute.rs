@@ -547,6 +547,7 @@ pub(crate) mod tests {
             order,
             levels: vec![vec![<SphereCone as bytemuck::Zeroable>::zeroed(); nodes]],
             subdivision: sub,
+            reach: vec![],
         }
     }
 
@@ -721,6 +722,7 @@ pub(crate) mod tests {
                     order: (0..8).collect(),
                     levels: vec![],
                     subdivision: 4,
+                    reach: vec![],
                 },
                 vec![Candidate { node: 0, tri: 0 }],
             ),
@@ -729,6 +731,7 @@ pub(crate) mod tests {
                     order: (0..8).collect(),
                     levels: vec![vec![<SphereCone as bytemuck::Zeroable>::zeroed(); 2]],
                     subdivision: 0,
+                    reach: vec![],
                 },
                 vec![Candidate { node: 0, tri: 0 }],
             ),

@@ -511,6 +511,7 @@ mod tests {
             order: (0..8).collect(),
             levels: vec![vec![bytemuck::Zeroable::zeroed(); 1]],
             subdivision: 8,
+            reach: vec![],
         };
         let batch = CandidateBatch::<Cpu> { pairs: vec![] };
         let mut hits = vec![Hit::MISS; 8];

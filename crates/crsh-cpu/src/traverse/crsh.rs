@@ -159,6 +159,9 @@ pub struct NodeBound {
     sin_a: f64,
     /// The cone (with margin) covers every direction.
     all: bool,
+    /// Upper bound on the distance from `center` to any point the node's rays reach
+    /// ([`RayHierarchy::reach`]; infinite when unknown).
+    reach: f64,
     /// `max(1, |c|∞)`.
     scale: f64,
 }
@@ -192,6 +195,7 @@ impl NodeBound {
                 sin_a: 0.0,
                 all: true,
                 scale,
+                reach: f64::INFINITY,
             });
         }
         let axis = c.axis.as_dvec3();
@@ -207,7 +211,18 @@ impl NodeBound {
             sin_a: alpha.sin(),
             all: false,
             scale,
+            reach: f64::INFINITY,
         })
+    }
+
+    /// This bound, also culling spheres farther than `reach` from the node's centre: no ray
+    /// of the node gets that far within its interval. A non-finite or negative `reach` leaves
+    /// the bound unlimited.
+    pub fn with_reach(mut self, reach: f32) -> NodeBound {
+        if reach.is_finite() && reach >= 0.0 {
+            self.reach = reach as f64;
+        }
+        self
     }
 
     /// Whether some ray of the node (origin in its sphere, direction in its cone, as an
@@ -215,14 +230,22 @@ impl NodeBound {
     /// for the derivation from eq. 3.16).
     #[inline]
     pub fn may_hit(&self, sphere: &Sphere) -> bool {
-        if self.all {
-            return true;
-        }
         let p = sphere.center.as_dvec3();
         let v = p - self.center;
         let d2 = v.length_squared();
         let scale = self.scale.max(p.abs().max_element());
         let rho = (sphere.radius as f64 + self.radius) * (1.0 + REL_MARGIN) + ABS_MARGIN * scale;
+        if self.reach.is_finite() {
+            // Every point a ray of the node reaches is within `reach` of the centre; the
+            // sphere is within `radius ≤ rho` of its centre.
+            let limit = (self.reach + rho) * (1.0 + REL_MARGIN) + ABS_MARGIN * scale;
+            if d2 > limit * limit {
+                return false;
+            }
+        }
+        if self.all {
+            return true;
+        }
         let rho2 = rho * rho;
         if d2 <= rho2 {
             return true;
@@ -342,9 +365,33 @@ impl Crsh {
             }
             below = want;
         }
+        if !h.reach.is_empty() {
+            let shapes_match = h.reach.len() == h.levels.len()
+                && h.reach
+                    .iter()
+                    .zip(&h.levels)
+                    .all(|(r, l)| r.len() == l.len());
+            if !shapes_match {
+                return Err(CoreError::InvalidInput(
+                    "hierarchy reach bounds do not match its levels".into(),
+                ));
+            }
+        }
         h.levels
             .iter()
-            .map(|l| l.par_iter().map(NodeBound::new).collect())
+            .enumerate()
+            .map(|(i, l)| {
+                l.par_iter()
+                    .enumerate()
+                    .map(|(n, node)| {
+                        let b = NodeBound::new(node)?;
+                        Ok(match h.reach.get(i) {
+                            Some(r) => b.with_reach(r[n]),
+                            None => b,
+                        })
+                    })
+                    .collect()
+            })
             .collect()
     }
 
@@ -772,6 +819,7 @@ mod tests {
             order,
             levels: out,
             subdivision: sub,
+            reach: vec![],
         }
     }
 
@@ -1189,8 +1237,10 @@ mod tests {
         for (sub, depth) in [(2u32, 3u32), (4, 1), (4, 3), (8, 2)] {
             let builder = SphereConeBuilder::with_params(sub, depth).unwrap();
             let order = shuffled(rays.len(), 73);
+            let levels = builder.build_levels(&rays, &order).unwrap();
             let h = RayHierarchy::<Cpu> {
-                levels: builder.build_levels(&rays, &order).unwrap(),
+                reach: crate::hierarchy::sphere_cone::reach_levels(&rays, &order, &levels, sub),
+                levels,
                 order,
                 subdivision: sub,
             };
@@ -1354,6 +1404,7 @@ mod tests {
             order: vec![],
             levels: vec![vec![]],
             subdivision: 4,
+            reach: vec![],
         };
         let mut calls = 0;
         trav.traverse(
