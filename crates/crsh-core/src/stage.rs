@@ -44,8 +44,8 @@ pub trait RayGen<B: Backend>: Send + Sync {
     /// Variant name.
     fn name(&self) -> &str;
     /// The rays of one `kind` spawned by `surfaces`, compacted (no empty slots), in surface
-    /// order (and light order within a surface for shadow rays). `Ray::source` indexes
-    /// `surfaces`.
+    /// order; shadow rays light-major (all rays of light 0 in surface order, then light 1, ...).
+    /// `Ray::source` indexes `surfaces`.
     fn generate(
         &self,
         backend: &B,

@@ -2,9 +2,11 @@
 //!
 //! Rays are created from the [`Surface`] records of the previous pass (the G-buffer after
 //! primary visibility, or the path vertices found by the last reflection / refraction batch).
-//! Background records spawn nothing. The output is compacted and in surface order (light order
-//! within a surface for shadow rays), and [`Ray::source`] indexes the surface buffer, so the
-//! shader can find the surface each ray belongs to.
+//! Background records spawn nothing. The output is compacted and in surface order; shadow rays
+//! are light-major (every ray of light 0 in surface order, then light 1, ...), so that rays of
+//! one light, which share an origin in the thesis's convention, stay together for a ray-space
+//! hierarchy built in generation order (RAH). [`Ray::source`] indexes the surface buffer, so
+//! the shader can find the surface each ray belongs to.
 //!
 //! # Ray kinds
 //!
@@ -345,8 +347,9 @@ impl Whitted {
         })
     }
 
-    /// The rays of `kind` spawned by `surfaces`, compacted, in surface order (see the module
-    /// docs). Primary rays are not made here: asking for them is an error.
+    /// The rays of `kind` spawned by `surfaces`, compacted, in surface order, light-major for
+    /// shadow rays (see the module docs). Primary rays are not made here: asking for them is an
+    /// error.
     pub fn rays(&self, surfaces: &[Surface], kind: RayKind) -> Result<Vec<Ray>> {
         if surfaces.len() > u32::MAX as usize {
             return Err(CoreError::InvalidInput(format!(
@@ -374,25 +377,31 @@ impl Whitted {
         }
         // Fixed-size chunks, each compacted on its own, then concatenated in chunk order: the
         // output order is the surface order whatever the thread count.
-        let nl = self.lights.len() as u32;
-        let parts: Vec<Vec<Ray>> = surfaces
-            .par_chunks(CHUNK)
-            .enumerate()
-            .map(|(c, chunk)| {
-                let mut out = Vec::new();
-                for (j, s) in chunk.iter().enumerate().filter(|(_, s)| s.is_hit()) {
-                    let i = (c * CHUNK + j) as u32;
-                    let m = &self.materials[s.material as usize];
-                    if kind == RayKind::Shadow {
-                        out.extend((0..nl).filter_map(|l| self.shadow_ray(i, s, m, l)));
-                    } else if let Some(r) = self.bounce_ray(i, s, m, kind) {
-                        out.push(r);
-                    }
-                }
-                out
-            })
-            .collect();
-        let rays = parts.concat();
+        let pass = |emit: &(dyn Fn(u32, &Surface, &MatRays) -> Option<Ray> + Sync)| {
+            let parts: Vec<Vec<Ray>> = surfaces
+                .par_chunks(CHUNK)
+                .enumerate()
+                .map(|(c, chunk)| {
+                    chunk
+                        .iter()
+                        .enumerate()
+                        .filter(|(_, s)| s.is_hit())
+                        .filter_map(|(j, s)| {
+                            let m = &self.materials[s.material as usize];
+                            emit((c * CHUNK + j) as u32, s, m)
+                        })
+                        .collect()
+                })
+                .collect();
+            parts.concat()
+        };
+        let rays = if kind == RayKind::Shadow {
+            (0..self.lights.len() as u32)
+                .flat_map(|l| pass(&|i, s, m| self.shadow_ray(i, s, m, l)))
+                .collect()
+        } else {
+            pass(&|i, s, m| self.bounce_ray(i, s, m, kind))
+        };
         Ok(rays)
     }
 }
@@ -504,7 +513,7 @@ pub(crate) mod tests {
     }
 
     #[test]
-    fn shadow_rays_are_compacted_in_surface_then_light_order() {
+    fn shadow_rays_are_compacted_light_major_in_surface_order() {
         let lights = vec![
             light(Vec3::new(0.0, 0.0, 2.0)),
             light(Vec3::new(0.0, 0.0, -2.0)), // behind the quad: culled
@@ -521,7 +530,7 @@ pub(crate) mod tests {
         ];
         let rays = g.rays(&surfaces, RayKind::Shadow).unwrap();
         let ids: Vec<(u32, u32, u32)> = rays.iter().map(|r| (r.source, r.light, r.pixel)).collect();
-        assert_eq!(ids, vec![(0, 0, 0), (0, 2, 0), (2, 0, 2), (2, 2, 2)]);
+        assert_eq!(ids, vec![(0, 0, 0), (2, 0, 2), (0, 2, 0), (2, 2, 2)]);
         for r in &rays {
             assert_eq!(r.ray_kind(), RayKind::Shadow);
             assert_eq!(r.depth, 1);
