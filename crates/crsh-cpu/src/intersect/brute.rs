@@ -400,20 +400,25 @@ pub(crate) mod tests {
                         )
                     }
                 };
-                Ray {
-                    origin,
-                    t_min,
-                    dir,
-                    t_max,
-                    throughput: Vec3::ONE,
-                    kind: RayKind::Reflection as u32,
-                    pixel: i as u32,
-                    light: u32::MAX,
-                    depth: 1,
-                    source: i as u32,
-                }
+                test_ray(origin, dir, t_min, t_max, i)
             })
             .collect()
+    }
+
+    /// A reflection ray with the interval `(t_min, t_max)`, pixel and source `i`.
+    pub(crate) fn test_ray(origin: Vec3, dir: Vec3, t_min: f32, t_max: f32, i: usize) -> Ray {
+        Ray {
+            origin,
+            t_min,
+            dir,
+            t_max,
+            throughput: Vec3::ONE,
+            kind: RayKind::Reflection as u32,
+            pixel: i as u32,
+            light: u32::MAX,
+            depth: 1,
+            source: i as u32,
+        }
     }
 
     /// The obvious scalar reference: every triangle, one at a time.

@@ -687,7 +687,7 @@ impl Traverser<Cpu> for Crsh {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::intersect::brute::tests::{random_rays, soup};
+    use crate::intersect::brute::tests::{random_rays, soup, test_ray};
     use crate::intersect::brute::BruteForce;
     use crate::triangle::tests::TestRng;
     use crsh_core::glam::Vec3;
@@ -727,21 +727,6 @@ mod tests {
         b.build("clustered test scene").unwrap()
     }
 
-    fn ray(origin: Vec3, dir: Vec3, t_min: f32, t_max: f32, i: usize) -> Ray {
-        Ray {
-            origin,
-            t_min,
-            dir,
-            t_max,
-            throughput: Vec3::ONE,
-            kind: RayKind::Reflection as u32,
-            pixel: i as u32,
-            light: u32::MAX,
-            depth: 1,
-            source: i as u32,
-        }
-    }
-
     /// The brute-force test rays (outside, on surfaces, grazing, segments) plus coherent
     /// bundles: origins in a small ball, directions in a narrow cone, towards the scene.
     fn test_rays(scene: &Scene, seed: u64, n: usize) -> Vec<Ray> {
@@ -759,7 +744,7 @@ mod tests {
                 } else {
                     f32::INFINITY
                 };
-                rays.push(ray(origin, dir, 0.0, t_max, rays.len()));
+                rays.push(test_ray(origin, dir, 0.0, t_max, rays.len()));
             }
         }
         rays
