@@ -160,7 +160,7 @@ fn check_hierarchy_pipelines_are_exact(scene: &Arc<Scene>) {
         for l in &f.stats.levels {
             assert_eq!(l.tests, l.hits + l.misses, "{name}: {l:?}");
         }
-        for key in ["hierarchy_creation", "traversal", "intersection"] {
+        for key in ["hierarchy_creation", "traversal", "final_tests", "trimming"] {
             assert!(
                 f.stats.timings_ms.contains_key(key),
                 "{name}: no {key} timing"

@@ -377,16 +377,7 @@ pub fn stage_line(cfg: &PipelineConfig) -> String {
 
 /// Stage timings in pipeline order, then any others, then `reference` and `total`.
 fn timing_line(t: &BTreeMap<String, f64>) -> String {
-    const ORDER: [&str; 8] = [
-        "primary",
-        "ray_creation",
-        "hashing",
-        "sorting",
-        "hierarchy_creation",
-        "traversal",
-        "intersection",
-        "shading",
-    ];
+    const ORDER: [&str; 12] = crsh_core::STAGE_TIMINGS;
     let mut keys: Vec<&str> = ORDER
         .iter()
         .copied()

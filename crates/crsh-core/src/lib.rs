@@ -33,6 +33,8 @@ pub use stage::{
     Candidate, CandidateBatch, Hasher, HierarchyBuilder, Intersector, PrimaryVisibility, Query,
     RayGen, RayHierarchy, Shader, Sorter, Traverser,
 };
-pub use stats::{AccuracyCounts, KindStats, LevelStats, RayCounts, Stats, TestCounts};
+pub use stats::{
+    AccuracyCounts, KindStats, LevelStats, RayCounts, Stats, TestCounts, STAGE_TIMINGS,
+};
 
 pub use glam;

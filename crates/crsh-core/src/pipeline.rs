@@ -233,12 +233,19 @@ impl<B: Backend> Driver<'_, B> {
         self.step += 1;
     }
 
-    /// Runs `f` and adds its wall time (after a backend sync) to stage `key`.
+    /// Runs `f` and adds its wall time (after a backend sync) to stage `key`, less whatever
+    /// sub-stage times `f` recorded itself (the compress sorter's `compression` /
+    /// `decompression`, ray generation's `trimming`): stage keys never overlap, so they add
+    /// up to the frame time.
     fn timed<T>(&mut self, key: &str, f: impl FnOnce(&mut Self) -> Result<T>) -> Result<T> {
+        let recorded = |s: &Stats| s.timings_ms.values().sum::<f64>();
+        let before = recorded(&self.stats);
         let t0 = Instant::now();
         let out = f(self)?;
         self.backend.sync()?;
-        self.stats.add_time(key, t0.elapsed());
+        let nested = (recorded(&self.stats) - before).max(0.0);
+        let own = (t0.elapsed().as_secs_f64() * 1e3 - nested).max(0.0);
+        *self.stats.timings_ms.entry(key.to_string()).or_insert(0.0) += own;
         Ok(out)
     }
 
@@ -291,7 +298,7 @@ impl<B: Backend> Driver<'_, B> {
                 backend.sync()?;
                 self.stats
                     .add_time("traversal", t_trav.elapsed().saturating_sub(final_tests));
-                self.stats.add_time("intersection", final_tests);
+                self.stats.add_time("final_tests", final_tests);
             } else {
                 self.timed("intersection", |d| {
                     d.stages.intersector.intersect(

@@ -7,6 +7,23 @@ use serde::{Deserialize, Serialize};
 
 use crate::ray::RayKind;
 
+/// The stage timing keys of [`Stats::timings_ms`] in pipeline order (seed 000 table 4.25's
+/// rows, plus primary visibility, whole-scene intersection and shading).
+pub const STAGE_TIMINGS: [&str; 12] = [
+    "primary",
+    "ray_creation",
+    "trimming",
+    "hashing",
+    "compression",
+    "sorting",
+    "decompression",
+    "hierarchy_creation",
+    "traversal",
+    "final_tests",
+    "intersection",
+    "shading",
+];
+
 /// Rays traced per kind.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct RayCounts {
@@ -133,7 +150,13 @@ pub struct Stats {
     pub per_kind: BTreeMap<String, KindStats>,
     /// Per hierarchy level counters (empty when no hierarchy is used).
     pub levels: Vec<LevelStats>,
-    /// Wall time per stage in milliseconds, plus `total`.
+    /// Wall time per stage in milliseconds, plus `total`. The stage keys do not overlap (a
+    /// stage's own sub-stages are subtracted from it), in pipeline order: `primary`,
+    /// `ray_creation`, `trimming`, `hashing`, `compression`, `sorting`, `decompression`,
+    /// `hierarchy_creation`, `traversal`, `final_tests` (candidate tests after a ray-space
+    /// hierarchy) or `intersection` (whole-scene queries: brute force, object BVH), `shading`;
+    /// the thesis's table 4.25 rows. `reference` is the untimed reference tracing, not part
+    /// of `total`.
     pub timings_ms: BTreeMap<String, f64>,
     /// Agreement with a reference, when one was given.
     pub accuracy: Option<AccuracyCounts>,

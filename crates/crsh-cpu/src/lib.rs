@@ -12,6 +12,8 @@
 //!   [`intersect::bvh`]: the obvhs CWBVH (closest and any hit).
 //! - [`raygen::whitted`]: shadow, reflection and refraction rays (eq. 3.1-3.7).
 //! - [`shade::phong`]: barycentric normals and Phong with attenuation (eq. 3.17-3.19).
+//! - [`hash`], [`sort`], [`hierarchy`], [`traverse`]: the ray-space hierarchy stages
+//!   (seed 000 §3.2.3-3.2.8); [`trim`]: head-flag scan compaction (fig. 3.10).
 
 #![warn(missing_docs)]
 
@@ -27,6 +29,7 @@ pub mod sort;
 pub mod surface;
 pub mod traverse;
 pub mod triangle;
+pub mod trim;
 
 pub use backend::Cpu;
 pub use catalogue::{

@@ -63,6 +63,7 @@
 //! The policy lives in one function, [`epsilon_segment`].
 
 use std::sync::Arc;
+use std::time::Instant;
 
 use crsh_core::glam::Vec3;
 use crsh_core::{CoreError, Ray, RayGen, RayKind, Result, StageSpec, Stats, Surface};
@@ -70,6 +71,7 @@ use crsh_scene::Scene;
 use rayon::prelude::*;
 
 use crate::backend::Cpu;
+use crate::trim::trim;
 
 /// Surfaces per parallel work item.
 const CHUNK: usize = 4096;
@@ -348,12 +350,34 @@ impl Whitted {
     }
 
     /// The rays of `kind` spawned by `surfaces`, compacted, in surface order, light-major for
-    /// shadow rays (see the module docs). Primary rays are not made here: asking for them is an
-    /// error.
+    /// shadow rays (see the module docs): [`Whitted::slots`], then [`crate::trim::trim`].
+    /// Primary rays are not made here: asking for them is an error.
     pub fn rays(&self, surfaces: &[Surface], kind: RayKind) -> Result<Vec<Ray>> {
-        if surfaces.len() > u32::MAX as usize {
+        let (slots, flags) = self.slots(surfaces, kind)?;
+        trim(&slots, &flags)
+    }
+
+    /// Ray creation before trimming (§3.2.3): one slot per surface (per light and surface,
+    /// light-major, for shadow rays) and its head flag, 1 where the slot holds a ray and 0
+    /// where the surface spawns none (background, culled light, absorbed bounce); empty
+    /// slots hold a zeroed ray.
+    pub fn slots(&self, surfaces: &[Surface], kind: RayKind) -> Result<(Vec<Ray>, Vec<u32>)> {
+        if kind == RayKind::Primary {
+            return Err(CoreError::Unsupported {
+                stage: "raygen",
+                variant: "whitted".into(),
+                what: "primary rays (primary visibility makes those)".into(),
+            });
+        }
+        let per_surface = if kind == RayKind::Shadow {
+            self.lights.len()
+        } else {
+            1
+        };
+        let total = surfaces.len().checked_mul(per_surface);
+        if surfaces.len() > u32::MAX as usize || total.is_none_or(|t| t > u32::MAX as usize) {
             return Err(CoreError::InvalidInput(format!(
-                "{} surfaces do not fit 32-bit ray sources",
+                "{} surfaces × {per_surface} rays do not fit 32-bit ray indices",
                 surfaces.len()
             )));
         }
@@ -368,41 +392,34 @@ impl Whitted {
                 self.materials.len()
             )));
         }
-        if kind == RayKind::Primary {
-            return Err(CoreError::Unsupported {
-                stage: "raygen",
-                variant: "whitted".into(),
-                what: "primary rays (primary visibility makes those)".into(),
+        let n = surfaces.len();
+        let mut slots = vec![<Ray as bytemuck::Zeroable>::zeroed(); n * per_surface];
+        let mut flags = vec![0u32; n * per_surface];
+        slots
+            .par_chunks_mut(CHUNK)
+            .zip(flags.par_chunks_mut(CHUNK))
+            .enumerate()
+            .for_each(|(c, (rays, heads))| {
+                for (j, (ray, head)) in rays.iter_mut().zip(heads.iter_mut()).enumerate() {
+                    let slot = c * CHUNK + j;
+                    let (source, light) = (slot % n, slot / n);
+                    let s = &surfaces[source];
+                    if !s.is_hit() {
+                        continue;
+                    }
+                    let m = &self.materials[s.material as usize];
+                    let made = if kind == RayKind::Shadow {
+                        self.shadow_ray(source as u32, s, m, light as u32)
+                    } else {
+                        self.bounce_ray(source as u32, s, m, kind)
+                    };
+                    if let Some(r) = made {
+                        *ray = r;
+                        *head = 1;
+                    }
+                }
             });
-        }
-        // Fixed-size chunks, each compacted on its own, then concatenated in chunk order: the
-        // output order is the surface order whatever the thread count.
-        let pass = |emit: &(dyn Fn(u32, &Surface, &MatRays) -> Option<Ray> + Sync)| {
-            let parts: Vec<Vec<Ray>> = surfaces
-                .par_chunks(CHUNK)
-                .enumerate()
-                .map(|(c, chunk)| {
-                    chunk
-                        .iter()
-                        .enumerate()
-                        .filter(|(_, s)| s.is_hit())
-                        .filter_map(|(j, s)| {
-                            let m = &self.materials[s.material as usize];
-                            emit((c * CHUNK + j) as u32, s, m)
-                        })
-                        .collect()
-                })
-                .collect();
-            parts.concat()
-        };
-        let rays = if kind == RayKind::Shadow {
-            (0..self.lights.len() as u32)
-                .flat_map(|l| pass(&|i, s, m| self.shadow_ray(i, s, m, l)))
-                .collect()
-        } else {
-            pass(&|i, s, m| self.bounce_ray(i, s, m, kind))
-        };
-        Ok(rays)
+        Ok((slots, flags))
     }
 }
 
@@ -416,9 +433,13 @@ impl RayGen<Cpu> for Whitted {
         _backend: &Cpu,
         surfaces: &Vec<Surface>,
         kind: RayKind,
-        _stats: &mut Stats,
+        stats: &mut Stats,
     ) -> Result<Vec<Ray>> {
-        self.rays(surfaces, kind)
+        let (slots, flags) = self.slots(surfaces, kind)?;
+        let t = Instant::now();
+        let rays = trim(&slots, &flags)?;
+        stats.add_time("trimming", t.elapsed());
+        Ok(rays)
     }
 }
 

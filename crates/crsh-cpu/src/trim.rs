@@ -1,0 +1,122 @@
+//! Array trimming (seed 000 §3.2.3, fig. 3.10): stream compaction by head flags and a scan.
+//!
+//! A parallel stage writes one slot per possible output (a shadow ray per surface and light,
+//! a reflection ray per surface, a (node, triangle) pair per test) and a head flag, 1 where
+//! the slot holds an item. The exclusive scan of the flags gives each item its position in
+//! the trimmed array and the total gives its length ("we can deduce the number of rays by
+//! checking the last position of the scan array"); items then scatter to their positions in
+//! parallel. Order is kept, so the result is the same whatever the thread count. This is the
+//! CPU twin of the scan-based compaction a GPU backend runs (the same scan as
+//! [`crate::sort::compress::exclusive_scan`]).
+
+use crsh_core::{CoreError, Result};
+use rayon::prelude::*;
+
+use crate::sort::compress::{exclusive_scan, BLOCK};
+
+/// The items of `slots` whose `flags` entry is 1, in slot order.
+///
+/// # Errors
+/// [`CoreError::InvalidInput`] when the arrays differ in length, a flag is neither 0 nor 1,
+/// or there are more than `u32::MAX` slots.
+pub fn trim<T: Copy + Send + Sync>(slots: &[T], flags: &[u32]) -> Result<Vec<T>> {
+    if slots.len() != flags.len() {
+        return Err(CoreError::InvalidInput(format!(
+            "trim: {} slots but {} head flags",
+            slots.len(),
+            flags.len()
+        )));
+    }
+    if slots.len() > u32::MAX as usize {
+        return Err(CoreError::InvalidInput(format!(
+            "trim: {} slots do not fit 32-bit positions",
+            slots.len()
+        )));
+    }
+    if let Some(i) = flags.par_iter().position_any(|&f| f > 1) {
+        return Err(CoreError::InvalidInput(format!(
+            "trim: head flag {i} is {} (must be 0 or 1)",
+            flags[i]
+        )));
+    }
+    let Some(&last_flag) = flags.last() else {
+        return Ok(Vec::new());
+    };
+    let positions = exclusive_scan(flags);
+    let len = (positions[positions.len() - 1] + last_flag) as usize;
+    // Each block of slots writes the contiguous output range its flags map to, so the
+    // scatter needs no shared writes: split the output at the blocks' first positions.
+    let starts: Vec<usize> = positions
+        .iter()
+        .step_by(BLOCK)
+        .map(|&p| p as usize)
+        .collect();
+    let Some(&first) = slots.first() else {
+        return Ok(Vec::new());
+    };
+    let mut out = vec![first; len];
+    let mut parts: Vec<&mut [T]> = Vec::with_capacity(starts.len());
+    let mut rest: &mut [T] = &mut out;
+    for (b, &start) in starts.iter().enumerate() {
+        let end = starts.get(b + 1).copied().unwrap_or(len);
+        let (head, tail) = rest.split_at_mut(end - start);
+        parts.push(head);
+        rest = tail;
+    }
+    parts
+        .into_par_iter()
+        .zip(slots.par_chunks(BLOCK))
+        .zip(flags.par_chunks(BLOCK))
+        .for_each(|((out, slots), flags)| {
+            let mut k = 0;
+            for (s, &f) in slots.iter().zip(flags) {
+                if f == 1 {
+                    out[k] = *s;
+                    k += 1;
+                }
+            }
+        });
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::with_threads;
+
+    fn oracle(slots: &[u64], flags: &[u32]) -> Vec<u64> {
+        slots
+            .iter()
+            .zip(flags)
+            .filter(|(_, &f)| f == 1)
+            .map(|(&s, _)| s)
+            .collect()
+    }
+
+    #[test]
+    fn keeps_flagged_items_in_order() {
+        for n in [0, 1, 2, BLOCK - 1, BLOCK, BLOCK + 1, 3 * BLOCK + 17] {
+            let slots: Vec<u64> = (0..n as u64).map(|i| i * 7 + 3).collect();
+            for pattern in [0u64, 1, 3, 5] {
+                let flags: Vec<u32> = (0..n as u64)
+                    .map(|i| match pattern {
+                        0 => 0,
+                        1 => 1,
+                        p => u32::from((i * 2654435761) % p < p / 2 + 1),
+                    })
+                    .collect();
+                let want = oracle(&slots, &flags);
+                let one = with_threads(1, || trim(&slots, &flags).unwrap()).unwrap();
+                let three = with_threads(3, || trim(&slots, &flags).unwrap()).unwrap();
+                assert_eq!(one, want, "n {n} pattern {pattern}");
+                assert_eq!(three, want, "n {n} pattern {pattern}");
+            }
+        }
+    }
+
+    #[test]
+    fn rejects_bad_flags() {
+        assert!(trim(&[1u64, 2], &[1]).is_err());
+        assert!(trim(&[1u64, 2], &[1, 2]).is_err());
+    }
+}
