@@ -71,6 +71,41 @@ pub fn octahedral(d: Vec3) -> Vec2 {
     }
 }
 
+/// How a hash lays out the fields of a group (the three origin cells, or `θ` and `φ`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FieldOrder {
+    /// One field after the other (`x | y | z`, `θ | φ`): a sort orders by the first field and
+    /// only breaks its ties with the next, so a run of consecutive keys can cover a thin
+    /// slice of the first field and the whole range of the last.
+    #[default]
+    Concatenated,
+    /// Bits interleaved MSB-first ([`interleave`]): a Morton (Z-order) curve over the
+    /// fields, so consecutive keys stay close in every field at once.
+    Interleaved,
+}
+
+impl FieldOrder {
+    /// Parses the `hash.layout` parameter value (`concat`, `interleave`).
+    pub fn parse(s: &str) -> Option<FieldOrder> {
+        match s {
+            "concat" => Some(FieldOrder::Concatenated),
+            "interleave" => Some(FieldOrder::Interleaved),
+            _ => None,
+        }
+    }
+
+    /// Combines `fields` (each `(value, width)`, first field most significant) in this order.
+    pub fn combine(self, fields: &[(u64, u32)]) -> u64 {
+        match self {
+            FieldOrder::Concatenated => fields.iter().fold(0u64, |acc, &(v, w)| {
+                let v = if w >= 64 { v } else { v & ((1u64 << w) - 1) };
+                acc.checked_shl(w).unwrap_or(0) | v
+            }),
+            FieldOrder::Interleaved => interleave(fields),
+        }
+    }
+}
+
 /// Interleaves bit fields MSB-first, round robin: the output's top bit is the top bit of
 /// `fields[0]`, then the top bit of `fields[1]`, …, then the second bit of `fields[0]`, and
 /// so on; a field whose bits run out drops out of the rotation. Each field is `(value,

@@ -10,12 +10,16 @@
 //!       x cell            | y cell  | z cell | θ cell   | φ cell
 //! ```
 //!
+//! The drawing shows [`FieldOrder::Concatenated`]; with [`FieldOrder::Interleaved`] the three
+//! origin cells interleave MSB-first (a Morton code), and so do `θ` and `φ` below them (see
+//! [`crate::hash::thesis`]).
+//!
 //! Each origin coordinate is cut into `2^O` equal cells of the scene's bounding box
 //! (coordinates outside it, e.g. after the epsilon offset, clamp to the border cells; a flat
 //! axis is a single cell). The direction is `θ = acos(d.z)` over `[0, π]` and `φ = atan2(d.y,
 //! d.x)` over `[−π, π]` ([`crate::hash::quantize::spherical_cells`]); `θ` takes the odd bit
-//! of the direction budget. Fields are concatenated (not interleaved), as the thesis lists
-//! them: the key groups rays by origin cell first, and by direction within a cell.
+//! of the direction budget. In either order the origin stays above the direction, as the
+//! thesis lists them: the key groups rays by origin cell first, and by direction within a cell.
 //!
 //! The thesis fits the whole key in 32 bits; the `thesis` variant's defaults are `O = 6` and a
 //! 14-bit direction (`3·6 + 7 + 7 = 32`). The figure's exact split is not given in the text,
@@ -31,7 +35,7 @@
 use crsh_core::{Aabb, CoreError, Result};
 use glam::Vec3;
 
-use crate::hash::quantize::{quantize, spherical_cells};
+use crate::hash::quantize::{quantize, spherical_cells, FieldOrder};
 
 /// Field widths and the quantization box of the bounce hash.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -44,6 +48,9 @@ pub struct BounceLayout {
     pub phi_bits: u32,
     /// The box the origins are quantized in (the scene bounds).
     pub bounds: Aabb,
+    /// How the fields of each group (`x, y, z`; `θ, φ`) are laid out: concatenated as drawn
+    /// above, or interleaved within the group (origin still above direction).
+    pub order: FieldOrder,
 }
 
 /// The most bits per origin axis (`3 · 21 = 63`).
@@ -68,7 +75,13 @@ impl BounceLayout {
             theta_bits: direction.div_ceil(2).min(32),
             phi_bits: (direction / 2).min(32),
             bounds,
+            order: FieldOrder::Concatenated,
         })
+    }
+
+    /// The same layout with each group's fields in `order`.
+    pub fn with_order(self, order: FieldOrder) -> BounceLayout {
+        BounceLayout { order, ..self }
     }
 
     /// Significant low bits of the keys.
@@ -92,10 +105,13 @@ impl BounceLayout {
         let (theta, phi) = spherical_cells(dir, self.theta_bits, self.phi_bits);
         let o = self.origin_bits;
         let d = self.theta_bits + self.phi_bits;
-        // Shifts by 64 only happen when the shifted field is 0 bits wide; `checked_shl`
-        // keeps them defined.
-        let sh = |v: u64, s: u32| v.checked_shl(s).unwrap_or(0);
-        sh(x, 2 * o + d) | sh(y, o + d) | sh(z, d) | sh(theta, self.phi_bits) | phi
+        let origin = self.order.combine(&[(x, o), (y, o), (z, o)]);
+        let dir = self
+            .order
+            .combine(&[(theta, self.theta_bits), (phi, self.phi_bits)]);
+        // A shift by 64 only happens when the origin field is 0 bits wide; `checked_shl`
+        // keeps it defined.
+        origin.checked_shl(d).unwrap_or(0) | dir
     }
 }
 

@@ -10,6 +10,9 @@
 //!       light index   | θ cell    | φ cell
 //! ```
 //!
+//! The drawing shows [`FieldOrder::Concatenated`]; with [`FieldOrder::Interleaved`] the
+//! `T + P` direction bits interleave `θ` and `φ` MSB-first instead (see [`crate::hash::thesis`]).
+//!
 //! The light index holds the highest bits, so a sort groups the shadow rays by light first
 //! ("sorted according to the light source a priori", §3.2.3); below it the direction in
 //! spherical coordinates, `θ = acos(d.z) ∈ [0, π]` over `T` bits and `φ = atan2(d.y, d.x) ∈
@@ -28,7 +31,7 @@
 use crsh_core::{CoreError, Ray, Result};
 use glam::Vec3;
 
-use crate::hash::quantize::spherical_cells;
+use crate::hash::quantize::{spherical_cells, FieldOrder};
 
 /// Field widths of the shadow hash.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -39,6 +42,9 @@ pub struct ShadowLayout {
     pub theta_bits: u32,
     /// Bits of the azimuth `φ` (lowest field).
     pub phi_bits: u32,
+    /// How `θ` and `φ` share the direction bits (concatenated as drawn above, or
+    /// interleaved).
+    pub order: FieldOrder,
 }
 
 /// Bits needed to store the indices `0 .. count` (0 for one or no item).
@@ -73,7 +79,13 @@ impl ShadowLayout {
             light_bits,
             theta_bits: direction.div_ceil(2).min(32),
             phi_bits: (direction / 2).min(32),
+            order: FieldOrder::Concatenated,
         })
+    }
+
+    /// The same layout with the direction fields in `order`.
+    pub fn with_order(self, order: FieldOrder) -> ShadowLayout {
+        ShadowLayout { order, ..self }
     }
 
     /// Significant low bits of the keys.
@@ -87,7 +99,10 @@ impl ShadowLayout {
         let max_light = (1u64 << self.light_bits) - 1;
         let light = (light as u64).min(max_light);
         let (theta, phi) = spherical_cells(dir, self.theta_bits, self.phi_bits);
-        (light << (self.theta_bits + self.phi_bits)) | (theta << self.phi_bits) | phi
+        let dir = self
+            .order
+            .combine(&[(theta, self.theta_bits), (phi, self.phi_bits)]);
+        (light << (self.theta_bits + self.phi_bits)) | dir
     }
 }
 
