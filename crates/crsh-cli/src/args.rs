@@ -78,7 +78,7 @@ pub struct RenderArgs {
     pub width: u32,
 
     /// Image height in pixels [default: width / the camera's framing aspect when the scene's
-    /// manifest gives one, else 512].
+    /// manifest gives one, else the width (square)].
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=MAX_IMAGE_SIDE as i64))]
     pub height: Option<u32>,
 

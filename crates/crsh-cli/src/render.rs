@@ -19,9 +19,6 @@ use crate::error::{CliError, CliResult};
 use crate::output;
 use crate::report::{AccuracyReport, RunInfo, SceneInfo, SetupTimes, StatsReport};
 
-/// Image height when neither `--height` nor the camera's framing aspect gives one.
-const DEFAULT_HEIGHT: u32 = 512;
-
 /// Runs `crsh render`.
 pub fn run(args: &RenderArgs) -> CliResult<()> {
     if args.backend == BackendChoice::Wgpu {
@@ -58,7 +55,7 @@ pub fn run(args: &RenderArgs) -> CliResult<()> {
     let height = args
         .height
         .or_else(|| scene.camera.height_for(args.width))
-        .unwrap_or(DEFAULT_HEIGHT);
+        .unwrap_or(args.width);
     if height > MAX_IMAGE_SIDE {
         return Err(CliError::usage(format!(
             "--width {} with the camera's aspect gives a height of {height}, above {MAX_IMAGE_SIDE}; pass --height",
