@@ -248,6 +248,7 @@ fn accuracy_report(
         agreeing: counts.agreeing,
         hit_miss_mismatches: counts.hit_miss_mismatches,
         nearest_mismatches: counts.nearest_mismatches,
+        mean_abs_t_error: counts.mean_abs_t_error(),
         reference_render_ms: ref_ms,
     }
 }
@@ -310,6 +311,7 @@ mod tests {
             agreeing: 9,
             hit_miss_mismatches: 1,
             nearest_mismatches: 0,
+            ..Default::default()
         };
         let a = vec![10u8, 20, 30, 255, 40, 50, 60, 255];
         let same = accuracy_report("brute", &counts, &a, &a, 1.0);

@@ -121,6 +121,8 @@ pub struct AccuracyReport {
     pub hit_miss_mismatches: u64,
     /// Closest-hit rays that hit different triangles at different `t`.
     pub nearest_mismatches: u64,
+    /// Mean `|t − t_reference|` over agreeing closest-hit rays that hit.
+    pub mean_abs_t_error: f64,
     /// Wall time of the full reference render, ms (not part of `timings_ms`).
     pub reference_render_ms: f64,
 }
@@ -165,6 +167,8 @@ pub struct StatsReport {
     pub per_kind: BTreeMap<String, KindStats>,
     /// Per ray-space-hierarchy level counters (empty without a hierarchy stage).
     pub levels: Vec<LevelStats>,
+    /// The most bytes the candidate arrays held at once (0 without a hierarchy).
+    pub peak_candidate_bytes: u64,
     /// Wall time per stage, ms, plus `total` (the frame, excluding `reference`).
     pub timings_ms: BTreeMap<String, f64>,
     /// Wall time before the frame: scene load and stage construction, ms.
@@ -255,6 +259,7 @@ impl StatsReport {
             tests: TestsReport::new(&stats.tests, traced),
             per_kind: stats.per_kind.clone(),
             levels: stats.levels.clone(),
+            peak_candidate_bytes: stats.peak_candidate_bytes,
             timings_ms: stats.timings_ms.clone(),
             setup: run.setup,
             mrays_per_s: mrays_per_s(stats),
@@ -533,6 +538,7 @@ mod tests {
             agreeing: 14,
             hit_miss_mismatches: 0,
             nearest_mismatches: 0,
+            mean_abs_t_error: 0.0,
             reference_render_ms: 3.0,
         };
         let v: serde_json::Value = serde_json::from_str(&report(Some(acc)).to_json()).unwrap();

@@ -363,6 +363,10 @@ pub fn compare_hits(got: &[Hit], want: &[Hit], mode: HitMode, acc: &mut Accuracy
             acc.nearest_mismatches += 1;
         } else {
             acc.agreeing += 1;
+            if mode == HitMode::Closest && a.is_hit() {
+                acc.t_compared += 1;
+                acc.t_abs_error_sum += (a.t as f64 - b.t as f64).abs();
+            }
         }
     }
 }
@@ -393,6 +397,8 @@ mod tests {
         assert_eq!(acc.agreeing, 2);
         assert_eq!(acc.hit_miss_mismatches, 1);
         assert_eq!(acc.nearest_mismatches, 1);
+        assert_eq!(acc.t_compared, 2);
+        assert!((acc.mean_abs_t_error() - 0.5e-7).abs() < 1e-8);
         let mut any = AccuracyCounts::default();
         compare_hits(&[hit(2.0, 3)], &[hit(3.0, 4)], HitMode::Any, &mut any);
         assert_eq!(any.hit_agreement(), 1.0);

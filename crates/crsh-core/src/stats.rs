@@ -122,6 +122,13 @@ pub struct AccuracyCounts {
     pub hit_miss_mismatches: u64,
     /// Closest-hit rays that hit different triangles at different `t`.
     pub nearest_mismatches: u64,
+    /// Agreeing closest-hit rays where both hit: the rays [`AccuracyCounts::t_abs_error_sum`]
+    /// sums over.
+    #[serde(default)]
+    pub t_compared: u64,
+    /// Σ `|t − t_reference|` over the `t_compared` rays (the distance error of agreeing hits).
+    #[serde(default)]
+    pub t_abs_error_sum: f64,
 }
 
 impl AccuracyCounts {
@@ -131,6 +138,16 @@ impl AccuracyCounts {
             1.0
         } else {
             self.agreeing as f64 / self.rays as f64
+        }
+    }
+
+    /// Mean `|t − t_reference|` over agreeing closest-hit rays that hit (0 when there are
+    /// none).
+    pub fn mean_abs_t_error(&self) -> f64 {
+        if self.t_compared == 0 {
+            0.0
+        } else {
+            self.t_abs_error_sum / self.t_compared as f64
         }
     }
 }
@@ -160,6 +177,10 @@ pub struct Stats {
     pub timings_ms: BTreeMap<String, f64>,
     /// Agreement with a reference, when one was given.
     pub accuracy: Option<AccuracyCounts>,
+    /// The most bytes the traversal's candidate arrays held at once (0 without a
+    /// ray-space hierarchy): the memory the traversal budget bounds.
+    #[serde(default)]
+    pub peak_candidate_bytes: u64,
 }
 
 impl Stats {

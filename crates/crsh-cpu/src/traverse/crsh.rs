@@ -679,8 +679,9 @@ impl Traverser<Cpu> for Crsh {
         sink: &mut dyn FnMut(CandidateBatch<Cpu>, &mut Stats) -> Result<()>,
         stats: &mut Stats,
     ) -> Result<()> {
-        self.traverse_with_report(rays, kind, hierarchy, sink, stats)
-            .map(|_| ())
+        let report = self.traverse_with_report(rays, kind, hierarchy, sink, stats)?;
+        stats.peak_candidate_bytes = stats.peak_candidate_bytes.max(report.peak_candidate_bytes);
+        Ok(())
     }
 }
 
