@@ -32,6 +32,9 @@ pub enum Command {
     Pipelines(PipelinesArgs),
     /// List the GPU adapters wgpu can see.
     Adapters(AdaptersArgs),
+    /// Print seed 000's evaluation tables (per-level tests, totals against brute force, stage
+    /// times) for scenes × pipelines × hierarchy configurations.
+    Tables(TablesArgs),
 }
 
 /// Where a pipeline runs.
@@ -107,6 +110,78 @@ pub struct RenderArgs {
     /// Worker threads (default: rayon's choice, i.e. `RAYON_NUM_THREADS` or one per core).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=MAX_THREADS as u64))]
     pub threads: Option<u64>,
+}
+
+/// `crsh tables`.
+#[derive(Debug, Args)]
+pub struct TablesArgs {
+    /// Scenes (built-in names, manifests or OBJ files), comma-separated or repeated.
+    #[arg(
+        long = "scene",
+        value_delimiter = ',',
+        required = true,
+        value_name = "SCENE"
+    )]
+    pub scenes: Vec<String>,
+
+    /// Pipelines (presets or pipeline TOML files), comma-separated. Pipelines with a
+    /// ray-space hierarchy run once per configuration, the others (`bvh`, `brute`) once per
+    /// scene as baselines.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "crsh,rah",
+        value_name = "PIPELINE"
+    )]
+    pub pipelines: Vec<String>,
+
+    /// Hierarchy subdivisions to run (`hierarchy.subdivision`), comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "8", value_name = "N")]
+    pub subdivision: Vec<u32>,
+
+    /// Hierarchy depths to run (`hierarchy.depth`), comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "2", value_name = "D")]
+    pub depth: Vec<u32>,
+
+    /// Image width in pixels (the thesis used 512).
+    #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=MAX_IMAGE_SIDE as i64))]
+    pub width: u32,
+
+    /// Image height [default: width / the camera's framing aspect, else the width].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=MAX_IMAGE_SIDE as i64))]
+    pub height: Option<u32>,
+
+    /// Reflection / refraction bounces after the primary hit (`crsh render --depth`).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(0..=MAX_DEPTH as i64))]
+    pub bounces: u32,
+
+    /// Override a setting of every pipeline (`STAGE.PARAM=VALUE`, repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+
+    /// Also trace every batch with this intersector and report the hit agreement.
+    #[arg(long, value_name = "INTERSECTOR")]
+    pub reference: Option<String>,
+
+    /// Frames per cell; stage times are the median (the thesis averaged 58 frames).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub repeat: u32,
+
+    /// Also write the Markdown to this file.
+    #[arg(long, value_name = "FILE.md")]
+    pub out: Option<PathBuf>,
+
+    /// Write `levels.csv`, `totals.csv` and `times.csv` into this existing directory.
+    #[arg(long, value_name = "DIR")]
+    pub csv: Option<PathBuf>,
+
+    /// Worker threads (default: one per core).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=MAX_THREADS as u64))]
+    pub threads: Option<u64>,
+
+    /// Do not print a line per finished run on stderr.
+    #[arg(long)]
+    pub quiet: bool,
 }
 
 /// `crsh scenes`.

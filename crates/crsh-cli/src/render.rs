@@ -198,7 +198,7 @@ pub fn reference_config(
 }
 
 /// Builds the global rayon pool (`--threads`) and returns its size.
-fn configure_threads(threads: Option<u64>) -> CliResult<usize> {
+pub(crate) fn configure_threads(threads: Option<u64>) -> CliResult<usize> {
     if let Some(n) = threads {
         rayon::ThreadPoolBuilder::new()
             .num_threads(n as usize)
@@ -210,7 +210,7 @@ fn configure_threads(threads: Option<u64>) -> CliResult<usize> {
 
 /// A stage-construction error: a parameter value a stage rejects (NaN, out of range, a variant
 /// the backend lacks) is a usage error; anything else (allocation, backend) a runtime one.
-fn stage_error(e: CoreError, context: &str) -> CliError {
+pub(crate) fn stage_error(e: CoreError, context: &str) -> CliError {
     let msg = format!("{context}: {e}");
     match e {
         CoreError::InvalidParam { .. }

@@ -167,6 +167,8 @@ pub struct StatsReport {
     pub per_kind: BTreeMap<String, KindStats>,
     /// Per ray-space-hierarchy level counters (empty without a hierarchy stage).
     pub levels: Vec<LevelStats>,
+    /// Whole-mesh culling counters per ray kind (empty without mesh culling).
+    pub mesh_culling: BTreeMap<String, crsh_core::CullStats>,
     /// The most bytes the candidate arrays held at once (0 without a hierarchy).
     pub peak_candidate_bytes: u64,
     /// Wall time per stage, ms, plus `total` (the frame, excluding `reference`).
@@ -259,6 +261,7 @@ impl StatsReport {
             tests: TestsReport::new(&stats.tests, traced),
             per_kind: stats.per_kind.clone(),
             levels: stats.levels.clone(),
+            mesh_culling: stats.mesh_culling.clone(),
             peak_candidate_bytes: stats.peak_candidate_bytes,
             timings_ms: stats.timings_ms.clone(),
             setup: run.setup,

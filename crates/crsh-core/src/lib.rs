@@ -34,7 +34,7 @@ pub use stage::{
     RayGen, RayHierarchy, Shader, Sorter, Traverser,
 };
 pub use stats::{
-    AccuracyCounts, KindStats, LevelStats, RayCounts, Stats, TestCounts, STAGE_TIMINGS,
+    AccuracyCounts, CullStats, KindStats, LevelStats, RayCounts, Stats, TestCounts, STAGE_TIMINGS,
 };
 
 pub use glam;

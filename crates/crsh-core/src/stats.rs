@@ -97,6 +97,18 @@ pub struct LevelStats {
     pub misses: u64,
 }
 
+/// Whole-mesh culling counters of one ray kind: the hierarchy's top nodes against the per-mesh
+/// bounding spheres (seed 000 §3.2.8), before the top level's triangle tests.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CullStats {
+    /// Node-mesh tests.
+    pub tests: u64,
+    /// (node, mesh) pairs kept.
+    pub hits: u64,
+    /// Pairs culled.
+    pub misses: u64,
+}
+
 /// Per-kind work: rays, tests and time in the tracing stages.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct KindStats {
@@ -167,6 +179,10 @@ pub struct Stats {
     pub per_kind: BTreeMap<String, KindStats>,
     /// Per hierarchy level counters (empty when no hierarchy is used).
     pub levels: Vec<LevelStats>,
+    /// Whole-mesh culling counters per ray kind (empty unless the traverser culls meshes).
+    /// With [`Stats::levels`] they account for every bounding test of a hierarchy traversal.
+    #[serde(default)]
+    pub mesh_culling: BTreeMap<String, CullStats>,
     /// Wall time per stage in milliseconds, plus `total`. The stage keys do not overlap (a
     /// stage's own sub-stages are subtracted from it), in pipeline order: `primary`,
     /// `ray_creation`, `trimming`, `hashing`, `compression`, `sorting`, `decompression`,
@@ -222,6 +238,17 @@ impl Stats {
                 misses,
             });
         }
+    }
+
+    /// Adds whole-mesh culling counters: `tests` node-mesh tests of which `kept` passed.
+    pub fn add_mesh_culling(&mut self, kind: RayKind, tests: u64, kept: u64) {
+        let c = self
+            .mesh_culling
+            .entry(kind.name().to_string())
+            .or_default();
+        c.tests += tests;
+        c.hits += kept.min(tests);
+        c.misses += tests - kept.min(tests);
     }
 
     /// Wall time of stage `key` in ms (0 if it never ran).

@@ -58,8 +58,8 @@
 //! Every node-sphere and node-mesh test counts in [`Stats::add_bounds`]. Per-level counters
 //! use the thesis numbering ([`crsh_core::LevelStats`]): `levels[i]` is level `i + 1`, so the
 //! top is level `levels.len()` and the lowest node level is 1; the **mesh-culling tests are
-//! their own entry at level `levels.len() + 1`** (tests = top nodes × meshes, hits = the
-//! (node, mesh) pairs kept); the final ray-triangle tests are level 0, recorded by the
+//! counted apart, in [`Stats::mesh_culling`]** (tests = top nodes × meshes, hits = the
+//! (node, mesh) pairs kept), so level numbers mean the same whatever the batch; the final ray-triangle tests are level 0, recorded by the
 //! intersector. At every level `tests = hits + misses`, and the tests at level `L < top` are
 //! the survivors at `L + 1` times their existing children.
 //!
@@ -418,7 +418,6 @@ impl Crsh {
             return Ok(report);
         }
         let sub = hierarchy.subdivision as usize;
-        let top_level = nodes.len() as u32; // thesis number of the top level
         let top = nodes.last().expect("checked non-empty");
         let meshes = &self.scene.meshes;
 
@@ -431,7 +430,7 @@ impl Crsh {
             let tests = keep.len() as u64;
             let kept = keep.iter().filter(|&&k| k).count() as u64;
             stats.add_bounds(tests);
-            stats.add_level(kind, top_level + 1, tests, kept);
+            stats.add_mesh_culling(kind, tests, kept);
             keep
         } else {
             Vec::new()
