@@ -122,12 +122,20 @@ fn brute_and_bvh_agree_on_the_shared_cornell_boxes() {
 /// same hits as a brute-force reference on every traced ray and the same image, with fewer
 /// ray-triangle tests, and per-level counters that add up.
 fn check_hierarchy_pipelines_are_exact(scene: &Arc<Scene>) {
-    let o = opts(SIZE, SIZE, 3);
-    let brute = frame(scene, &config("brute", &[]), &o, None);
+    check_hierarchy_pipelines_against(scene, "brute", SIZE);
+}
+
+/// [`check_hierarchy_pipelines_are_exact`] with `reference` (`brute`, or `bvh`, which is
+/// itself checked against brute force above) tracing the same rays and rendering the
+/// reference image, at `size`².
+fn check_hierarchy_pipelines_against(scene: &Arc<Scene>, reference: &str, size: u32) {
+    let o = opts(size, size, 3);
+    let brute = frame(scene, &config(reference, &[]), &o, None);
     for (name, sets) in [
         ("crsh", &[][..]),
         ("rah", &[][..]),
         ("crsh", &["hash.kind=morton", "sort.kind=radix"][..]),
+        ("crsh", &["hash.layout=concat"][..]),
         (
             "crsh",
             &[
@@ -137,7 +145,7 @@ fn check_hierarchy_pipelines_are_exact(scene: &Arc<Scene>) {
             ][..],
         ),
     ] {
-        let f = frame(scene, &config(name, sets), &o, Some("brute"));
+        let f = frame(scene, &config(name, sets), &o, Some(reference));
         let acc = f.stats.accuracy.clone().unwrap();
         assert_eq!(
             acc.hit_agreement(),
@@ -148,14 +156,21 @@ fn check_hierarchy_pipelines_are_exact(scene: &Arc<Scene>) {
         assert_eq!(f.stats.rays, brute.stats.rays, "{} {name}", scene.name);
         assert!(
             bits(&f.image) == bits(&brute.image),
-            "{} {name} {sets:?}: image differs from brute force",
+            "{} {name} {sets:?}: image differs from the {reference} pipeline's",
             scene.name
         );
         assert!(
-            f.stats.tests.ray_triangle < brute.stats.tests.ray_triangle,
+            f.stats.tests.total < f.stats.tests.brute_force,
             "{} {name}: the hierarchy should prune",
             scene.name
         );
+        if reference == "brute" {
+            assert!(
+                f.stats.tests.ray_triangle < brute.stats.tests.ray_triangle,
+                "{} {name}: fewer ray-triangle tests than brute force",
+                scene.name
+            );
+        }
         assert!(!f.stats.levels.is_empty(), "{name}: no level counters");
         for l in &f.stats.levels {
             assert_eq!(l.tests, l.hits + l.misses, "{name}: {l:?}");
@@ -180,6 +195,30 @@ fn crsh_and_rah_are_exact_on_every_builtin_scene() {
 fn crsh_and_rah_are_exact_on_the_shared_cornell_boxes() {
     for path in crsh_tests::shared_scenes_in("cornell", "toml") {
         check_hierarchy_pipelines_are_exact(&load(&path));
+    }
+}
+
+/// Every other shared manifest (Sponza, the dining room, the bunny, the dragon: 48K-270K
+/// triangles), against the BVH pipeline at a small size so that it stays quick.
+#[test]
+fn crsh_and_rah_are_exact_on_the_large_shared_scenes() {
+    let Some(dir) = crsh_tests::scenes_dir() else {
+        return;
+    };
+    let mut subs: Vec<String> = std::fs::read_dir(&dir)
+        .map(|d| {
+            d.filter_map(|e| e.ok())
+                .filter(|e| e.path().is_dir())
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n != "cornell")
+                .collect()
+        })
+        .unwrap_or_default();
+    subs.sort();
+    for sub in subs {
+        for path in crsh_tests::shared_scenes_in(&sub, "toml") {
+            check_hierarchy_pipelines_against(&load(&path), "bvh", 32);
+        }
     }
 }
 
