@@ -15,8 +15,8 @@
 //! their bits is our choice, and it decides how good the hierarchy is:
 //! - `concat` writes `θ | φ` (and `x | y | z`). Sorting then orders by `θ` first: with more
 //!   `θ` cells than rays per node, `subdivision` consecutive rays share a thin band of `θ` but
-//!   cover the whole circle of `φ`, so the lowest nodes' cones are wide. Measured (512²,
-//!   subdivision 8, depth 2, `crsh tables`): more total tests than RAH on the built-in scenes
+//!   cover the whole circle of `φ`, so the lowest nodes' cones are wide. Measured (256², 3 bounces,
+//!   subdivision 8, depth 2, `crsh render`): more total tests than RAH on the built-in scenes
 //!   (cornell-mirrors 2.2×, office-boxes 5.7× RAH's).
 //! - `interleave` (the default) interleaves the bits of each group MSB-first, a Z-order curve,
 //!   so consecutive keys are close in both angles (and in all three origin axes): 0.51× RAH on
