@@ -323,6 +323,15 @@ fn mrays(s: &Stats) -> f64 {
     }
 }
 
+/// `x` with three significant digits (Mrays/s spans 0.001 to 100 between methods).
+fn sig3(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() {
+        return format!("{x}");
+    }
+    let decimals = (2 - x.abs().log10().floor() as i32).max(0) as usize;
+    format!("{x:.decimals$}")
+}
+
 fn rays_caption(s: &Stats) -> String {
     let parts: Vec<String> = KINDS
         .iter()
@@ -570,14 +579,14 @@ fn markdown(
         for r in &s.runs {
             let _ = write!(
                 md,
-                "| {} | {} | {} | {} | {:.1} | {:.2} | {:.1} |",
+                "| {} | {} | {} | {} | {:.1} | {} | {:.1} |",
                 s.name,
                 r.pipeline,
                 r.config
                     .map_or("–".into(), |c| format!("{}×{}", c.subdivision, c.depth)),
                 group(r.stats.traced_rays),
                 trace_ms(&r.stats),
-                mrays(&r.stats),
+                sig3(mrays(&r.stats)),
                 r.stats.time_ms("total"),
             );
             if with_acc {
@@ -756,5 +765,8 @@ mod tests {
         assert_eq!(median(vec![3.0, 1.0, 2.0]), 2.0);
         assert_eq!(median(vec![4.0, 1.0, 2.0, 3.0]), 2.5);
         assert_eq!(median(vec![]), 0.0);
+        assert_eq!(sig3(0.004217), "0.00422");
+        assert_eq!(sig3(7.153), "7.15");
+        assert_eq!(sig3(123.4), "123");
     }
 }

@@ -112,6 +112,44 @@ impl FieldOrder {
 /// width)`; bits of `value` above `width` are ignored. The result has `Σ width` significant
 /// low bits (at most 64; wider totals lose their top bits).
 pub fn interleave(fields: &[(u64, u32)]) -> u64 {
+    // Fast paths (bit spreading) for the shapes the hashers use; same result as the loop.
+    let mask = |v: u64, w: u32| if w >= 64 { v } else { v & ((1u64 << w) - 1) };
+    match *fields {
+        [(a, wa), (b, wb)] if wb <= 32 && (wa == wb || wa == wb + 1) => {
+            // Equal widths: `a` takes the odd positions; one bit more: the even ones.
+            let (sa, sb) = if wa == wb { (1, 0) } else { (0, 1) };
+            return (spread2(mask(a, wa)) << sa) | (spread2(mask(b, wb)) << sb);
+        }
+        [(x, w), (y, wy), (z, wz)] if w == wy && w == wz && w <= 21 => {
+            return (spread3(mask(x, w)) << 2) | (spread3(mask(y, w)) << 1) | spread3(mask(z, w));
+        }
+        _ => {}
+    }
+    interleave_bits(fields)
+}
+
+/// Bit `i` of `v` (below 2³²) moves to bit `2i`.
+fn spread2(v: u64) -> u64 {
+    let mut x = v & 0xFFFF_FFFF;
+    x = (x | (x << 16)) & 0x0000_FFFF_0000_FFFF;
+    x = (x | (x << 8)) & 0x00FF_00FF_00FF_00FF;
+    x = (x | (x << 4)) & 0x0F0F_0F0F_0F0F_0F0F;
+    x = (x | (x << 2)) & 0x3333_3333_3333_3333;
+    (x | (x << 1)) & 0x5555_5555_5555_5555
+}
+
+/// Bit `i` of `v` (below 2²¹) moves to bit `3i`.
+fn spread3(v: u64) -> u64 {
+    let mut x = v & 0x1F_FFFF;
+    x = (x | (x << 32)) & 0x001F_0000_0000_FFFF;
+    x = (x | (x << 16)) & 0x001F_0000_FF00_00FF;
+    x = (x | (x << 8)) & 0x100F_00F0_0F00_F00F;
+    x = (x | (x << 4)) & 0x10C3_0C30_C30C_30C3;
+    (x | (x << 2)) & 0x1249_2492_4924_9249
+}
+
+/// The general interleaving, one bit at a time.
+fn interleave_bits(fields: &[(u64, u32)]) -> u64 {
     let max_width = fields.iter().map(|f| f.1).max().unwrap_or(0);
     let mut out = 0u64;
     for level in 0..max_width {
@@ -188,6 +226,27 @@ mod tests {
         // Bits above the width are ignored.
         assert_eq!(interleave(&[(0xFF, 1)]), 1);
         assert_eq!(interleave(&[]), 0);
+        // The fast paths give what the bit loop gives.
+        let mut seed = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        for _ in 0..2000 {
+            let (a, b, c) = (next(), next(), next());
+            for w in [0u32, 1, 2, 7, 15, 16, 21, 31, 32] {
+                let two = [(a, w + 1), (b, w)];
+                assert_eq!(interleave(&two), interleave_bits(&two), "{two:?}");
+                let eq = [(a, w), (b, w)];
+                assert_eq!(interleave(&eq), interleave_bits(&eq), "{eq:?}");
+                if w <= 21 {
+                    let three = [(a, w), (b, w), (c, w)];
+                    assert_eq!(interleave(&three), interleave_bits(&three), "{three:?}");
+                }
+            }
+        }
         assert_eq!(
             interleave(&[(u32::MAX as u64, 32), (u32::MAX as u64, 32)]),
             u64::MAX
