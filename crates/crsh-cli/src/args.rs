@@ -32,6 +32,9 @@ pub enum Command {
     Pipelines(PipelinesArgs),
     /// List the GPU adapters wgpu can see.
     Adapters(AdaptersArgs),
+    /// Run a matrix of scenes × pipelines × parameters × backends; write CSV, JSON, charts
+    /// and an HTML report (or compare two runs with --compare).
+    Ablate(crate::ablate::AblateArgs),
 }
 
 /// Where a pipeline runs.

@@ -3,13 +3,15 @@
 //! The `crsh` command line: `crsh render` renders a scene with a CPU pipeline (shadow,
 //! reflection and refraction rays, seed 000 chapter 3), writes an 8-bit PNG and optionally a
 //! stats JSON file, and prints a summary; `crsh scenes`, `crsh pipelines` and `crsh adapters`
-//! list what can be rendered, with what, and on which GPUs.
+//! list what can be rendered, with what, and on which GPUs; `crsh ablate` runs a matrix of
+//! pipelines and parameters and writes data, charts and a report.
 //!
 //! Errors print one line (`error: ...`) on stderr; the exit code is 2 when the command line
 //! cannot be honoured and 1 when the work fails.
 
 #![warn(missing_docs)]
 
+mod ablate;
 mod args;
 mod error;
 mod listing;
@@ -28,6 +30,7 @@ fn run(cli: Cli) -> CliResult<()> {
         Command::Scenes(a) => listing::scenes(&a),
         Command::Pipelines(a) => listing::pipelines(&a),
         Command::Adapters(a) => listing::adapters(&a),
+        Command::Ablate(a) => ablate::run(&a),
     }
 }
 
