@@ -509,10 +509,12 @@ pub fn expand(
     }
     let mut entries = Vec::new();
     for p in &plan.pipelines {
+        // A pipeline file is relative to the plan's directory; preset names stay as they are.
         let pipeline = match plan_dir {
             Some(d)
                 if crsh_cpu::preset(&p.pipeline).is_none()
-                    && !Path::new(&p.pipeline).is_absolute() =>
+                    && !Path::new(&p.pipeline).is_absolute()
+                    && (p.pipeline.ends_with(".toml") || d.join(&p.pipeline).is_file()) =>
             {
                 d.join(&p.pipeline).display().to_string()
             }
