@@ -3,7 +3,7 @@
 
 use std::fmt::Write as _;
 
-use super::charts::{slug, ChartFile};
+use super::charts::{pareto_front, slug, ChartFile};
 use super::results::{CellResult, Results};
 
 /// Escapes text for HTML.
@@ -51,6 +51,12 @@ pub fn report(results: &Results, charts: &[(String, Vec<ChartFile>)], plan_text:
         results.plan.repeat,
         results.plan.warmup,
         escape(&results.plan.reference),
+    );
+
+    let _ = writeln!(
+        h,
+        "<h2 id=\"headline\">Headline</h2>\n<pre id=\"headline-text\">{}</pre>",
+        escape(&super::headline::headline(results))
     );
 
     // Machine facts.
@@ -140,19 +146,41 @@ fn strip_xml_header(svg: &str) -> &str {
 }
 
 fn cell_table(h: &mut String, sid: &str, cells: &[&CellResult]) {
+    // The cells on the throughput / agreement Pareto front.
+    let measured: Vec<(usize, (f64, f64))> = cells
+        .iter()
+        .enumerate()
+        .filter_map(|(i, c)| {
+            let m = c.measures.as_ref()?;
+            Some((
+                i,
+                (
+                    *m.mrays_per_s.get("overall")?,
+                    m.accuracy.as_ref()?.hit_agreement,
+                ),
+            ))
+        })
+        .collect();
+    let pts: Vec<(f64, f64)> = measured.iter().map(|p| p.1).collect();
+    let front: Vec<usize> = pareto_front(&pts)
+        .into_iter()
+        .map(|k| measured[k].0)
+        .collect();
     let _ = writeln!(h, "<table class=\"cells\" id=\"table-{sid}\">");
     let _ = writeln!(
         h,
-        "<tr><th class=\"l\">cell</th><th class=\"l\">backend</th><th>status</th><th>total ms (median)</th><th>min</th><th>max</th><th>Mrays/s</th><th>rays traced</th><th>tests / ray</th><th>% of brute force</th><th>hit agreement</th><th>PSNR dB</th><th>mean |t| error</th><th>peak candidates MiB</th><th>counters equal</th></tr>"
+        "<tr><th class=\"l\">cell</th><th class=\"l\">backend</th><th>status</th><th>total ms (median)</th><th>min</th><th>max</th><th>Mrays/s</th><th>rays traced</th><th>tests / ray</th><th>% of brute force</th><th>hit agreement</th><th>PSNR dB</th><th>mean |t| error</th><th>peak candidates MiB</th><th>counters equal</th><th>Pareto front</th></tr>"
     );
-    for c in cells {
+    for (i, c) in cells.iter().enumerate() {
+        let on_front = front.contains(&i);
         match &c.measures {
             Some(m) if c.ok() => {
                 let t = m.timings_ms.get("total").copied().unwrap_or_default();
                 let acc = m.accuracy.as_ref();
                 let _ = writeln!(
                     h,
-                    "<tr><td class=\"l\">{}</td><td class=\"l\">{}</td><td>ok</td><td>{:.1}</td><td>{:.1}</td><td>{:.1}</td><td>{:.3}</td><td>{}</td><td>{:.1}</td><td>{:.4}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{}</td></tr>",
+                    "<tr{}><td class=\"l\">{}</td><td class=\"l\">{}</td><td>ok</td><td>{:.1}</td><td>{:.1}</td><td>{:.1}</td><td>{:.3}</td><td>{}</td><td>{:.1}</td><td>{:.4}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{}</td><td>{}</td></tr>",
+                    if on_front { " class=\"front\"" } else { "" },
                     escape(&c.label),
                     escape(&c.backend),
                     t.median,
@@ -170,12 +198,13 @@ fn cell_table(h: &mut String, sid: &str, cells: &[&CellResult]) {
                     acc.map_or("—".into(), |a| format!("{:.3e}", a.mean_abs_t_error)),
                     m.peak_candidate_bytes as f64 / (1024.0 * 1024.0),
                     if m.counters_equal_across_repeats { "yes" } else { "NO" },
+                    if on_front { "yes" } else { "" },
                 );
             }
             _ => {
                 let _ = writeln!(
                     h,
-                    "<tr class=\"failed\"><td class=\"l\">{}</td><td class=\"l\">{}</td><td>failed</td><td class=\"l\" colspan=\"12\">{}</td></tr>",
+                    "<tr class=\"failed\"><td class=\"l\">{}</td><td class=\"l\">{}</td><td>failed</td><td class=\"l\" colspan=\"13\">{}</td></tr>",
                     escape(&c.label),
                     escape(&c.backend),
                     escape(&c.reason),

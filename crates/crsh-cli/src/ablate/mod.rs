@@ -3,13 +3,13 @@
 //! `results.csv`, `results.json`, charts (PNG and SVG) and `report.html` into a directory.
 //! `crsh ablate --compare OLD.json NEW.json` prints per-cell ratios of two runs.
 //!
-//! - [`plan`]: the plan (TOML or the command line's quick form) and its expansion into cells;
-//! - [`run`]: running the cells;
-//! - [`results`]: what was measured, `results.json` and `results.csv`;
-//! - [`charts`]: the three charts per scene;
-//! - [`html`]: `report.html`;
-//! - [`headline`]: the per-scene headline numbers printed at the end;
-//! - [`compare`]: `--compare`.
+//! - [`plan`] — the plan (TOML or the command line's quick form) and its expansion into cells;
+//! - [`run`] — running the cells;
+//! - [`results`] — what was measured, `results.json` and `results.csv`;
+//! - [`charts`] — the three charts per scene;
+//! - [`html`] — `report.html`;
+//! - [`headline`] — the per-scene headline numbers printed at the end;
+//! - [`compare`] — `--compare`.
 
 pub mod charts;
 pub mod compare;

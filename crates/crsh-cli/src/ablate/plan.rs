@@ -563,7 +563,7 @@ pub fn expand(
                             combo.iter().map(|(k, v)| format!("{k}={v}")).collect();
                         sets.sort_by_key(|s| {
                             let key = s.split('=').next().unwrap_or("");
-                            !(key.ends_with(".kind") || !key.contains('.'))
+                            !key.ends_with(".kind") && key.contains('.')
                         });
                         let params: BTreeMap<String, String> = combo.into_iter().collect();
                         let describe = || {

@@ -13,7 +13,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crsh_core::metrics::to_rgba8;
-use crsh_core::{render_frame, FrameOptions, KindStats, LevelStats, Stats};
+use crsh_core::{render_frame, FrameOptions, KindStats, Stats};
 use crsh_cpu::Cpu;
 use crsh_scene::Scene;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -141,12 +141,11 @@ fn run_cell(
         return failed(cell, scene, threads, plan, WGPU_UNAVAILABLE.to_string());
     }
     match catch_unwind(AssertUnwindSafe(|| measure(plan, cell, s, ref_images))) {
-        Ok(Ok(m)) => {
-            let mut r = failed(cell, scene, threads, plan, String::new());
-            r.status = "ok".to_string();
-            r.measures = Some(m);
-            r
-        }
+        Ok(Ok(m)) => CellResult {
+            status: "ok".to_string(),
+            measures: Some(m),
+            ..failed(cell, scene, threads, plan, String::new())
+        },
         Ok(Err(reason)) => failed(cell, scene, threads, plan, reason),
         Err(p) => failed(
             cell,
@@ -159,15 +158,14 @@ fn run_cell(
 }
 
 /// The counters of a frame, without its times: equal across repeats of a deterministic cell.
-fn counters(s: &Stats) -> (Stats, Vec<LevelStats>) {
+fn counters(s: &Stats) -> Stats {
     let mut c = s.clone();
     c.timings_ms.clear();
     c.accuracy = None;
     for k in c.per_kind.values_mut() {
         k.trace_ms = 0.0;
     }
-    let levels = c.levels.clone();
-    (c, levels)
+    c
 }
 
 fn measure(
