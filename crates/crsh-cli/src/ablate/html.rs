@@ -29,7 +29,7 @@ th,td{border:1px solid #ccc;padding:.25em .5em;text-align:right;white-space:nowr
 th{background:#f0f0f0}td.l,th.l{text-align:left}
 tr.failed td{background:#fde8e8}tr.front td{font-weight:bold}
 figure{margin:1.5em 0}figure svg{max-width:100%;height:auto}
-figcaption{font-size:.9em;color:#555}pre{background:#f6f6f6;padding:1em;overflow-x:auto}
+figcaption{font-size:.9em;color:#555}pre{background:#f6f6f6;padding:1em;overflow-x:auto;white-space:pre-wrap}
 .note{color:#555;font-size:.9em}";
 
 /// The report page. `charts` holds, per scene, the charts written (possibly none);
