@@ -365,8 +365,11 @@ fn format_si(v: f64) -> String {
         format!("{v:.0}")
     } else if v >= 1.0 {
         format!("{v:.1}")
-    } else if v >= 0.01 {
-        format!("{v:.3}")
+    } else if v >= 1e-6 {
+        // Enough decimals for two significant digits, trailing zeros dropped: 0.5, 0.012, 0.001.
+        let decimals = (-v.log10()).floor() as usize + 2;
+        let s = format!("{v:.decimals$}");
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
     } else {
         format!("{v:.1e}")
     }
@@ -400,7 +403,9 @@ impl StackedBars {
             .map(|l| format!("level {l} (node tests)"))
             .collect();
         segments.push("ray-triangle (level 0)".into());
-        segments.push("bounding volumes outside the levels (BVH boxes)".into());
+        // Bounds tests no level row counts: a BVH's boxes, or for a hierarchy the tests of
+        // batches the traversal abandoned and retried under its candidate budget.
+        segments.push("other bounding volumes (BVH boxes; retried batches)".into());
         let mut values = Vec::new();
         for c in cells {
             let m = c.measures.as_ref().expect("ok cells have measures");
@@ -517,14 +522,14 @@ impl StackedBars {
             .map(|s| s.chars().count())
             .max()
             .unwrap_or(10) as u32;
-        (widest * 8 + 50).clamp(140, 420)
+        (widest * 8 + 50).clamp(140, 480)
     }
 }
 
 impl Chart for StackedBars {
     fn size(&self) -> (u32, u32) {
         let n = self.labels.len() as u32;
-        let legend = 90 + 22 * self.segments.len() as u32;
+        let legend = 120 + 22 * self.segments.len() as u32;
         (1000 + self.legend_width(), (150 + 30 * n).max(legend))
     }
 
@@ -635,6 +640,17 @@ mod tests {
         let pts = [(1.0, 1.0), (2.0, 0.9), (0.5, 0.95), (3.0, 0.5), (2.0, 0.8)];
         assert_eq!(pareto_front(&pts), vec![0, 1, 3]);
         assert_eq!(pareto_front(&[(1.0, 1.0), (1.0, 1.0)]), vec![0]);
+    }
+
+    #[test]
+    fn tick_labels() {
+        assert_eq!(format_si(0.0), "0");
+        assert_eq!(format_si(0.001), "0.001");
+        assert_eq!(format_si(0.1), "0.1");
+        assert_eq!(format_si(0.0125), "0.013");
+        assert_eq!(format_si(2.5), "2.5");
+        assert_eq!(format_si(150.0), "150");
+        assert_eq!(format_si(25000.0), "25k");
     }
 
     #[test]
