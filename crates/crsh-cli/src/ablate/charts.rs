@@ -272,8 +272,8 @@ impl Chart for Pareto {
         };
         let y0 = ymin - pad;
         // Whole decades, so the log axis always has labelled powers of ten.
-        let x0 = 10f64.powf((xmin / 1.3).log10().floor()) * 0.97;
-        let x1 = 10f64.powf((xmax * 1.5).log10().ceil()) * 1.03;
+        let x0 = 10f64.powf((xmin / 1.1).log10().floor()) * 0.97;
+        let x1 = 10f64.powf((xmax * 1.3).log10().ceil()) * 1.03;
         let mut chart = ChartBuilder::on(root)
             .caption(&self.title, (FONT, 22))
             .margin(16)
@@ -364,7 +364,8 @@ fn format_si(v: f64) -> String {
     } else if v >= 100.0 {
         format!("{v:.0}")
     } else if v >= 1.0 {
-        format!("{v:.1}")
+        let s = format!("{v:.1}");
+        s.strip_suffix(".0").map_or(s.clone(), str::to_string)
     } else if v >= 1e-6 {
         // Enough decimals for two significant digits, trailing zeros dropped: 0.5, 0.012, 0.001.
         let decimals = (-v.log10()).floor() as usize + 2;
@@ -649,6 +650,7 @@ mod tests {
         assert_eq!(format_si(0.1), "0.1");
         assert_eq!(format_si(0.0125), "0.013");
         assert_eq!(format_si(2.5), "2.5");
+        assert_eq!(format_si(10.0), "10");
         assert_eq!(format_si(150.0), "150");
         assert_eq!(format_si(25000.0), "25k");
     }
