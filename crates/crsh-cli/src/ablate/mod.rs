@@ -53,7 +53,8 @@ pub struct AblateArgs {
     pub pipelines: Option<String>,
 
     /// Quick form: a swept setting, `KEY=V1,V2,...` (repeatable); every combination is a cell.
-    /// Keys of a stage slot a pipeline leaves empty do not apply to it.
+    /// Keys of a stage slot a pipeline leaves empty do not apply to it (a key that applies to
+    /// no pipeline is an error).
     #[arg(long = "set", value_name = "KEY=V1,V2")]
     pub set: Vec<String>,
 

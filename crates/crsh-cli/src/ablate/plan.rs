@@ -4,9 +4,10 @@
 //!
 //! A grid is a table `KEY = VALUE` or `KEY = [VALUE, ...]` of `--set` keys
 //! (`hierarchy.subdivision = [8, 16]`); every combination of the listed values is one cell.
-//! The plan-wide `[grid]` applies to every pipeline, except its `STAGE.PARAM` keys whose stage
-//! slot the pipeline leaves empty (and no grid key of the pipeline fills): `bvh` has no
-//! hierarchy, so `hierarchy.depth = [2, 3, 4]` does not multiply its cells.
+//! The plan-wide `[grid]` applies to every pipeline, except its `STAGE.*` keys whose stage
+//! slot the pipeline leaves empty (and its own grid does not fill with `STAGE.kind`): `bvh` has
+//! no hierarchy, so `hierarchy.depth = [2, 3, 4]` does not multiply its cells, and RAH gets no
+//! sorter from `sort.kind = [...]`. A plan-wide key no pipeline takes is an error.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -394,19 +395,18 @@ pub fn resolve_scene(spec: &str, plan_dir: Option<&Path>) -> Result<String, Stri
         })
 }
 
-/// Whether `key` applies to `base` given the pipeline's other grid keys: a `STAGE.PARAM` key
-/// whose slot is empty in `base`, and which no `STAGE.kind` key fills, does not.
-fn applies(key: &str, base: &PipelineConfig, keys: &[&String]) -> bool {
-    let Some((stage, param)) = key.split_once('.') else {
-        return true;
+/// Whether the plan-wide grid key `key` applies to a pipeline `base` whose own grid has the
+/// keys `own`: a `STAGE.*` key (`kind` included) applies only when `base` fills the slot `STAGE`
+/// or the pipeline's own grid fills it with `STAGE.kind`. So `sort.kind = [...]` sweeps the
+/// sorter of the pipelines that sort, and does not give RAH a sorter without a hasher.
+fn applies(key: &str, base: &PipelineConfig, own: &[&String]) -> bool {
+    let Some((stage, _)) = key.split_once('.') else {
+        return true; // `STAGE=off`-style keys and malformed ones: let `set` judge
     };
-    if param == "kind" {
-        return true;
-    }
     let Some(slot) = StageKind::from_key(stage) else {
         return true; // an unknown stage: let `set` report it
     };
-    base.slot(slot).is_some() || keys.iter().any(|k| *k == &format!("{stage}.kind"))
+    base.slot(slot).is_some() || own.iter().any(|k| *k == &format!("{stage}.kind"))
 }
 
 /// Every combination of the grid's values, keys in order.
@@ -508,6 +508,7 @@ pub fn expand(
         grid: Vec<(String, Vec<GridValue>)>,
     }
     let mut entries = Vec::new();
+    let mut used: std::collections::BTreeSet<String> = std::collections::BTreeSet::new();
     for p in &plan.pipelines {
         // A pipeline file is relative to the plan's directory; preset names stay as they are.
         let pipeline = match plan_dir {
@@ -526,20 +527,27 @@ pub fn expand(
         for (k, v) in plan.grid.iter().chain(p.grid.iter()) {
             merged.insert(k.clone(), v.to_vec());
         }
-        let keys: Vec<&String> = merged.keys().collect();
+        let own: Vec<&String> = p.grid.keys().collect();
         let grid: Vec<(String, Vec<GridValue>)> = merged
             .iter()
             .filter(|(k, _)| {
                 // plan-wide keys that do not apply are dropped; a pipeline's own keys always apply
-                p.grid.contains_key(*k) || applies(k, &base, &keys)
+                p.grid.contains_key(*k) || applies(k, &base, &own)
             })
             .map(|(k, v)| (k.clone(), v.clone()))
             .collect();
+        used.extend(grid.iter().map(|(k, _)| k.clone()));
         entries.push(Entry {
             label: p.label.clone().unwrap_or_else(|| base.name.clone()),
             pipeline,
             grid,
         });
+    }
+    if let Some(k) = plan.grid.keys().find(|k| !used.contains(*k)) {
+        let stage = k.split('.').next().unwrap_or(k);
+        return Err(CliError::usage(format!(
+            "grid key `{k}` applies to no pipeline: none of them has a `{stage}` stage (to add one, put `{stage}.kind` in a pipeline's own grid)"
+        )));
     }
     let mut labels: Vec<&str> = entries.iter().map(|e| e.label.as_str()).collect();
     labels.sort_unstable();
@@ -732,6 +740,41 @@ mod tests {
         let h = cells[0].config.hash.as_ref().unwrap();
         assert_eq!(h.kind, "morton");
         assert_eq!(h.params["direction_bits"].to_string(), "6");
+    }
+
+    #[test]
+    fn plan_wide_stage_keys_skip_pipelines_without_the_stage() {
+        let toml = r#"
+            scenes = ["cornell-mirrors"]
+            [grid]
+            "sort.kind" = ["compress", "radix"]
+            [[pipelines]]
+            pipeline = "crsh"
+            [[pipelines]]
+            pipeline = "rah"
+            [[pipelines]]
+            pipeline = "rah"
+            label = "rah-sorted"
+            [pipelines.grid]
+            "hash.kind" = "morton"
+            "sort.kind" = "radix"
+        "#;
+        let cells = expand(&parse_plan(toml).unwrap(), None, &crsh_cpu::catalogue()).unwrap();
+        let by = |p: &str| cells.iter().filter(|c| c.pipeline == p).count();
+        assert_eq!((by("crsh"), by("rah"), by("rah-sorted")), (2, 1, 1));
+        let rah = cells.iter().find(|c| c.pipeline == "rah").unwrap();
+        assert!(rah.config.sort.is_none() && rah.params.is_empty());
+        let sorted = cells.iter().find(|c| c.pipeline == "rah-sorted").unwrap();
+        assert_eq!(sorted.config.sort.as_ref().unwrap().kind, "radix");
+        // A plan-wide key no pipeline can take is an error, not a silent no-op.
+        let e = expand(
+            &quick("rah,bvh", &["hash.kind=thesis,morton"]),
+            None,
+            &crsh_cpu::catalogue(),
+        )
+        .unwrap_err();
+        assert_eq!(e.exit_code(), 2);
+        assert!(e.to_string().contains("applies to no pipeline"), "{e}");
     }
 
     #[test]
