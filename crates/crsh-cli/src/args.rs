@@ -35,6 +35,9 @@ pub enum Command {
     /// Print seed 000's evaluation tables (per-level tests, totals against brute force, stage
     /// times) for scenes × pipelines × hierarchy configurations.
     Tables(TablesArgs),
+    /// Run a matrix of scenes × pipelines × parameters × backends; write CSV, JSON, charts
+    /// and an HTML report (or compare two runs with --compare).
+    Ablate(crate::ablate::AblateArgs),
 }
 
 /// Where a pipeline runs.

@@ -4,13 +4,15 @@
 //! reflection and refraction rays, seed 000 chapter 3), writes an 8-bit PNG and optionally a
 //! stats JSON file, and prints a summary; `crsh scenes`, `crsh pipelines` and `crsh adapters`
 //! list what can be rendered, with what, and on which GPUs; `crsh tables` prints seed 000's
-//! evaluation tables for any scenes and hierarchy configurations.
+//! evaluation tables for any scenes and hierarchy configurations; `crsh ablate` runs a matrix
+//! of pipelines and parameters and writes data, charts and a report.
 //!
 //! Errors print one line (`error: ...`) on stderr; the exit code is 2 when the command line
 //! cannot be honoured and 1 when the work fails.
 
 #![warn(missing_docs)]
 
+mod ablate;
 mod args;
 mod error;
 mod listing;
@@ -31,6 +33,7 @@ fn run(cli: Cli) -> CliResult<()> {
         Command::Pipelines(a) => listing::pipelines(&a),
         Command::Adapters(a) => listing::adapters(&a),
         Command::Tables(a) => tables::run(&a),
+        Command::Ablate(a) => ablate::run(&a),
     }
 }
 

@@ -225,7 +225,7 @@ fn ms_since(t: Instant) -> f64 {
 }
 
 /// Compares the two 8-bit images and shapes the accuracy report.
-fn accuracy_report(
+pub(crate) fn accuracy_report(
     reference: &str,
     counts: &crsh_core::AccuracyCounts,
     rgba: &[u8],

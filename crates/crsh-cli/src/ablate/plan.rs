@@ -1,0 +1,788 @@
+//! The ablation plan: a serde TOML document (or the command line's quick form) naming scenes,
+//! image size, bounce depth, pipelines with their parameter grids, backends, the reference
+//! and the repetition count, and its expansion into cells.
+//!
+//! A grid is a table `KEY = VALUE` or `KEY = [VALUE, ...]` of `--set` keys
+//! (`hierarchy.subdivision = [8, 16]`); every combination of the listed values is one cell.
+//! The plan-wide `[grid]` applies to every pipeline, except its `STAGE.*` keys whose stage
+//! slot the pipeline leaves empty (and its own grid does not fill with `STAGE.kind`): `bvh` has
+//! no hierarchy, so `hierarchy.depth = [2, 3, 4]` does not multiply its cells, and RAH gets no
+//! sorter from `sort.kind = [...]`. A plan-wide key no pipeline takes is an error.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use crsh_core::{PipelineConfig, StageKind, StageVariantInfo};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{CliError, CliResult};
+use crate::render::{pipeline_config, reference_config};
+
+/// Default `repeat`: timed runs per cell.
+pub const DEFAULT_REPEAT: u32 = 5;
+/// Default image width.
+pub const DEFAULT_WIDTH: u32 = 256;
+/// Default bounce depth.
+pub const DEFAULT_DEPTH: u32 = 3;
+/// Default reference intersector.
+pub const DEFAULT_REFERENCE: &str = "bvh";
+/// Largest `repeat` accepted.
+pub const MAX_REPEAT: u32 = 1000;
+/// Largest number of cells a plan may expand to (guards against a typo'd grid).
+pub const MAX_CELLS: usize = 10_000;
+
+/// One value or a list of values (`8` or `[8, 16]`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum OneOrMany<T> {
+    /// A single value.
+    One(T),
+    /// A list of values, each a grid point.
+    Many(Vec<T>),
+}
+
+impl<T: Clone> OneOrMany<T> {
+    /// The values as a list.
+    pub fn to_vec(&self) -> Vec<T> {
+        match self {
+            OneOrMany::One(v) => vec![v.clone()],
+            OneOrMany::Many(v) => v.clone(),
+        }
+    }
+}
+
+/// A grid value: what follows `KEY=` in a `--set`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum GridValue {
+    /// `true` / `false`.
+    Bool(bool),
+    /// An integer.
+    Int(i64),
+    /// A real number.
+    Float(f64),
+    /// A name (`interleave`, `off`, ...).
+    Str(String),
+}
+
+impl std::fmt::Display for GridValue {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            GridValue::Bool(b) => write!(f, "{b}"),
+            GridValue::Int(i) => write!(f, "{i}"),
+            GridValue::Float(x) => write!(f, "{x}"),
+            GridValue::Str(s) => f.write_str(s),
+        }
+    }
+}
+
+/// A parameter grid: `--set` key → the values to sweep.
+pub type Grid = BTreeMap<String, OneOrMany<GridValue>>;
+
+/// One pipeline of a plan, with its own grid.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PipelinePlan {
+    /// A preset (`crsh`, `rah`, `bvh`, `brute`) or a pipeline TOML file (relative to the plan's
+    /// directory).
+    pub pipeline: String,
+    /// Name in results and charts (default: the pipeline's name).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub label: Option<String>,
+    /// Parameter grid of this pipeline, applied after the plan-wide grid.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub grid: Grid,
+}
+
+/// An ablation plan (`crsh ablate --plan PLAN.toml`). See the README's "`crsh ablate`".
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Plan {
+    /// Title of the report (default: the plan file's name).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub title: Option<String>,
+    /// Scenes: built-in names, manifests or OBJ files. Relative paths are looked up in the
+    /// plan's directory, then in the scenes directory; `${CRSH_SCENES}` expands to the
+    /// `CRSH_SCENES` environment variable, or `../shared/scenes`.
+    pub scenes: Vec<String>,
+    /// Image widths (one or several, each a grid point).
+    #[serde(default = "default_width")]
+    pub width: OneOrMany<u32>,
+    /// Image height (default: width / the camera's aspect, else square).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub height: Option<u32>,
+    /// Bounce depths (one or several).
+    #[serde(default = "default_depth")]
+    pub depth: OneOrMany<u32>,
+    /// Timed runs per cell (after one warm-up run).
+    #[serde(default = "default_repeat")]
+    pub repeat: u32,
+    /// Untimed warm-up runs per cell before the timed ones.
+    #[serde(default = "default_warmup")]
+    pub warmup: u32,
+    /// The reference intersector variant accuracy is measured against (`brute`, `bvh`, ...),
+    /// or `none` to skip the accuracy run.
+    #[serde(default = "default_reference")]
+    pub reference: String,
+    /// Backends (`cpu`; `wgpu` cells are recorded as failed until the GPU pipeline exists).
+    #[serde(default = "default_backends")]
+    pub backends: Vec<String>,
+    /// Worker threads (default: rayon's choice).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threads: Option<usize>,
+    /// Grid applied to every pipeline (see the module documentation).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub grid: Grid,
+    /// The pipelines compared.
+    pub pipelines: Vec<PipelinePlan>,
+}
+
+fn default_width() -> OneOrMany<u32> {
+    OneOrMany::One(DEFAULT_WIDTH)
+}
+fn default_depth() -> OneOrMany<u32> {
+    OneOrMany::One(DEFAULT_DEPTH)
+}
+fn default_repeat() -> u32 {
+    DEFAULT_REPEAT
+}
+fn default_warmup() -> u32 {
+    1
+}
+fn default_reference() -> String {
+    DEFAULT_REFERENCE.to_string()
+}
+fn default_backends() -> Vec<String> {
+    vec!["cpu".to_string()]
+}
+
+/// The command line's quick form of a plan.
+#[derive(Clone, Debug, Default)]
+pub struct QuickPlan {
+    /// `--scenes a,b`.
+    pub scenes: Vec<String>,
+    /// `--pipelines crsh,rah`.
+    pub pipelines: Vec<String>,
+    /// `--set KEY=V1,V2` (repeatable).
+    pub sets: Vec<String>,
+    /// `--backends cpu,wgpu`.
+    pub backends: Vec<String>,
+    /// `--width` (comma list).
+    pub width: Vec<u32>,
+    /// `--height`.
+    pub height: Option<u32>,
+    /// `--depth` (comma list).
+    pub depth: Vec<u32>,
+    /// `--repeat`.
+    pub repeat: Option<u32>,
+    /// `--reference`.
+    pub reference: Option<String>,
+    /// `--threads`.
+    pub threads: Option<usize>,
+}
+
+/// Splits a comma list, trimming and dropping empty items.
+pub fn split_list(s: &str) -> Vec<String> {
+    s.split(',')
+        .map(str::trim)
+        .filter(|x| !x.is_empty())
+        .map(str::to_string)
+        .collect()
+}
+
+fn many<T: Clone>(v: Vec<T>) -> OneOrMany<T> {
+    if v.len() == 1 {
+        OneOrMany::One(v[0].clone())
+    } else {
+        OneOrMany::Many(v)
+    }
+}
+
+/// Parses `KEY=V1,V2,...` into a grid entry (values typed as TOML would: booleans, integers,
+/// numbers, else names).
+pub fn parse_set(s: &str) -> CliResult<(String, OneOrMany<GridValue>)> {
+    let (key, values) = s
+        .split_once('=')
+        .ok_or_else(|| CliError::usage(format!("--set {s}: expected KEY=VALUE[,VALUE...]")))?;
+    let key = key.trim();
+    if key.is_empty() {
+        return Err(CliError::usage(format!("--set {s}: empty key")));
+    }
+    let vals: Vec<GridValue> = split_list(values).iter().map(|v| grid_value(v)).collect();
+    if vals.is_empty() {
+        return Err(CliError::usage(format!("--set {s}: no value")));
+    }
+    Ok((key.to_string(), many(vals)))
+}
+
+fn grid_value(s: &str) -> GridValue {
+    if let Ok(b) = s.parse::<bool>() {
+        GridValue::Bool(b)
+    } else if let Ok(i) = s.parse::<i64>() {
+        GridValue::Int(i)
+    } else if let Ok(f) = s.parse::<f64>() {
+        GridValue::Float(f)
+    } else {
+        GridValue::Str(s.to_string())
+    }
+}
+
+impl QuickPlan {
+    /// The plan this command line describes; `--set` lists become the plan-wide grid.
+    pub fn into_plan(self) -> CliResult<Plan> {
+        let mut grid = Grid::new();
+        for s in &self.sets {
+            let (k, v) = parse_set(s)?;
+            if grid.insert(k.clone(), v).is_some() {
+                return Err(CliError::usage(format!(
+                    "--set {k} given twice; list its values once: --set {k}=A,B"
+                )));
+            }
+        }
+        let pipelines = if self.pipelines.is_empty() {
+            vec!["crsh".to_string(), "rah".to_string(), "bvh".to_string()]
+        } else {
+            self.pipelines
+        };
+        Ok(Plan {
+            title: None,
+            scenes: if self.scenes.is_empty() {
+                vec!["cornell-mirrors".to_string()]
+            } else {
+                self.scenes
+            },
+            width: if self.width.is_empty() {
+                default_width()
+            } else {
+                many(self.width)
+            },
+            height: self.height,
+            depth: if self.depth.is_empty() {
+                default_depth()
+            } else {
+                many(self.depth)
+            },
+            repeat: self.repeat.unwrap_or(DEFAULT_REPEAT),
+            warmup: 1,
+            reference: self.reference.unwrap_or_else(default_reference),
+            backends: if self.backends.is_empty() {
+                default_backends()
+            } else {
+                self.backends
+            },
+            threads: self.threads,
+            grid,
+            pipelines: pipelines
+                .into_iter()
+                .map(|p| PipelinePlan {
+                    pipeline: p,
+                    label: None,
+                    grid: Grid::new(),
+                })
+                .collect(),
+        })
+    }
+}
+
+/// Reads and parses a plan file; errors are usage errors (exit 2).
+pub fn read_plan(path: &Path) -> CliResult<Plan> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| CliError::usage(format!("cannot read plan {}: {e}", path.display())))?;
+    parse_plan(&text).map_err(|e| CliError::usage(format!("plan {}: {e}", path.display())))
+}
+
+/// Parses plan TOML.
+pub fn parse_plan(text: &str) -> Result<Plan, String> {
+    toml::from_str::<Plan>(text).map_err(|e| e.to_string())
+}
+
+/// One cell of the expanded plan: everything needed to run it.
+#[derive(Clone, Debug)]
+pub struct Cell {
+    /// Position in the plan's expansion (0-based).
+    pub index: usize,
+    /// The scene as the plan wrote it.
+    pub scene_spec: String,
+    /// The scene resolved: a built-in name or a path that exists; `Err` says why not found.
+    pub scene: Result<String, String>,
+    /// The pipeline's label.
+    pub pipeline: String,
+    /// Backend name.
+    pub backend: String,
+    /// The swept parameters of this cell (`--set` key → value), plan-wide and pipeline grids.
+    pub params: BTreeMap<String, String>,
+    /// Image width.
+    pub width: u32,
+    /// Image height, if the plan fixes it.
+    pub height: Option<u32>,
+    /// Bounce depth.
+    pub depth: u32,
+    /// The resolved pipeline.
+    pub config: PipelineConfig,
+    /// The resolved reference pipeline (`None`: no accuracy run).
+    pub reference: Option<PipelineConfig>,
+}
+
+impl Cell {
+    /// A short name: `crsh subdivision=8 depth=2` (full keys where the last parts clash).
+    pub fn label(&self) -> String {
+        let mut s = self.pipeline.clone();
+        for (k, v) in &self.params {
+            let short = k.rsplit('.').next().unwrap_or(k);
+            let clash = self
+                .params
+                .keys()
+                .filter(|o| o.rsplit('.').next() == Some(short))
+                .count()
+                > 1;
+            s.push(' ');
+            s.push_str(if clash { k } else { short });
+            s.push('=');
+            s.push_str(v);
+        }
+        if self.backend != "cpu" {
+            s.push_str(&format!(" [{}]", self.backend));
+        }
+        s
+    }
+}
+
+/// Resolves a scene spec: built-in names stay; `${CRSH_SCENES}` expands; a relative path is
+/// tried in `plan_dir` (when given), the current directory and the scenes directory.
+pub fn resolve_scene(spec: &str, plan_dir: Option<&Path>) -> Result<String, String> {
+    if crsh_scene::builtin::NAMES.contains(&spec) {
+        return Ok(spec.to_string());
+    }
+    let env_dir = std::env::var_os("CRSH_SCENES").map(PathBuf::from);
+    let mut scene_dirs: Vec<PathBuf> = Vec::new();
+    match &env_dir {
+        Some(d) => scene_dirs.push(d.clone()),
+        None => {
+            scene_dirs.push(PathBuf::from("../shared/scenes"));
+            // A plan in `<repo>/plans/` finds `<repo>/../shared/scenes` too.
+            if let Some(d) = plan_dir {
+                scene_dirs.push(d.join("../../shared/scenes"));
+            }
+        }
+    }
+    let mut candidates: Vec<PathBuf> = Vec::new();
+    if let Some(rest) = spec.strip_prefix("${CRSH_SCENES}") {
+        let rest = rest.trim_start_matches(['/', '\\']);
+        candidates.extend(scene_dirs.iter().map(|d| d.join(rest)));
+    } else {
+        let p = Path::new(spec);
+        if p.is_absolute() {
+            candidates.push(p.to_path_buf());
+        } else {
+            if let Some(d) = plan_dir {
+                candidates.push(d.join(p));
+            }
+            candidates.push(p.to_path_buf());
+            candidates.extend(scene_dirs.iter().map(|d| d.join(p)));
+        }
+    }
+    candidates
+        .iter()
+        .find(|c| c.is_file())
+        .map(|c| c.display().to_string())
+        .ok_or_else(|| {
+            let tried: Vec<String> = candidates.iter().map(|c| c.display().to_string()).collect();
+            format!(
+                "scene not found: {spec} (tried {}; not a built-in scene: {})",
+                tried.join(", "),
+                crsh_scene::builtin::NAMES.join(", ")
+            )
+        })
+}
+
+/// Whether the plan-wide grid key `key` applies to a pipeline `base` whose own grid has the
+/// keys `own`: a `STAGE.*` key (`kind` included) applies only when `base` fills the slot `STAGE`
+/// or the pipeline's own grid fills it with `STAGE.kind`. So `sort.kind = [...]` sweeps the
+/// sorter of the pipelines that sort, and does not give RAH a sorter without a hasher.
+fn applies(key: &str, base: &PipelineConfig, own: &[&String]) -> bool {
+    let Some((stage, _)) = key.split_once('.') else {
+        return true; // `STAGE=off`-style keys and malformed ones: let `set` judge
+    };
+    let Some(slot) = StageKind::from_key(stage) else {
+        return true; // an unknown stage: let `set` report it
+    };
+    base.slot(slot).is_some() || own.iter().any(|k| *k == &format!("{stage}.kind"))
+}
+
+/// Every combination of the grid's values, keys in order.
+fn combinations(grid: &[(String, Vec<GridValue>)]) -> Vec<Vec<(String, String)>> {
+    let mut out: Vec<Vec<(String, String)>> = vec![Vec::new()];
+    for (k, vals) in grid {
+        let mut next = Vec::with_capacity(out.len() * vals.len());
+        for prefix in &out {
+            for v in vals {
+                let mut c = prefix.clone();
+                c.push((k.clone(), v.to_string()));
+                next.push(c);
+            }
+        }
+        out = next;
+    }
+    out
+}
+
+/// Expands `plan` into cells, in order scene × width × depth × pipeline × grid × backend.
+/// Checks every cell's pipeline and reference against `catalogue`: any error (unknown
+/// pipeline, variant or parameter, bad value) is a usage error naming the cell. Scenes are not
+/// loaded here; a missing one makes failed cells.
+pub fn expand(
+    plan: &Plan,
+    plan_dir: Option<&Path>,
+    catalogue: &[StageVariantInfo],
+) -> CliResult<Vec<Cell>> {
+    if plan.scenes.is_empty() {
+        return Err(CliError::usage("the plan names no scenes"));
+    }
+    if plan.pipelines.is_empty() {
+        return Err(CliError::usage("the plan names no pipelines"));
+    }
+    if plan.backends.is_empty() {
+        return Err(CliError::usage("the plan names no backends"));
+    }
+    if plan.repeat == 0 || plan.repeat > MAX_REPEAT {
+        return Err(CliError::usage(format!(
+            "repeat = {} is outside 1..={MAX_REPEAT}",
+            plan.repeat
+        )));
+    }
+    if plan.warmup > MAX_REPEAT {
+        return Err(CliError::usage(format!(
+            "warmup = {} is above {MAX_REPEAT}",
+            plan.warmup
+        )));
+    }
+    if plan.threads == Some(0) {
+        return Err(CliError::usage("threads = 0: give at least 1"));
+    }
+    let side = crsh_core::pipeline::MAX_IMAGE_SIDE;
+    let widths = plan.width.to_vec();
+    let depths = plan.depth.to_vec();
+    if widths.is_empty() || depths.is_empty() {
+        return Err(CliError::usage("width and depth need at least one value"));
+    }
+    for w in widths.iter().chain(plan.height.iter()) {
+        if *w == 0 || *w > side {
+            return Err(CliError::usage(format!(
+                "image side {w} is outside 1..={side}"
+            )));
+        }
+    }
+    for d in &depths {
+        if *d > crate::args::MAX_DEPTH {
+            return Err(CliError::usage(format!(
+                "depth {d} is above {}",
+                crate::args::MAX_DEPTH
+            )));
+        }
+    }
+    for b in &plan.backends {
+        if !["cpu", "wgpu"].contains(&b.as_str()) {
+            return Err(CliError::usage(format!(
+                "unknown backend `{b}` (backends: cpu, wgpu)"
+            )));
+        }
+    }
+    for (k, v) in plan
+        .grid
+        .iter()
+        .chain(plan.pipelines.iter().flat_map(|p| p.grid.iter()))
+    {
+        if v.to_vec().is_empty() {
+            return Err(CliError::usage(format!("grid key {k} has no values")));
+        }
+    }
+    let reference_name = match plan.reference.trim() {
+        "" | "none" | "off" => None,
+        r => Some(r.to_string()),
+    };
+
+    // Each pipeline's base config and effective grid, checked once.
+    struct Entry {
+        label: String,
+        pipeline: String,
+        grid: Vec<(String, Vec<GridValue>)>,
+    }
+    let mut entries = Vec::new();
+    let mut used: std::collections::BTreeSet<String> = std::collections::BTreeSet::new();
+    for p in &plan.pipelines {
+        // A pipeline file is relative to the plan's directory; preset names stay as they are.
+        let pipeline = match plan_dir {
+            Some(d)
+                if crsh_cpu::preset(&p.pipeline).is_none()
+                    && !Path::new(&p.pipeline).is_absolute()
+                    && (p.pipeline.ends_with(".toml") || d.join(&p.pipeline).is_file()) =>
+            {
+                d.join(&p.pipeline).display().to_string()
+            }
+            _ => p.pipeline.clone(),
+        };
+        let base = pipeline_config(&pipeline, &[], catalogue)
+            .map_err(|e| CliError::usage(format!("pipeline `{}`: {e}", p.pipeline)))?;
+        let mut merged: BTreeMap<String, Vec<GridValue>> = BTreeMap::new();
+        for (k, v) in plan.grid.iter().chain(p.grid.iter()) {
+            merged.insert(k.clone(), v.to_vec());
+        }
+        let own: Vec<&String> = p.grid.keys().collect();
+        let grid: Vec<(String, Vec<GridValue>)> = merged
+            .iter()
+            .filter(|(k, _)| {
+                // plan-wide keys that do not apply are dropped; a pipeline's own keys always apply
+                p.grid.contains_key(*k) || applies(k, &base, &own)
+            })
+            .map(|(k, v)| (k.clone(), v.clone()))
+            .collect();
+        used.extend(grid.iter().map(|(k, _)| k.clone()));
+        entries.push(Entry {
+            label: p.label.clone().unwrap_or_else(|| base.name.clone()),
+            pipeline,
+            grid,
+        });
+    }
+    if let Some(k) = plan.grid.keys().find(|k| !used.contains(*k)) {
+        let stage = k.split('.').next().unwrap_or(k);
+        return Err(CliError::usage(format!(
+            "grid key `{k}` applies to no pipeline: none of them has a `{stage}` stage (to add one, put `{stage}.kind` in a pipeline's own grid)"
+        )));
+    }
+    let mut labels: Vec<&str> = entries.iter().map(|e| e.label.as_str()).collect();
+    labels.sort_unstable();
+    if let Some(w) = labels.windows(2).find(|w| w[0] == w[1]) {
+        return Err(CliError::usage(format!(
+            "two pipelines are labelled `{}`; give each a distinct `label`",
+            w[0]
+        )));
+    }
+
+    let mut cells = Vec::new();
+    for scene_spec in &plan.scenes {
+        let scene = resolve_scene(scene_spec, plan_dir);
+        for &width in &widths {
+            for &depth in &depths {
+                for e in &entries {
+                    for combo in combinations(&e.grid) {
+                        // `kind` and `off` assignments first, so parameters land on the
+                        // variant the cell picks.
+                        let mut sets: Vec<String> =
+                            combo.iter().map(|(k, v)| format!("{k}={v}")).collect();
+                        sets.sort_by_key(|s| {
+                            let key = s.split('=').next().unwrap_or("");
+                            !key.ends_with(".kind") && key.contains('.')
+                        });
+                        let params: BTreeMap<String, String> = combo.into_iter().collect();
+                        let describe = || {
+                            let p: Vec<String> =
+                                params.iter().map(|(k, v)| format!("{k}={v}")).collect();
+                            format!("cell {} {}", e.label, p.join(" "))
+                        };
+                        let mut config =
+                            pipeline_config(&e.pipeline, &sets, catalogue).map_err(|err| {
+                                CliError::usage(format!("{}: {err}", describe().trim_end()))
+                            })?;
+                        config.name = e.label.clone();
+                        let reference = reference_name
+                            .as_deref()
+                            .map(|r| reference_config(&config, r, catalogue))
+                            .transpose()
+                            .map_err(|err| CliError::usage(format!("reference: {err}")))?;
+                        for backend in &plan.backends {
+                            if cells.len() >= MAX_CELLS {
+                                return Err(CliError::usage(format!(
+                                    "the plan expands to more than {MAX_CELLS} cells"
+                                )));
+                            }
+                            cells.push(Cell {
+                                index: cells.len(),
+                                scene_spec: scene_spec.clone(),
+                                scene: scene.clone(),
+                                pipeline: e.label.clone(),
+                                backend: backend.clone(),
+                                params: params.clone(),
+                                width,
+                                height: plan.height,
+                                depth,
+                                config: config.clone(),
+                                reference: reference.clone(),
+                            });
+                        }
+                    }
+                }
+            }
+        }
+    }
+    Ok(cells)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn quick(pipelines: &str, sets: &[&str]) -> Plan {
+        QuickPlan {
+            scenes: vec!["cornell-mirrors".into()],
+            pipelines: split_list(pipelines),
+            sets: sets.iter().map(|s| s.to_string()).collect(),
+            ..Default::default()
+        }
+        .into_plan()
+        .unwrap()
+    }
+
+    #[test]
+    fn quick_form_expands_like_a_grid_and_skips_empty_slots() {
+        let plan = quick(
+            "crsh,rah,bvh",
+            &["hierarchy.subdivision=8,16", "hierarchy.depth=2,3"],
+        );
+        let cells = expand(&plan, None, &crsh_cpu::catalogue()).unwrap();
+        // crsh and rah: 2 × 2 each; bvh has no hierarchy: one cell.
+        assert_eq!(cells.len(), 9);
+        let bvh: Vec<_> = cells.iter().filter(|c| c.pipeline == "bvh").collect();
+        assert_eq!(bvh.len(), 1);
+        assert!(bvh[0].params.is_empty());
+        let crsh: Vec<_> = cells.iter().filter(|c| c.pipeline == "crsh").collect();
+        let combos: Vec<(String, String)> = crsh
+            .iter()
+            .map(|c| {
+                (
+                    c.params["hierarchy.subdivision"].clone(),
+                    c.params["hierarchy.depth"].clone(),
+                )
+            })
+            .collect();
+        let mut sorted = combos.clone();
+        sorted.sort();
+        sorted.dedup();
+        let want: Vec<(String, String)> = [("16", "2"), ("16", "3"), ("8", "2"), ("8", "3")]
+            .iter()
+            .map(|(a, b)| (a.to_string(), b.to_string()))
+            .collect();
+        assert_eq!(sorted, want, "every combination exactly once: {combos:?}");
+        assert_eq!(combos.len(), 4);
+        for c in &crsh {
+            let h = c.config.hierarchy.as_ref().unwrap();
+            assert_eq!(
+                h.params["subdivision"].to_string(),
+                c.params["hierarchy.subdivision"]
+            );
+            assert_eq!(h.params["depth"].to_string(), c.params["hierarchy.depth"]);
+        }
+        assert_eq!(crsh[0].label(), "crsh depth=2 subdivision=8");
+    }
+
+    #[test]
+    fn plan_and_quick_form_agree() {
+        let toml = r#"
+            scenes = ["cornell-mirrors"]
+            [grid]
+            "hierarchy.subdivision" = [8, 16]
+            "hierarchy.depth" = [2, 3]
+            [[pipelines]]
+            pipeline = "crsh"
+            [[pipelines]]
+            pipeline = "rah"
+            [[pipelines]]
+            pipeline = "bvh"
+        "#;
+        let from_file = parse_plan(toml).unwrap();
+        let from_cli = quick(
+            "crsh,rah,bvh",
+            &["hierarchy.subdivision=8,16", "hierarchy.depth=2,3"],
+        );
+        let cat = crsh_cpu::catalogue();
+        let a = expand(&from_file, None, &cat).unwrap();
+        let b = expand(&from_cli, None, &cat).unwrap();
+        assert_eq!(a.len(), b.len());
+        for (x, y) in a.iter().zip(&b) {
+            assert_eq!(x.label(), y.label());
+            assert_eq!(x.config, y.config);
+        }
+    }
+
+    #[test]
+    fn bad_plans_are_usage_errors() {
+        let cat = crsh_cpu::catalogue();
+        assert!(parse_plan("scenes = 3").is_err());
+        assert!(parse_plan("scenes = [\"a\"]\npipelines = []\nbogus = 1").is_err());
+        let mut p = quick("crsh", &["hierarchy.nonsense=1"]);
+        assert_eq!(expand(&p, None, &cat).unwrap_err().exit_code(), 2);
+        p = quick("nosuch", &[]);
+        assert_eq!(expand(&p, None, &cat).unwrap_err().exit_code(), 2);
+        p = quick("crsh", &[]);
+        p.repeat = 0;
+        assert_eq!(expand(&p, None, &cat).unwrap_err().exit_code(), 2);
+        p = quick("crsh", &[]);
+        p.reference = "nosuch".into();
+        assert_eq!(expand(&p, None, &cat).unwrap_err().exit_code(), 2);
+        assert!(parse_set("x").is_err());
+        assert!(parse_set("a=").is_err());
+    }
+
+    #[test]
+    fn kind_assignments_apply_before_parameters() {
+        // `hash.direction_bits` sorts before `hash.kind`: it must still land on `morton`.
+        let toml = r#"
+            scenes = ["cornell-mirrors"]
+            [[pipelines]]
+            pipeline = "rah"
+            [pipelines.grid]
+            "hash.direction_bits" = [6]
+            "hash.kind" = ["morton"]
+            "sort.kind" = ["radix"]
+        "#;
+        let plan = parse_plan(toml).unwrap();
+        let cells = expand(&plan, None, &crsh_cpu::catalogue()).unwrap();
+        assert_eq!(cells.len(), 1);
+        let h = cells[0].config.hash.as_ref().unwrap();
+        assert_eq!(h.kind, "morton");
+        assert_eq!(h.params["direction_bits"].to_string(), "6");
+    }
+
+    #[test]
+    fn plan_wide_stage_keys_skip_pipelines_without_the_stage() {
+        let toml = r#"
+            scenes = ["cornell-mirrors"]
+            [grid]
+            "sort.kind" = ["compress", "radix"]
+            [[pipelines]]
+            pipeline = "crsh"
+            [[pipelines]]
+            pipeline = "rah"
+            [[pipelines]]
+            pipeline = "rah"
+            label = "rah-sorted"
+            [pipelines.grid]
+            "hash.kind" = "morton"
+            "sort.kind" = "radix"
+        "#;
+        let cells = expand(&parse_plan(toml).unwrap(), None, &crsh_cpu::catalogue()).unwrap();
+        let by = |p: &str| cells.iter().filter(|c| c.pipeline == p).count();
+        assert_eq!((by("crsh"), by("rah"), by("rah-sorted")), (2, 1, 1));
+        let rah = cells.iter().find(|c| c.pipeline == "rah").unwrap();
+        assert!(rah.config.sort.is_none() && rah.params.is_empty());
+        let sorted = cells.iter().find(|c| c.pipeline == "rah-sorted").unwrap();
+        assert_eq!(sorted.config.sort.as_ref().unwrap().kind, "radix");
+        // A plan-wide key no pipeline can take is an error, not a silent no-op.
+        let e = expand(
+            &quick("rah,bvh", &["hash.kind=thesis,morton"]),
+            None,
+            &crsh_cpu::catalogue(),
+        )
+        .unwrap_err();
+        assert_eq!(e.exit_code(), 2);
+        assert!(e.to_string().contains("applies to no pipeline"), "{e}");
+    }
+
+    #[test]
+    fn missing_scene_is_a_reason_not_an_error() {
+        let r = resolve_scene("no/such/scene.toml", None);
+        assert!(r
+            .unwrap_err()
+            .starts_with("scene not found: no/such/scene.toml"));
+        assert_eq!(resolve_scene("office-boxes", None).unwrap(), "office-boxes");
+    }
+}

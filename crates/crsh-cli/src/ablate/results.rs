@@ -1,0 +1,563 @@
+//! What an ablation measured: one [`CellResult`] per cell, the machine it ran on, and the
+//! writers of `results.json` and `results.csv`.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt::Write as _;
+
+use crsh_core::{KindStats, LevelStats, PipelineConfig, RayKind, STAGE_TIMINGS};
+use serde::Serialize;
+
+use super::plan::Plan;
+
+/// Median, minimum and maximum of a set of timed runs, ms.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct TimeSummary {
+    /// Median (the mean of the two middle values for an even count).
+    pub median: f64,
+    /// Fastest run.
+    pub min: f64,
+    /// Slowest run.
+    pub max: f64,
+}
+
+impl TimeSummary {
+    /// The summary of `values` (all zero when empty).
+    pub fn of(values: &[f64]) -> TimeSummary {
+        if values.is_empty() {
+            return TimeSummary::default();
+        }
+        let mut v = values.to_vec();
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        let median = if n % 2 == 1 {
+            v[n / 2]
+        } else {
+            (v[n / 2 - 1] + v[n / 2]) / 2.0
+        };
+        TimeSummary {
+            median,
+            min: v[0],
+            max: v[n - 1],
+        }
+    }
+}
+
+/// Rays per kind of one frame.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct CellRays {
+    /// Camera rays.
+    pub primary: u64,
+    /// Shadow rays.
+    pub shadow: u64,
+    /// Reflection rays.
+    pub reflection: u64,
+    /// Refraction rays.
+    pub refraction: u64,
+    /// Rays that went through the intersection stages.
+    pub traced: u64,
+}
+
+/// Intersection tests of one frame.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct CellTests {
+    /// Bounding-volume tests.
+    pub bounds: u64,
+    /// Ray-triangle tests.
+    pub ray_triangle: u64,
+    /// `bounds + ray_triangle`.
+    pub total: u64,
+    /// What brute force would need.
+    pub brute_force: u64,
+    /// `total / rays.traced`.
+    pub per_ray: f64,
+    /// `total / brute_force`.
+    pub fraction: f64,
+}
+
+/// Agreement with the plan's reference.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct CellAccuracy {
+    /// The reference intersector.
+    pub reference: String,
+    /// Fraction of traced rays whose hit agrees with the reference.
+    pub hit_agreement: f64,
+    /// PSNR (dB) of the image against the reference pipeline's image; `null` when identical.
+    pub psnr_db: Option<f64>,
+    /// Whether the 8-bit images are identical.
+    pub images_identical: bool,
+    /// Pixels whose 8-bit RGB differs.
+    pub pixels_differing: u64,
+    /// Rays compared.
+    pub rays_compared: u64,
+    /// Rays where one hit and the other missed.
+    pub hit_miss_mismatches: u64,
+    /// Closest-hit rays that hit different triangles at different `t`.
+    pub nearest_mismatches: u64,
+    /// Mean `|t − t_reference|` over agreeing closest-hit rays that hit (scene units).
+    pub mean_abs_t_error: f64,
+}
+
+/// The measurements of a cell that ran.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Measures {
+    /// Triangles in the scene.
+    pub triangles: u64,
+    /// Rays per kind.
+    pub rays: CellRays,
+    /// Intersection tests.
+    pub tests: CellTests,
+    /// Per ray kind: rays, tests, and the median tracing time (ms).
+    pub per_kind: BTreeMap<String, KindStats>,
+    /// Per hierarchy level counters (thesis numbering; empty without a hierarchy).
+    pub levels: Vec<LevelStats>,
+    /// The most bytes the candidate arrays held at once.
+    pub peak_candidate_bytes: u64,
+    /// Whether every counter was identical in every timed run (they are deterministic).
+    pub counters_equal_across_repeats: bool,
+    /// Per stage key and `total`: median, min and max over the timed runs, ms.
+    pub timings_ms: BTreeMap<String, TimeSummary>,
+    /// Mrays/s per traced kind, `overall` and `frame`, from the median times.
+    pub mrays_per_s: BTreeMap<String, f64>,
+    /// Building the stages (e.g. an object BVH), ms, once per cell.
+    pub build_stages_ms: f64,
+    /// Agreement with the reference (absent with `reference = "none"`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub accuracy: Option<CellAccuracy>,
+}
+
+/// One cell's outcome.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct CellResult {
+    /// Position in the plan's expansion.
+    pub index: usize,
+    /// Short name (`crsh subdivision=8 depth=2`).
+    pub label: String,
+    /// Scene name (the manifest's `name`; the plan's spelling when it did not load).
+    pub scene: String,
+    /// The scene as the plan wrote it.
+    pub scene_source: String,
+    /// Pipeline label.
+    pub pipeline: String,
+    /// Backend.
+    pub backend: String,
+    /// The swept parameters (`--set` key → value).
+    pub params: BTreeMap<String, String>,
+    /// Image width.
+    pub width: u32,
+    /// Image height (0 when the scene did not load and the plan gave none).
+    pub height: u32,
+    /// Bounce depth.
+    pub depth: u32,
+    /// `ok` or `failed`.
+    pub status: String,
+    /// Why it failed (empty when ok).
+    pub reason: String,
+    /// Timed runs.
+    pub repeat: u32,
+    /// Worker threads.
+    pub threads: usize,
+    /// The full resolved pipeline.
+    pub config: PipelineConfig,
+    /// The measurements (absent when the cell failed).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub measures: Option<Measures>,
+}
+
+impl CellResult {
+    /// Whether the cell ran.
+    pub fn ok(&self) -> bool {
+        self.status == "ok" && self.measures.is_some()
+    }
+
+    /// Median total frame time, ms.
+    pub fn total_ms(&self) -> Option<f64> {
+        self.measures
+            .as_ref()
+            .and_then(|m| m.timings_ms.get("total"))
+            .map(|t| t.median)
+    }
+}
+
+/// Facts about the machine and build that ran the ablation.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Machine {
+    /// CPU model (`/proc/cpuinfo`'s `model name`), or `unknown`.
+    pub cpu_model: String,
+    /// Logical cores available to the process.
+    pub cores: usize,
+    /// Worker threads used by the CPU backend.
+    pub threads: usize,
+    /// Operating system and architecture.
+    pub os: String,
+    /// crsh version.
+    pub crsh_version: String,
+    /// `git rev-parse HEAD` in the current directory, or `unknown`.
+    pub git_revision: String,
+    /// wgpu adapters (name, backend, type), listed when the plan has wgpu cells.
+    pub wgpu_adapters: Vec<String>,
+    /// When the run started (UTC, ISO 8601).
+    pub started_utc: String,
+}
+
+impl Machine {
+    /// Gathers the facts; `with_adapters` enumerates the wgpu adapters.
+    pub fn gather(threads: usize, with_adapters: bool) -> Machine {
+        let cpu_model = std::fs::read_to_string("/proc/cpuinfo")
+            .ok()
+            .and_then(|t| {
+                t.lines()
+                    .find(|l| l.starts_with("model name"))
+                    .and_then(|l| l.split_once(':'))
+                    .map(|(_, v)| v.trim().to_string())
+            })
+            .unwrap_or_else(|| "unknown".to_string());
+        let git_revision = std::process::Command::new("git")
+            .args(["rev-parse", "HEAD"])
+            .stderr(std::process::Stdio::null())
+            .output()
+            .ok()
+            .filter(|o| o.status.success())
+            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+            .filter(|s| !s.is_empty())
+            .unwrap_or_else(|| "unknown".to_string());
+        let wgpu_adapters = if with_adapters {
+            crsh_wgpu::enumerate_adapters()
+                .iter()
+                .map(crate::listing::adapter_line)
+                .collect()
+        } else {
+            Vec::new()
+        };
+        Machine {
+            cpu_model,
+            cores: std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1),
+            threads,
+            os: format!("{} {}", std::env::consts::OS, std::env::consts::ARCH),
+            crsh_version: env!("CARGO_PKG_VERSION").to_string(),
+            git_revision,
+            wgpu_adapters,
+            started_utc: utc_now(),
+        }
+    }
+}
+
+/// The current time as `YYYY-MM-DDTHH:MM:SSZ`.
+pub fn utc_now() -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    utc_from_unix(secs)
+}
+
+/// Formats Unix seconds as `YYYY-MM-DDTHH:MM:SSZ` (proleptic Gregorian calendar).
+pub fn utc_from_unix(secs: u64) -> String {
+    let days = (secs / 86_400) as i64;
+    let rem = secs % 86_400;
+    // Howard Hinnant's civil_from_days.
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z",
+        rem / 3600,
+        rem / 60 % 60,
+        rem % 60
+    )
+}
+
+/// The whole `results.json` document.
+#[derive(Clone, Debug, Serialize)]
+pub struct Results {
+    /// crsh version that wrote it.
+    pub version: String,
+    /// The report's title.
+    pub title: String,
+    /// Where the plan came from (a path, or `command line`).
+    pub plan_source: String,
+    /// The plan, as parsed (defaults filled in).
+    pub plan: Plan,
+    /// The machine and build.
+    pub machine: Machine,
+    /// Wall time of the whole ablation, seconds.
+    pub wall_s: f64,
+    /// One entry per cell, in plan order.
+    pub cells: Vec<CellResult>,
+}
+
+impl Results {
+    /// Pretty JSON (every f64 is finite: PSNR infinity is `null`).
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
+    }
+
+    /// The scene names in plan order, each once.
+    pub fn scenes(&self) -> Vec<String> {
+        let mut seen = BTreeSet::new();
+        self.cells
+            .iter()
+            .filter(|c| seen.insert(c.scene.clone()))
+            .map(|c| c.scene.clone())
+            .collect()
+    }
+
+    /// The swept parameter keys over all cells, sorted.
+    pub fn param_keys(&self) -> Vec<String> {
+        let keys: BTreeSet<&String> = self.cells.iter().flat_map(|c| c.params.keys()).collect();
+        keys.into_iter().cloned().collect()
+    }
+
+    /// `results.csv`: one row per cell, flat columns (see the README).
+    pub fn to_csv(&self) -> String {
+        let params = self.param_keys();
+        let level_keys: BTreeSet<(usize, String, u32)> = self
+            .cells
+            .iter()
+            .filter_map(|c| c.measures.as_ref())
+            .flat_map(|m| m.levels.iter())
+            .map(|l| (kind_order(&l.ray_kind), l.ray_kind.clone(), l.level))
+            .collect();
+        // Levels: per kind, highest level first (the thesis's table order).
+        let mut levels: Vec<(usize, String, u32)> = level_keys.into_iter().collect();
+        levels.sort_by(|a, b| a.0.cmp(&b.0).then(b.2.cmp(&a.2)));
+        let mut stages: Vec<String> = STAGE_TIMINGS
+            .iter()
+            .filter(|k| self.any_timing(k))
+            .map(|k| k.to_string())
+            .collect();
+        let extra: BTreeSet<String> = self
+            .cells
+            .iter()
+            .filter_map(|c| c.measures.as_ref())
+            .flat_map(|m| m.timings_ms.keys())
+            .filter(|k| !STAGE_TIMINGS.contains(&k.as_str()) && *k != "total")
+            .cloned()
+            .collect();
+        stages.extend(extra);
+        let kinds: Vec<&str> = RayKind::ALL
+            .iter()
+            .map(|k| k.name())
+            .filter(|k| {
+                self.cells
+                    .iter()
+                    .filter_map(|c| c.measures.as_ref())
+                    .any(|m| m.mrays_per_s.contains_key(*k))
+            })
+            .collect();
+
+        let mut header: Vec<String> = ["scene", "scene_source", "pipeline", "backend"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        header.extend(params.iter().cloned());
+        header.extend(
+            [
+                "width",
+                "height",
+                "depth",
+                "status",
+                "reason",
+                "repeat",
+                "threads",
+                "triangles",
+                "rays_primary",
+                "rays_shadow",
+                "rays_reflection",
+                "rays_refraction",
+                "rays_traced",
+                "tests_bounds",
+                "tests_ray_triangle",
+                "tests_total",
+                "tests_brute_force",
+                "tests_per_ray",
+                "tests_fraction",
+            ]
+            .iter()
+            .map(|s| s.to_string()),
+        );
+        for (_, kind, level) in &levels {
+            for what in ["tests", "hits"] {
+                header.push(format!("level_{kind}_{level}_{what}"));
+            }
+        }
+        for stage in std::iter::once("total".to_string()).chain(stages.iter().cloned()) {
+            for s in ["median", "min", "max"] {
+                header.push(format!("time_{stage}_{s}_ms"));
+            }
+        }
+        for k in kinds.iter().copied().chain(["overall", "frame"]) {
+            header.push(format!("mrays_{k}"));
+        }
+        header.extend(
+            [
+                "reference",
+                "hit_agreement",
+                "psnr_db",
+                "mean_abs_t_error",
+                "pixels_differing",
+                "peak_candidate_bytes",
+                "counters_equal_across_repeats",
+                "build_stages_ms",
+                "config",
+            ]
+            .iter()
+            .map(|s| s.to_string()),
+        );
+
+        let mut out = String::new();
+        push_row(&mut out, &header);
+        for c in &self.cells {
+            let m = c.measures.as_ref();
+            let mut row: Vec<String> = vec![
+                c.scene.clone(),
+                c.scene_source.clone(),
+                c.pipeline.clone(),
+                c.backend.clone(),
+            ];
+            row.extend(
+                params
+                    .iter()
+                    .map(|k| c.params.get(k).cloned().unwrap_or_default()),
+            );
+            row.extend([
+                c.width.to_string(),
+                c.height.to_string(),
+                c.depth.to_string(),
+                c.status.clone(),
+                c.reason.clone(),
+                c.repeat.to_string(),
+                c.threads.to_string(),
+            ]);
+            let num = |f: &dyn Fn(&Measures) -> String| m.map(f).unwrap_or_default();
+            row.push(num(&|m| m.triangles.to_string()));
+            row.push(num(&|m| m.rays.primary.to_string()));
+            row.push(num(&|m| m.rays.shadow.to_string()));
+            row.push(num(&|m| m.rays.reflection.to_string()));
+            row.push(num(&|m| m.rays.refraction.to_string()));
+            row.push(num(&|m| m.rays.traced.to_string()));
+            row.push(num(&|m| m.tests.bounds.to_string()));
+            row.push(num(&|m| m.tests.ray_triangle.to_string()));
+            row.push(num(&|m| m.tests.total.to_string()));
+            row.push(num(&|m| m.tests.brute_force.to_string()));
+            row.push(num(&|m| format!("{:.4}", m.tests.per_ray)));
+            row.push(num(&|m| format!("{:.6e}", m.tests.fraction)));
+            for (_, kind, level) in &levels {
+                let l = m.and_then(|m| {
+                    m.levels
+                        .iter()
+                        .find(|l| &l.ray_kind == kind && l.level == *level)
+                });
+                row.push(l.map(|l| l.tests.to_string()).unwrap_or_default());
+                row.push(l.map(|l| l.hits.to_string()).unwrap_or_default());
+            }
+            for stage in std::iter::once("total".to_string()).chain(stages.iter().cloned()) {
+                let t = m.and_then(|m| m.timings_ms.get(&stage));
+                for pick in [
+                    |t: &TimeSummary| t.median,
+                    |t: &TimeSummary| t.min,
+                    |t: &TimeSummary| t.max,
+                ] {
+                    row.push(t.map(|t| format!("{:.3}", pick(t))).unwrap_or_default());
+                }
+            }
+            for k in kinds.iter().copied().chain(["overall", "frame"]) {
+                row.push(
+                    m.and_then(|m| m.mrays_per_s.get(k))
+                        .map(|v| format!("{v:.4}"))
+                        .unwrap_or_default(),
+                );
+            }
+            let acc = m.and_then(|m| m.accuracy.as_ref());
+            row.push(acc.map(|a| a.reference.clone()).unwrap_or_default());
+            row.push(
+                acc.map(|a| format!("{:.8}", a.hit_agreement))
+                    .unwrap_or_default(),
+            );
+            row.push(
+                acc.map(|a| match a.psnr_db {
+                    Some(db) => format!("{db:.3}"),
+                    None => "inf".to_string(),
+                })
+                .unwrap_or_default(),
+            );
+            row.push(
+                acc.map(|a| format!("{:.6e}", a.mean_abs_t_error))
+                    .unwrap_or_default(),
+            );
+            row.push(
+                acc.map(|a| a.pixels_differing.to_string())
+                    .unwrap_or_default(),
+            );
+            row.push(num(&|m| m.peak_candidate_bytes.to_string()));
+            row.push(num(&|m| m.counters_equal_across_repeats.to_string()));
+            row.push(num(&|m| format!("{:.3}", m.build_stages_ms)));
+            row.push(serde_json::to_string(&c.config).unwrap_or_default());
+            push_row(&mut out, &row);
+        }
+        out
+    }
+
+    fn any_timing(&self, key: &str) -> bool {
+        self.cells
+            .iter()
+            .filter_map(|c| c.measures.as_ref())
+            .any(|m| m.timings_ms.contains_key(key))
+    }
+}
+
+fn kind_order(kind: &str) -> usize {
+    RayKind::ALL
+        .iter()
+        .position(|k| k.name() == kind)
+        .unwrap_or(RayKind::ALL.len())
+}
+
+/// One CSV field, quoted when it holds a comma, quote or line break (RFC 4180).
+pub fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+fn push_row(out: &mut String, fields: &[String]) {
+    let line: Vec<String> = fields.iter().map(|f| csv_field(f)).collect();
+    let _ = writeln!(out, "{}", line.join(","));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn median_min_max() {
+        let t = TimeSummary::of(&[3.0, 1.0, 2.0]);
+        assert_eq!((t.median, t.min, t.max), (2.0, 1.0, 3.0));
+        let t = TimeSummary::of(&[4.0, 1.0, 2.0, 3.0]);
+        assert_eq!((t.median, t.min, t.max), (2.5, 1.0, 4.0));
+        assert_eq!(TimeSummary::of(&[]), TimeSummary::default());
+    }
+
+    #[test]
+    fn csv_quoting() {
+        assert_eq!(csv_field("plain"), "plain");
+        assert_eq!(csv_field("a,b"), "\"a,b\"");
+        assert_eq!(csv_field("say \"hi\""), "\"say \"\"hi\"\"\"");
+    }
+
+    #[test]
+    fn utc_dates() {
+        assert_eq!(utc_from_unix(0), "1970-01-01T00:00:00Z");
+        assert_eq!(utc_from_unix(951_782_400), "2000-02-29T00:00:00Z");
+        assert_eq!(utc_from_unix(1_700_000_000), "2023-11-14T22:13:20Z");
+    }
+}

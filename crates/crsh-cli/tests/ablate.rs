@@ -1,0 +1,648 @@
+//! End-to-end tests of `crsh ablate`: the quick plan on the built-in scenes (every output
+//! file, CSV, JSON, charts, report), failed cells recorded with their reason, the grid of
+//! the command-line form, `--compare`, clear errors for bad plans, and the report in
+//! headless Chromium when it is installed.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+/// A fresh scratch directory for one test.
+fn scratch(test: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("crsh-ablate-{}-{test}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("create scratch dir");
+    d
+}
+
+/// Runs `crsh args...` in `dir`.
+fn crsh(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_crsh"))
+        .args(args)
+        .current_dir(dir)
+        .env_remove("RAYON_NUM_THREADS")
+        .env_remove("CRSH_SCENES")
+        .output()
+        .expect("run crsh")
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+fn assert_ok(o: &Output) {
+    assert!(
+        o.status.success(),
+        "crsh failed ({:?})\nstdout:\n{}\nstderr:\n{}",
+        o.status.code(),
+        text(&o.stdout),
+        text(&o.stderr)
+    );
+}
+
+fn read_json(path: &Path) -> Value {
+    let t = std::fs::read_to_string(path).expect("results.json written");
+    serde_json::from_str(&t).expect("results.json is JSON")
+}
+
+fn cells(v: &Value) -> &Vec<Value> {
+    v["cells"].as_array().expect("cells list")
+}
+
+/// Parses CSV with quoted fields (RFC 4180) into rows of fields.
+fn parse_csv(t: &str) -> Vec<Vec<String>> {
+    let mut rows = Vec::new();
+    let mut row = Vec::new();
+    let mut field = String::new();
+    let mut quoted = false;
+    let mut chars = t.chars().peekable();
+    while let Some(c) = chars.next() {
+        match (quoted, c) {
+            (true, '"') if chars.peek() == Some(&'"') => {
+                chars.next();
+                field.push('"');
+            }
+            (true, '"') => quoted = false,
+            (true, c) => field.push(c),
+            (false, '"') => quoted = true,
+            (false, ',') => row.push(std::mem::take(&mut field)),
+            (false, '\n') => {
+                row.push(std::mem::take(&mut field));
+                rows.push(std::mem::take(&mut row));
+            }
+            (false, c) => field.push(c),
+        }
+    }
+    rows
+}
+
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// `plans/quick.toml` at 32 pixels wide, written into `dir`.
+fn small_quick_plan(dir: &Path) -> PathBuf {
+    let plan = std::fs::read_to_string(repo_root().join("plans/quick.toml")).expect("quick plan");
+    assert!(plan.contains("width = 64"), "quick.toml changed: {plan}");
+    let small = plan.replace("width = 64", "width = 32");
+    let p = dir.join("quick32.toml");
+    std::fs::write(&p, small).unwrap();
+    p
+}
+
+fn is_png(path: &Path) -> bool {
+    image::open(path).is_ok_and(|i| i.width() > 100 && i.height() > 100)
+}
+
+fn is_svg(path: &Path) -> bool {
+    std::fs::read_to_string(path).is_ok_and(|s| {
+        let s = s.trim();
+        s.contains("<svg") && s.ends_with("</svg>") && s.contains("<text")
+    })
+}
+
+#[test]
+fn quick_plan_end_to_end() {
+    let dir = scratch("quick");
+    let plan = small_quick_plan(&dir);
+    let o = crsh(
+        &dir,
+        &["ablate", "--plan", plan.to_str().unwrap(), "--out", "out"],
+    );
+    assert_ok(&o);
+    let out = dir.join("out");
+    let stdout = text(&o.stdout);
+    // One line per cell, then the headline.
+    assert!(
+        stdout.contains("[1/10] cornell-mirrors | crsh subdivision=8 | cpu:"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("Pareto front:"), "{stdout}");
+    assert!(stdout.contains("crsh / rah: best vs best time"), "{stdout}");
+
+    // JSON: every cell ran, with counters equal across repeats and exact accuracy.
+    let v = read_json(&out.join("results.json"));
+    let cs = cells(&v);
+    // 2 scenes × (crsh × 2 + rah × 2 + bvh).
+    assert_eq!(cs.len(), 10);
+    for c in cs {
+        assert_eq!(c["status"], "ok", "{c:#}");
+        let m = &c["measures"];
+        assert_eq!(m["counters_equal_across_repeats"], true);
+        assert_eq!(c["width"], 32);
+        let t = &m["timings_ms"]["total"];
+        let (lo, med, hi) = (
+            t["min"].as_f64().unwrap(),
+            t["median"].as_f64().unwrap(),
+            t["max"].as_f64().unwrap(),
+        );
+        assert!(lo > 0.0 && lo <= med && med <= hi, "{t}");
+        assert_eq!(m["accuracy"]["reference"], "brute");
+        assert_eq!(
+            m["accuracy"]["hit_agreement"], 1.0,
+            "exact pipelines: {c:#}"
+        );
+        assert!(m["tests"]["total"].as_u64().unwrap() > 0);
+        assert!(m["mrays_per_s"]["overall"].as_f64().unwrap() > 0.0);
+        assert!(c["config"]["intersect"]["kind"].is_string());
+        if c["pipeline"] != "bvh" {
+            assert!(!m["levels"].as_array().unwrap().is_empty());
+            assert!(
+                m["timings_ms"]["hierarchy_creation"]["median"]
+                    .as_f64()
+                    .unwrap()
+                    > 0.0
+            );
+        }
+    }
+    assert_eq!(v["plan"]["repeat"], 3);
+    assert!(v["machine"]["cpu_model"].is_string());
+    assert!(v["machine"]["git_revision"].is_string());
+
+    // CSV: the header and one row per cell, matching the JSON.
+    let csv = parse_csv(&std::fs::read_to_string(out.join("results.csv")).unwrap());
+    let header = &csv[0];
+    for col in [
+        "scene",
+        "pipeline",
+        "backend",
+        "hierarchy.subdivision",
+        "status",
+        "reason",
+        "rays_shadow",
+        "rays_traced",
+        "tests_bounds",
+        "tests_ray_triangle",
+        "tests_total",
+        "tests_brute_force",
+        "tests_per_ray",
+        "tests_fraction",
+        "level_shadow_0_tests",
+        "level_shadow_1_tests",
+        "time_total_median_ms",
+        "time_total_min_ms",
+        "time_total_max_ms",
+        "time_traversal_median_ms",
+        "mrays_shadow",
+        "mrays_overall",
+        "hit_agreement",
+        "psnr_db",
+        "mean_abs_t_error",
+        "peak_candidate_bytes",
+        "config",
+    ] {
+        assert!(
+            header.iter().any(|h| h == col),
+            "CSV lacks {col}: {header:?}"
+        );
+    }
+    assert_eq!(csv.len(), 11, "header + 10 rows");
+    let col = |name: &str| header.iter().position(|h| h == name).unwrap();
+    for (row, c) in csv[1..].iter().zip(cs) {
+        assert_eq!(row.len(), header.len());
+        assert_eq!(row[col("pipeline")], c["pipeline"].as_str().unwrap());
+        assert_eq!(
+            row[col("tests_total")],
+            c["measures"]["tests"]["total"].to_string()
+        );
+        let cfg: Value = serde_json::from_str(&row[col("config")]).expect("config is JSON");
+        assert_eq!(cfg, c["config"]);
+    }
+
+    // Charts: three per scene, valid PNG and SVG.
+    let report = std::fs::read_to_string(out.join("report.html")).unwrap();
+    for scene in ["cornell-mirrors", "office-boxes"] {
+        for kind in ["pareto", "tests", "stages"] {
+            let stem = format!("{scene}-{kind}");
+            assert!(
+                is_png(&out.join(format!("charts/{stem}.png"))),
+                "{stem}.png"
+            );
+            assert!(
+                is_svg(&out.join(format!("charts/{stem}.svg"))),
+                "{stem}.svg"
+            );
+            assert!(
+                report.contains(&format!("id=\"chart-{stem}\"")),
+                "report lacks {stem}"
+            );
+        }
+        assert!(report.contains(&format!("id=\"table-{scene}\"")));
+    }
+    // Self-contained: inlined SVG, no scripts, no remote resources.
+    assert_eq!(report.matches("<svg").count(), 6);
+    // (the SVG namespace URI is an identifier, not a fetch)
+    for remote in [
+        "<script",
+        "src=\"http",
+        "href=\"http",
+        "url(http",
+        "@import",
+    ] {
+        assert!(
+            !report.contains(remote),
+            "report fetches or runs something: {remote}"
+        );
+    }
+    assert!(report.contains("id=\"machine-table\"") && report.contains("id=\"plan-text\""));
+}
+
+#[test]
+fn failed_cells_are_recorded_and_the_run_goes_on() {
+    let dir = scratch("failed");
+    let o = crsh(
+        &dir,
+        &[
+            "ablate",
+            "--scenes",
+            "cornell-mirrors,no/such/scene.toml",
+            "--pipelines",
+            "bvh",
+            "--backends",
+            "cpu,wgpu",
+            "--width",
+            "16",
+            "--repeat",
+            "1",
+            "--out",
+            "out",
+        ],
+    );
+    assert_ok(&o);
+    let v = read_json(&dir.join("out/results.json"));
+    let cs = cells(&v);
+    assert_eq!(cs.len(), 4);
+    let status: Vec<(&str, &str, &str)> = cs
+        .iter()
+        .map(|c| {
+            (
+                c["scene_source"].as_str().unwrap(),
+                c["backend"].as_str().unwrap(),
+                c["status"].as_str().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        status,
+        [
+            ("cornell-mirrors", "cpu", "ok"),
+            ("cornell-mirrors", "wgpu", "failed"),
+            ("no/such/scene.toml", "cpu", "failed"),
+            ("no/such/scene.toml", "wgpu", "failed"),
+        ]
+    );
+    assert!(cs[1]["reason"].as_str().unwrap().contains("wgpu"));
+    assert!(cs[1]["reason"]
+        .as_str()
+        .unwrap()
+        .contains("not implemented"));
+    assert!(cs[2]["reason"]
+        .as_str()
+        .unwrap()
+        .starts_with("scene not found: no/such/scene.toml"));
+    assert!(cs[1].get("measures").is_none());
+    let csv = parse_csv(&std::fs::read_to_string(dir.join("out/results.csv")).unwrap());
+    let reason = csv[0].iter().position(|h| h == "reason").unwrap();
+    assert!(csv[3][reason].starts_with("scene not found"));
+    let report = std::fs::read_to_string(dir.join("out/report.html")).unwrap();
+    assert!(report.contains("class=\"failed\""));
+    assert!(report.contains("scene not found: no/such/scene.toml"));
+    assert!(text(&o.stdout).contains("FAILED: scene not found"));
+
+    // Every cell failing is a failed run (exit 1), with the files still written.
+    let o = crsh(
+        &dir,
+        &[
+            "ablate",
+            "--scenes",
+            "missing.obj",
+            "--pipelines",
+            "bvh",
+            "--out",
+            "none",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).starts_with("error: every cell failed"));
+    assert!(dir.join("none/results.json").is_file());
+}
+
+#[test]
+fn command_line_grid_expands_every_combination() {
+    let dir = scratch("grid");
+    let o = crsh(
+        &dir,
+        &[
+            "ablate",
+            "--scenes",
+            "cornell-mirrors",
+            "--pipelines",
+            "crsh,rah,bvh",
+            "--set",
+            "hierarchy.subdivision=8,16",
+            "--set",
+            "hierarchy.depth=2,3",
+            "--width",
+            "16",
+            "--repeat",
+            "1",
+            "--reference",
+            "none",
+            "--quiet",
+            "--out",
+            "out",
+        ],
+    );
+    assert_ok(&o);
+    assert!(
+        !text(&o.stdout).contains("[1/"),
+        "--quiet hides per-cell lines"
+    );
+    let v = read_json(&dir.join("out/results.json"));
+    let cs = cells(&v);
+    // crsh and rah: 2 × 2 each; bvh has no hierarchy and runs once.
+    assert_eq!(cs.len(), 9);
+    let mut combos: Vec<String> = cs
+        .iter()
+        .filter(|c| c["pipeline"] != "bvh")
+        .map(|c| {
+            let h = &c["config"]["hierarchy"];
+            assert_eq!(
+                h["subdivision"].to_string(),
+                c["params"]["hierarchy.subdivision"].as_str().unwrap()
+            );
+            format!(
+                "{} s{} d{}",
+                c["pipeline"].as_str().unwrap(),
+                h["subdivision"],
+                h["depth"]
+            )
+        })
+        .collect();
+    combos.sort();
+    assert_eq!(
+        combos,
+        [
+            "crsh s16 d2",
+            "crsh s16 d3",
+            "crsh s8 d2",
+            "crsh s8 d3",
+            "rah s16 d2",
+            "rah s16 d3",
+            "rah s8 d2",
+            "rah s8 d3"
+        ]
+    );
+    let bvh = cs.iter().find(|c| c["pipeline"] == "bvh").unwrap();
+    assert_eq!(bvh["params"], serde_json::json!({}));
+    assert!(bvh["measures"].get("accuracy").is_none(), "reference none");
+    // Without accuracy there is no Pareto chart, the other two are drawn.
+    assert!(!dir.join("out/charts/cornell-mirrors-pareto.png").exists());
+    assert!(is_png(&dir.join("out/charts/cornell-mirrors-tests.png")));
+}
+
+#[test]
+fn counters_do_not_depend_on_threads() {
+    let dir = scratch("threads");
+    let run = |threads: &str, out: &str| {
+        let o = crsh(
+            &dir,
+            &[
+                "ablate",
+                "--pipelines",
+                "crsh,rah",
+                "--width",
+                "16",
+                "--repeat",
+                "2",
+                "--threads",
+                threads,
+                "--quiet",
+                "--out",
+                out,
+            ],
+        );
+        assert_ok(&o);
+        read_json(&dir.join(out).join("results.json"))
+    };
+    let (a, b) = (run("1", "t1"), run("2", "t2"));
+    for (x, y) in cells(&a).iter().zip(cells(&b)) {
+        for key in ["rays", "tests", "levels", "peak_candidate_bytes"] {
+            assert_eq!(x["measures"][key], y["measures"][key], "{key}");
+        }
+    }
+    assert_eq!(a["machine"]["threads"], 1);
+    assert_eq!(b["machine"]["threads"], 2);
+}
+
+#[test]
+fn compare_prints_one_line_per_cell() {
+    let dir = scratch("compare");
+    let run = |subdivisions: &str, out: &str| {
+        let o = crsh(
+            &dir,
+            &[
+                "ablate",
+                "--pipelines",
+                "crsh",
+                "--set",
+                subdivisions,
+                "--width",
+                "16",
+                "--repeat",
+                "1",
+                "--quiet",
+                "--out",
+                out,
+            ],
+        );
+        assert_ok(&o);
+    };
+    run("hierarchy.subdivision=8,16", "old");
+    run("hierarchy.subdivision=8,4", "new");
+    let o = crsh(
+        &dir,
+        &[
+            "ablate",
+            "--compare",
+            "old/results.json",
+            "new/results.json",
+        ],
+    );
+    assert_ok(&o);
+    let t = text(&o.stdout);
+    let line = t
+        .lines()
+        .find(|l| l.contains("hierarchy.subdivision=8 |"))
+        .unwrap_or_else(|| panic!("no matched line:\n{t}"));
+    assert!(
+        line.starts_with(
+            "cornell-mirrors | crsh | cpu | hierarchy.subdivision=8 | 16x16 depth 3: time "
+        ),
+        "{line}"
+    );
+    // Counters are deterministic: the same configuration does the same tests.
+    assert!(line.contains("| tests 1.000x"), "{line}");
+    assert!(line.contains("| agreement 1.000x"), "{line}");
+    assert!(
+        t.contains("only in old: cornell-mirrors | crsh | cpu | hierarchy.subdivision=16"),
+        "{t}"
+    );
+    assert!(
+        t.contains("only in new: cornell-mirrors | crsh | cpu | hierarchy.subdivision=4"),
+        "{t}"
+    );
+    assert!(
+        t.contains("1 cells matched, 1 only in old, 1 only in new"),
+        "{t}"
+    );
+
+    // Not a results file: usage error.
+    std::fs::write(dir.join("x.json"), "{\"a\": 1}").unwrap();
+    let o = crsh(&dir, &["ablate", "--compare", "x.json", "new/results.json"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(text(&o.stderr).contains("not a crsh ablate results.json"));
+}
+
+#[test]
+fn bad_plans_exit_2_with_one_clear_line() {
+    let dir = scratch("bad");
+    let write = |name: &str, body: &str| {
+        std::fs::write(dir.join(name), body).unwrap();
+        name.to_string()
+    };
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (
+            vec!["--plan".into(), write("syntax.toml", "scenes = [\"a\"\n"), "--out".into(), "o".into()],
+            "plan syntax.toml",
+        ),
+        (
+            vec![
+                "--plan".into(),
+                write("unknown.toml", "scenes = [\"cornell-mirrors\"]\nbogus = 1\n[[pipelines]]\npipeline = \"bvh\"\n"),
+                "--out".into(),
+                "o".into(),
+            ],
+            "unknown field `bogus`",
+        ),
+        (
+            vec![
+                "--plan".into(),
+                write("nopipe.toml", "scenes = [\"cornell-mirrors\"]\n[[pipelines]]\npipeline = \"warp-drive\"\n"),
+                "--out".into(),
+                "o".into(),
+            ],
+            "unknown pipeline `warp-drive`",
+        ),
+        (
+            vec![
+                "--plan".into(),
+                write("param.toml", "scenes = [\"cornell-mirrors\"]\n[[pipelines]]\npipeline = \"crsh\"\n[pipelines.grid]\n\"hierarchy.bogus\" = [1, 2]\n"),
+                "--out".into(),
+                "o".into(),
+            ],
+            "hierarchy.bogus",
+        ),
+        (
+            vec!["--plan".into(), "does-not-exist.toml".into(), "--out".into(), "o".into()],
+            "cannot read plan does-not-exist.toml",
+        ),
+        (vec!["--pipelines".into(), "bvh".into()], "--out DIR is required"),
+        (
+            vec!["--set".into(), "hierarchy.depth".into(), "--out".into(), "o".into()],
+            "expected KEY=VALUE",
+        ),
+        (
+            vec!["--width".into(), "12,abc".into(), "--out".into(), "o".into()],
+            "not a whole number",
+        ),
+        (
+            vec!["--backends".into(), "metal".into(), "--out".into(), "o".into()],
+            "unknown backend `metal`",
+        ),
+    ];
+    for (args, needle) in cases {
+        let mut full = vec!["ablate".to_string()];
+        full.extend(args);
+        let refs: Vec<&str> = full.iter().map(String::as_str).collect();
+        let o = crsh(&dir, &refs);
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{full:?}: {err}");
+        assert!(err.starts_with("error: "), "{full:?}: {err}");
+        assert_eq!(
+            err.trim_end().lines().count(),
+            1,
+            "{full:?}: one line: {err}"
+        );
+        assert!(err.contains(needle), "{full:?}: `{needle}` not in {err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+    assert!(!dir.join("o").exists(), "nothing is written for a bad plan");
+}
+
+/// Renders `report.html` in headless Chromium and checks every chart and table is in the DOM.
+#[test]
+fn report_renders_in_headless_chromium() {
+    let Some(chromium) = ["chromium", "chromium-browser"].into_iter().find(|c| {
+        Command::new(c)
+            .arg("--version")
+            .output()
+            .is_ok_and(|o| o.status.success())
+    }) else {
+        println!("SKIP: chromium not installed");
+        return;
+    };
+    let dir = scratch("chromium");
+    let o = crsh(
+        &dir,
+        &[
+            "ablate",
+            "--scenes",
+            "cornell-mirrors,office-boxes",
+            "--pipelines",
+            "crsh,bvh",
+            "--width",
+            "16",
+            "--repeat",
+            "1",
+            "--reference",
+            "brute",
+            "--quiet",
+            "--out",
+            "out",
+        ],
+    );
+    assert_ok(&o);
+    let report = dir.join("out/report.html").canonicalize().unwrap();
+    let profile = dir.join("chromium-profile");
+    let o = Command::new(chromium)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--no-first-run",
+            &format!("--user-data-dir={}", profile.display()),
+            "--dump-dom",
+            &format!("file://{}", report.display()),
+        ])
+        .output()
+        .expect("run chromium");
+    assert!(o.status.success(), "chromium failed: {}", text(&o.stderr));
+    let dom = text(&o.stdout);
+    for scene in ["cornell-mirrors", "office-boxes"] {
+        for kind in ["pareto", "tests", "stages"] {
+            let id = format!("id=\"chart-{scene}-{kind}\"");
+            assert!(dom.contains(&id), "DOM lacks {id}");
+        }
+        assert!(
+            dom.contains(&format!("id=\"table-{scene}\"")),
+            "DOM lacks table {scene}"
+        );
+    }
+    assert_eq!(dom.matches("<svg").count(), 6, "every chart inlined as SVG");
+    assert!(dom.contains("id=\"machine-table\"") && dom.contains("id=\"plan-text\""));
+}
