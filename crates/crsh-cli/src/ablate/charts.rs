@@ -399,27 +399,31 @@ impl StackedBars {
             .flat_map(|m| m.levels.iter().map(|l| l.level))
             .max()
             .unwrap_or(0);
-        let mut segments: Vec<String> = (1..=max_level)
-            .rev()
-            .map(|l| format!("level {l} (node tests)"))
-            .collect();
+        // Mesh culling first (the top nodes against each mesh's sphere), then the node levels.
+        let mut segments: Vec<String> = vec!["mesh culling (top nodes × mesh spheres)".into()];
+        segments.extend(
+            (1..=max_level)
+                .rev()
+                .map(|l| format!("level {l} (node tests)")),
+        );
         segments.push("ray-triangle (level 0)".into());
-        // Bounds tests no level row counts: a BVH's boxes, or for a hierarchy the tests of
-        // batches the traversal abandoned and retried under its candidate budget.
-        segments.push("other bounding volumes (BVH boxes; retried batches)".into());
+        // Bounds tests no level row counts: a BVH's boxes.
+        segments.push("other bounding volumes (BVH boxes)".into());
         let mut values = Vec::new();
         for c in cells {
             let m = c.measures.as_ref().expect("ok cells have measures");
             let rays = m.rays.traced.max(1) as f64;
             let mut v = vec![0.0; segments.len()];
-            let mut level_bounds = 0u64;
+            let mesh: u64 = m.mesh_culling.values().map(|c| c.tests).sum();
+            v[0] = mesh as f64 / rays;
+            let mut level_bounds = mesh;
             let mut level_tri = 0u64;
             for l in &m.levels {
                 if l.level == 0 {
                     level_tri += l.tests;
                 } else {
                     level_bounds += l.tests;
-                    v[(max_level - l.level) as usize] += l.tests as f64 / rays;
+                    v[1 + (max_level - l.level) as usize] += l.tests as f64 / rays;
                 }
             }
             let n = segments.len();
@@ -427,21 +431,20 @@ impl StackedBars {
             v[n - 1] = m.tests.bounds.saturating_sub(level_bounds) as f64 / rays;
             values.push(v);
         }
-        let mut colors: Vec<RGBColor> = (0..max_level as usize)
-            .map(|i| {
-                // Blues from dark (highest level) to light (lowest node level).
-                let t = if max_level > 1 {
-                    i as f64 / (max_level - 1) as f64
-                } else {
-                    0.5
-                };
-                RGBColor(
-                    (20.0 + 130.0 * t) as u8,
-                    (60.0 + 120.0 * t) as u8,
-                    (140.0 + 100.0 * t) as u8,
-                )
-            })
-            .collect();
+        let mut colors: Vec<RGBColor> = vec![RGBColor(44, 160, 44)];
+        colors.extend((0..max_level as usize).map(|i| {
+            // Blues from dark (highest level) to light (lowest node level).
+            let t = if max_level > 1 {
+                i as f64 / (max_level - 1) as f64
+            } else {
+                0.5
+            };
+            RGBColor(
+                (20.0 + 130.0 * t) as u8,
+                (60.0 + 120.0 * t) as u8,
+                (140.0 + 100.0 * t) as u8,
+            )
+        }));
         colors.push(RGBColor(214, 39, 40));
         colors.push(RGBColor(255, 160, 60));
         StackedBars {

@@ -110,6 +110,8 @@ pub struct Measures {
     pub per_kind: BTreeMap<String, KindStats>,
     /// Per hierarchy level counters (thesis numbering; empty without a hierarchy).
     pub levels: Vec<LevelStats>,
+    /// Whole-mesh culling counters per ray kind (empty without mesh culling).
+    pub mesh_culling: BTreeMap<String, crsh_core::CullStats>,
     /// The most bytes the candidate arrays held at once.
     pub peak_candidate_bytes: u64,
     /// Whether every counter was identical in every timed run (they are deterministic).
@@ -328,6 +330,13 @@ impl Results {
         // Levels: per kind, highest level first (the thesis's table order).
         let mut levels: Vec<(usize, String, u32)> = level_keys.into_iter().collect();
         levels.sort_by(|a, b| a.0.cmp(&b.0).then(b.2.cmp(&a.2)));
+        let mesh_kinds: BTreeSet<(usize, String)> = self
+            .cells
+            .iter()
+            .filter_map(|c| c.measures.as_ref())
+            .flat_map(|m| m.mesh_culling.keys())
+            .map(|k| (kind_order(k), k.clone()))
+            .collect();
         let mut stages: Vec<String> = STAGE_TIMINGS
             .iter()
             .filter(|k| self.any_timing(k))
@@ -383,6 +392,11 @@ impl Results {
             .iter()
             .map(|s| s.to_string()),
         );
+        for (_, kind) in &mesh_kinds {
+            for what in ["tests", "hits"] {
+                header.push(format!("mesh_culling_{kind}_{what}"));
+            }
+        }
         for (_, kind, level) in &levels {
             for what in ["tests", "hits"] {
                 header.push(format!("level_{kind}_{level}_{what}"));
@@ -449,6 +463,11 @@ impl Results {
             row.push(num(&|m| m.tests.brute_force.to_string()));
             row.push(num(&|m| format!("{:.4}", m.tests.per_ray)));
             row.push(num(&|m| format!("{:.6e}", m.tests.fraction)));
+            for (_, kind) in &mesh_kinds {
+                let c = m.and_then(|m| m.mesh_culling.get(kind));
+                row.push(c.map(|c| c.tests.to_string()).unwrap_or_default());
+                row.push(c.map(|c| c.hits.to_string()).unwrap_or_default());
+            }
             for (_, kind, level) in &levels {
                 let l = m.and_then(|m| {
                     m.levels

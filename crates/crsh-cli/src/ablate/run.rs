@@ -293,6 +293,7 @@ fn measure(
         },
         per_kind: median.per_kind.clone(),
         levels: first.levels.clone(),
+        mesh_culling: first.mesh_culling.clone(),
         peak_candidate_bytes: first.peak_candidate_bytes,
         counters_equal_across_repeats: counters_equal,
         timings_ms,

@@ -59,9 +59,12 @@
 //! use the thesis numbering ([`crsh_core::LevelStats`]): `levels[i]` is level `i + 1`, so the
 //! top is level `levels.len()` and the lowest node level is 1; the **mesh-culling tests are
 //! counted apart, in [`Stats::mesh_culling`]** (tests = top nodes × meshes, hits = the
-//! (node, mesh) pairs kept), so level numbers mean the same whatever the batch; the final ray-triangle tests are level 0, recorded by the
-//! intersector. At every level `tests = hits + misses`, and the tests at level `L < top` are
-//! the survivors at `L + 1` times their existing children.
+//! (node, mesh) pairs kept), so level numbers mean the same whatever the batch; the final
+//! ray-triangle tests are level 0, recorded by the intersector. Together the rows account for
+//! every test. At every level `tests = hits + misses`, and within a triangle batch the tests
+//! at level `L < top` are the survivors at `L + 1` times their existing children; the tests of
+//! a batch abandoned under the memory budget (see below) count too, at the levels where they
+//! were done, so with retries a level can show more tests than that product.
 //!
 //! # Memory bound
 //!
@@ -448,9 +451,13 @@ impl Crsh {
         while t0 < n_tris {
             let t1 = (t0 + batch).min(n_tris);
             match self.run_batch(&ctx, t0, t1)? {
-                BatchOutcome::Aborted { needed, tests } => {
-                    // Only the bounds tests done count; the rows come from the retry.
-                    stats.add_bounds(tests);
+                BatchOutcome::Aborted { needed, local } => {
+                    // The tests done before the batch was abandoned were done: they count,
+                    // at their levels, so that the level rows account for every test.
+                    stats.add_bounds(local.tests.bounds);
+                    for row in &local.levels {
+                        stats.add_level(kind, row.level, row.tests, row.hits);
+                    }
                     report.retries += 1;
                     let scaled = (batch as f64 * self.budget_bytes as f64 / needed as f64) as usize;
                     batch = scaled.min(batch / 2).max(1);
@@ -501,8 +508,9 @@ enum BatchOutcome {
         peak: u64,
         worst: u64,
     },
-    /// A level's worst case would exceed the budget: `needed` bytes; `tests` were done.
-    Aborted { needed: u64, tests: u64 },
+    /// A level's worst case would exceed the budget: `needed` bytes; `local` holds the tests
+    /// done before the batch was abandoned.
+    Aborted { needed: u64, local: Box<Stats> },
 }
 
 impl Crsh {
@@ -585,7 +593,7 @@ impl Crsh {
             if needed > self.budget_bytes && t1 - t0 > 1 {
                 return Ok(BatchOutcome::Aborted {
                     needed,
-                    tests: local.tests.bounds,
+                    local: Box::new(local),
                 });
             }
             let children = &nodes[li - 1];
@@ -1078,12 +1086,26 @@ mod tests {
                 all.sort_unstable();
                 assert_eq!(all, all_big);
                 assert_eq!(report.candidates as usize, all.len());
-                // The level rows sum over batches to the unbatched ones (abandoned attempts
-                // only add bounds tests).
+                // The level rows account for every bounds test (mesh culling apart), and
+                // per level they hold at least the unbatched tests: the batches partition
+                // the triangles, and abandoned attempts add the tests they did.
                 let node_rows = |s: &Stats| -> Vec<LevelStats> {
                     s.levels.iter().filter(|l| l.level > 0).cloned().collect()
                 };
-                assert_eq!(node_rows(&stats), node_rows(&s_big));
+                let mesh_tests = |s: &Stats| s.mesh_culling.values().map(|c| c.tests).sum::<u64>();
+                for st in [&stats, &s_big] {
+                    let rows: u64 = node_rows(st).iter().map(|l| l.tests).sum();
+                    assert_eq!(rows + mesh_tests(st), st.tests.bounds);
+                }
+                let (small_rows, big_rows) = (node_rows(&stats), node_rows(&s_big));
+                assert_eq!(small_rows.len(), big_rows.len());
+                for b in &big_rows {
+                    let r = small_rows.iter().find(|r| r.level == b.level).unwrap();
+                    assert!(r.tests >= b.tests, "{r:?} vs {b:?}");
+                }
+                if report.retries == 0 {
+                    assert_eq!(small_rows, big_rows);
+                }
                 assert!(stats.tests.bounds > s_big.tests.bounds);
             }
         }
@@ -1150,13 +1172,15 @@ mod tests {
                     }
                 }
             }
+            assert!(row(top + 1).is_none(), "mesh culling is not a level");
             if culling {
-                let r = row(top + 1).unwrap();
+                let r = &stats.mesh_culling["reflection"];
                 let want = (nodes[top - 1].len() * scene.meshes.len()) as u64;
                 assert_eq!((r.tests, r.hits), (want, kept.len() as u64));
+                assert_eq!(r.tests, r.hits + r.misses);
                 bounds_tests += want;
             } else {
-                assert!(row(top + 1).is_none());
+                assert!(stats.mesh_culling.is_empty());
             }
             let mut tests = 0u64;
             let mut culled = 0u64;
