@@ -23,6 +23,12 @@
 //! whose rays are `hierarchy.order[leaf]`. Pairs are sorted and de-duplicated first, so the
 //! result does not depend on their order; per ray the triangles are tested in increasing id
 //! order with the same merge rules as above (any-hit: the lowest-id hit, stop at the first).
+//!
+//! Work is per node (rayon over the nodes of the batch): the node's rays (up to [`LANES`] at
+//! a time) sit in the lanes of a [`RayPacket`] and each candidate triangle is loaded once and
+//! tested against all of them, with the same per-lane arithmetic as the scalar test. Pairs
+//! that arrive strictly increasing, as the `crsh` traverser emits them, are used in place
+//! (one parallel scan checks that and the ranges); others are copied and sorted.
 //! Each (ray, triangle) test performed is counted, and also recorded as the hierarchy's
 //! level-0 entry of [`Stats::levels`] (`Stats::add_level(kind, 0, tests, hits)`, the kind
 //! taken from the rays, `hits` the tests that found an intersection): the final-test row of
@@ -45,7 +51,7 @@ use crsh_scene::Scene;
 use rayon::prelude::*;
 
 use crate::backend::Cpu;
-use crate::triangle::{RayPre, TriangleSet, LANES};
+use crate::triangle::{PreparedTriangle, RayPacket, RayPre, TriangleSet, LANES};
 
 #[cfg(doc)]
 use crate::triangle::TriangleBlock;
@@ -170,92 +176,168 @@ impl BruteForce {
         check_permutation(order, n_rays)?;
         let n_nodes = level0.len();
         let n_tris = self.tris.len();
-        if let Some(bad) = pairs
-            .par_iter()
-            .find_first(|c| c.node as usize >= n_nodes || c.tri as usize >= n_tris)
-        {
+        // One parallel pass: every pair in range, and whether the pairs are already strictly
+        // increasing (sorted, no duplicates), as the traversal emits them.
+        let (in_range, increasing) = scan_pairs(pairs, n_nodes, n_tris);
+        if !in_range {
+            let bad = pairs
+                .iter()
+                .find(|c| c.node as usize >= n_nodes || c.tri as usize >= n_tris)
+                .expect("the scan found one");
             return Err(CoreError::InvalidInput(format!(
                 "candidate (node {}, triangle {}) out of range ({} nodes, {} triangles)",
                 bad.node, bad.tri, n_nodes, n_tris
             )));
         }
-        let mut sorted = pairs.to_vec();
-        sorted.par_sort_unstable();
-        sorted.dedup();
+        let owned: Vec<Candidate>;
+        let sorted: &[Candidate] = if increasing {
+            pairs
+        } else {
+            let mut v = pairs.to_vec();
+            v.par_sort_unstable();
+            v.dedup();
+            owned = v;
+            &owned
+        };
+        let groups = node_runs(sorted, sub, n_rays);
 
-        // Active nodes: (node, first pair, end pair, first leaf, leaf count).
-        let mut groups: Vec<(usize, usize, usize, usize)> = Vec::new();
-        let mut start = 0;
-        while start < sorted.len() {
-            let node = sorted[start].node as usize;
-            let mut end = start + 1;
-            while end < sorted.len() && sorted[end].node as usize == node {
-                end += 1;
-            }
-            let first_leaf = (node * sub).min(n_rays);
-            let leaves = ((node + 1) * sub).min(n_rays) - first_leaf;
-            if leaves > 0 {
-                groups.push((start, end, first_leaf, leaves));
-            }
-            start = end;
-        }
-        // Gather the current hits of the active nodes' rays into one buffer, split per node.
-        let mut local: Vec<Hit> = groups
-            .iter()
-            .flat_map(|&(_, _, first, leaves)| {
-                order[first..first + leaves]
-                    .iter()
-                    .map(|&r| hits[r as usize])
-            })
-            .collect();
-        let mut slices: Vec<&mut [Hit]> = Vec::with_capacity(groups.len());
-        let mut rest: &mut [Hit] = &mut local;
-        for &(_, _, _, leaves) in &groups {
-            let (head, tail) = rest.split_at_mut(leaves);
-            slices.push(head);
-            rest = tail;
-        }
+        // Each active node gets `sub` slots of `local` (the last node may use fewer): its
+        // rays' current hits are gathered, updated in parallel, and scattered back.
+        let mut local = vec![Hit::MISS; groups.len() * sub];
         let tris = self.tris.triangles();
+        let current: &[Hit] = hits;
         let (tests, found): (u64, u64) = groups
             .par_iter()
-            .zip(slices.into_par_iter())
-            .map(|(&(p0, p1, first, _), out)| {
-                let node_pairs = &sorted[p0..p1];
+            .zip(local.par_chunks_mut(sub))
+            .map(|(g, out)| {
+                let leaves = &order[g.first_leaf..g.first_leaf + g.leaves];
+                for (slot, &r) in out.iter_mut().zip(leaves) {
+                    *slot = current[r as usize];
+                }
                 let mut tests = 0u64;
                 let mut found = 0u64;
-                for (j, best) in out.iter_mut().enumerate() {
-                    let ray = &rays[order[first + j] as usize];
-                    if mode == HitMode::Any && best.is_hit() {
-                        continue;
-                    }
-                    let r = RayPre::of(ray);
-                    for c in node_pairs {
-                        tests += 1;
-                        if let Some(h) = tris[c.tri as usize].hit(&r, ray.t_min, ray.t_max, c.tri) {
-                            found += 1;
-                            if mode == HitMode::Any {
-                                *best = h;
-                                break;
-                            }
-                            if h.closer_than(best) {
-                                *best = h;
-                            }
-                        }
-                    }
+                for (ids, best) in leaves.chunks(LANES).zip(out.chunks_mut(LANES)) {
+                    let (t, f) = node_packet(rays, ids, &sorted[g.pairs.clone()], tris, mode, best);
+                    tests += t;
+                    found += f;
                 }
                 (tests, found)
             })
             .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-        // Scatter back.
-        let mut k = 0;
-        for &(_, _, first, leaves) in &groups {
-            for &r in &order[first..first + leaves] {
-                hits[r as usize] = local[k];
-                k += 1;
+        for (g, out) in groups.iter().zip(local.chunks(sub)) {
+            for (&r, h) in order[g.first_leaf..g.first_leaf + g.leaves].iter().zip(out) {
+                hits[r as usize] = *h;
             }
         }
         Ok((tests, found))
     }
+}
+
+/// A run of candidate pairs that share a node with rays: the pairs' range in the sorted
+/// array and the node's leaves.
+struct NodeRun {
+    pairs: std::ops::Range<usize>,
+    first_leaf: usize,
+    leaves: usize,
+}
+
+/// Splits the sorted pairs into runs of one node each, skipping nodes without leaves.
+fn node_runs(sorted: &[Candidate], sub: usize, n_rays: usize) -> Vec<NodeRun> {
+    let mut runs = Vec::new();
+    let mut start = 0;
+    while start < sorted.len() {
+        let node = sorted[start].node;
+        let end = start + sorted[start..].partition_point(|c| c.node == node);
+        let first_leaf = (node as usize * sub).min(n_rays);
+        let leaves = ((node as usize + 1) * sub).min(n_rays) - first_leaf;
+        if leaves > 0 {
+            runs.push(NodeRun {
+                pairs: start..end,
+                first_leaf,
+                leaves,
+            });
+        }
+        start = end;
+    }
+    runs
+}
+
+/// Tests the rays `ids` (at most [`LANES`] of one node) against the node's triangles, in
+/// increasing triangle order, merging into `best` (their current hits) with the module doc's
+/// rules; returns `(tests, hits found)`. Each triangle is loaded once for all the rays, which
+/// sit in the lanes of a [`RayPacket`]; per ray the decisions and counts are those of testing
+/// the triangles one after the other (any-hit: the lowest-id hit, then the ray stops).
+fn node_packet(
+    rays: &[Ray],
+    ids: &[u32],
+    node_pairs: &[Candidate],
+    tris: &[PreparedTriangle],
+    mode: HitMode,
+    best: &mut [Hit],
+) -> (u64, u64) {
+    let mut packet = RayPacket::EMPTY;
+    let mut active = 0u32;
+    for (l, &r) in ids.iter().enumerate() {
+        if mode == HitMode::Any && best[l].is_hit() {
+            continue;
+        }
+        packet.set(l, &rays[r as usize]);
+        active |= 1 << l;
+    }
+    let mut tests = 0u64;
+    let mut found = 0u64;
+    for c in node_pairs {
+        if active == 0 {
+            break;
+        }
+        tests += active.count_ones() as u64;
+        let (mask, bh) = packet.test(&tris[c.tri as usize]);
+        let mut hit = mask & active;
+        found += hit.count_ones() as u64;
+        while hit != 0 {
+            let l = hit.trailing_zeros() as usize;
+            hit &= hit - 1;
+            let h = Hit {
+                t: bh.t[l],
+                tri: c.tri,
+                u: bh.u[l],
+                v: bh.v[l],
+            };
+            match mode {
+                HitMode::Any => {
+                    best[l] = h;
+                    active &= !(1 << l);
+                }
+                HitMode::Closest => {
+                    if h.closer_than(&best[l]) {
+                        best[l] = h;
+                    }
+                }
+            }
+        }
+    }
+    (tests, found)
+}
+
+/// Pairs per chunk of the parallel scans.
+const SCAN_CHUNK: usize = 1 << 14;
+
+/// Whether every pair is in range, and whether the pairs are strictly increasing.
+fn scan_pairs(pairs: &[Candidate], n_nodes: usize, n_tris: usize) -> (bool, bool) {
+    pairs
+        .par_chunks(SCAN_CHUNK)
+        .enumerate()
+        .map(|(k, chunk)| {
+            let in_range = chunk
+                .iter()
+                .all(|c| (c.node as usize) < n_nodes && (c.tri as usize) < n_tris);
+            // Include the boundary with the previous chunk.
+            let from = (k * SCAN_CHUNK).saturating_sub(1);
+            let window = &pairs[from..k * SCAN_CHUNK + chunk.len()];
+            let increasing = window.windows(2).all(|w| w[0] < w[1]);
+            (in_range, increasing)
+        })
+        .reduce(|| (true, true), |a, b| (a.0 && b.0, a.1 && b.1))
 }
 
 /// Checks that `hits` matches `rays` and every ray is valid.
@@ -267,7 +349,15 @@ pub(crate) fn check_batch(rays: &[Ray], hits: &[Hit]) -> Result<()> {
             hits.len()
         )));
     }
-    if let Some(i) = rays.par_iter().position_first(|r| !r.is_valid()) {
+    // A cheap parallel check first; the position is searched only when a ray is bad.
+    if !rays
+        .par_chunks(SCAN_CHUNK)
+        .all(|c| c.iter().all(Ray::is_valid))
+    {
+        let i = rays
+            .iter()
+            .position(|r| !r.is_valid())
+            .expect("the scan found one");
         return Err(CoreError::InvalidInput(format!(
             "ray {i} is not valid (non-finite or zero direction, or NaN interval): {:?}",
             rays[i]
@@ -284,13 +374,18 @@ fn check_permutation(order: &[u32], n: usize) -> Result<()> {
             order.len()
         )));
     }
-    let mut seen = vec![false; n];
+    // One bit per ray.
+    let mut seen = vec![0u64; n.div_ceil(64)];
     for &r in order {
         let r = r as usize;
-        if r >= n || std::mem::replace(&mut seen[r], true) {
-            return Err(CoreError::InvalidInput(format!(
-                "hierarchy order is not a permutation of the rays (entry {r})"
-            )));
+        let bit = 1u64 << (r % 64);
+        match seen.get_mut(r / 64) {
+            Some(word) if r < n && *word & bit == 0 => *word |= bit,
+            _ => {
+                return Err(CoreError::InvalidInput(format!(
+                    "hierarchy order is not a permutation of the rays (entry {r})"
+                )))
+            }
         }
     }
     Ok(())
@@ -662,6 +757,123 @@ pub(crate) mod tests {
                 }
             }
             assert_eq!(hit, &want, "ray {i}");
+        }
+    }
+
+    /// The candidate query written the obvious way: pairs sorted and de-duplicated, then per
+    /// ray of each node, its triangles one at a time; returns the (tests, hits found) counts.
+    fn naive_candidates(
+        set: &TriangleSet,
+        rays: &[Ray],
+        h: &RayHierarchy<Cpu>,
+        pairs: &[Candidate],
+        mode: HitMode,
+        hits: &mut [Hit],
+    ) -> (u64, u64) {
+        let mut sorted = pairs.to_vec();
+        sorted.sort();
+        sorted.dedup();
+        let sub = h.subdivision as usize;
+        let (mut tests, mut found) = (0, 0);
+        for node in 0..h.levels[0].len() {
+            let tris: Vec<u32> = sorted
+                .iter()
+                .filter(|c| c.node as usize == node)
+                .map(|c| c.tri)
+                .collect();
+            let leaves = (node * sub).min(rays.len())..((node + 1) * sub).min(rays.len());
+            for &r in &h.order[leaves] {
+                let ray = &rays[r as usize];
+                let best = &mut hits[r as usize];
+                if mode == HitMode::Any && best.is_hit() {
+                    continue;
+                }
+                for &tri in &tris {
+                    tests += 1;
+                    let pre = RayPre::of(ray);
+                    if let Some(x) =
+                        set.triangles()[tri as usize].hit(&pre, ray.t_min, ray.t_max, tri)
+                    {
+                        found += 1;
+                        if mode == HitMode::Any {
+                            *best = x;
+                            break;
+                        }
+                        if x.closer_than(best) {
+                            *best = x;
+                        }
+                    }
+                }
+            }
+        }
+        (tests, found)
+    }
+
+    #[test]
+    fn candidates_match_the_naive_loop_exactly() {
+        let scene = soup(21, 90);
+        let b = BruteForce::from_scene(&scene);
+        let rays = random_rays(&scene, 22, 157);
+        let mut rng = TestRng(23);
+        let mut order: Vec<u32> = (0..rays.len() as u32).collect();
+        for i in (1..order.len()).rev() {
+            order.swap(i, rng.next_u64() as usize % (i + 1));
+        }
+        // Subdivisions below, at and above LANES (nodes of several packets), partial last node.
+        for sub in [1u32, 3, 8, 11, 20] {
+            let h = hierarchy(order.clone(), sub);
+            let nodes = h.levels[0].len() as u32;
+            // A random half of the pairs, in two batches: the first sorted as the traverser
+            // emits them, the second shuffled with duplicates.
+            let mut pairs: Vec<Candidate> = (0..nodes)
+                .flat_map(|node| {
+                    (0..b.triangles().len() as u32).map(move |tri| Candidate { node, tri })
+                })
+                .filter(|_| rng.next_u64() % 2 == 0)
+                .collect();
+            let half = pairs.len() / 2;
+            let mut second = pairs.split_off(half);
+            second.extend_from_within(..second.len() / 5);
+            for i in (1..second.len()).rev() {
+                second.swap(i, rng.next_u64() as usize % (i + 1));
+            }
+            for mode in [HitMode::Closest, HitMode::Any] {
+                // Start from some stored hits (closer than anything, or misses).
+                let start: Vec<Hit> = (0..rays.len())
+                    .map(|i| match i % 9 {
+                        0 => Hit {
+                            t: 1e-3,
+                            tri: 5,
+                            u: 0.1,
+                            v: 0.1,
+                        },
+                        _ => Hit::MISS,
+                    })
+                    .collect();
+                let mut want = start.clone();
+                let mut got = start.clone();
+                let mut stats = Stats::default();
+                let mut counts = (0, 0);
+                for part in [&pairs, &second] {
+                    let c = naive_candidates(&b.tris, &rays, &h, part, mode, &mut want);
+                    counts = (counts.0 + c.0, counts.1 + c.1);
+                    let batch = CandidateBatch::<Cpu> {
+                        pairs: part.to_vec(),
+                    };
+                    let q = Query::Candidates {
+                        hierarchy: &h,
+                        batch: &batch,
+                    };
+                    b.intersect(&Cpu, &rays, q, mode, &mut got, &mut stats)
+                        .unwrap();
+                }
+                let what = format!("sub {sub} {mode:?}");
+                assert_eq!(got, want, "{what}");
+                assert_eq!(stats.tests.ray_triangle, counts.0, "{what}");
+                let found: u64 = stats.levels.iter().map(|r| r.hits).sum();
+                assert_eq!(found, counts.1, "{what}");
+                assert!(counts.1 > 0, "{what}: no hits, not a test");
+            }
         }
     }
 
