@@ -40,8 +40,16 @@
 //! ([`Ray::is_valid`]: NaN / infinite origin or direction, zero direction, NaN interval), or
 //! a candidate batch is inconsistent (node or triangle out of range, `order` not a
 //! permutation of the rays, zero subdivision, no level).
+//!
+//! Candidate queries check `order` on every batch (a bit set, cheap) but read every ray only
+//! once per (rays, hierarchy): the intersector remembers the buffers (addresses and lengths)
+//! whose rays it last validated, and the later batches of the same traversal skip that
+//! O(rays) scan of 64-byte rays, which would otherwise make a traversal O(rays²) as its
+//! triangle batches shrink with more rays. The rays a batch tests are checked every time, so
+//! a ray made invalid in place after validation is an error as soon as a batch would test it
+//! (one that no batch tests cannot change any result).
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use crsh_core::{
     Candidate, CoreError, Hit, HitMode, Intersector, Query, Ray, RayHierarchy, RayKind, Result,
@@ -60,9 +68,34 @@ use crate::triangle::TriangleBlock;
 pub const PACKET: usize = 16;
 
 /// The brute-force intersector (variant `brute`, no parameters).
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct BruteForce {
     tris: TriangleSet,
+    /// The (rays, hierarchy) buffers whose candidate queries were last fully validated.
+    validated: Mutex<Option<Validated>>,
+}
+
+impl Clone for BruteForce {
+    /// A copy with the same triangles and nothing validated yet.
+    fn clone(&self) -> BruteForce {
+        BruteForce {
+            tris: self.tris.clone(),
+            validated: Mutex::new(None),
+        }
+    }
+}
+
+/// Identifies the buffers of a candidate query (addresses and lengths) that passed the full
+/// checks, so the next batches of the same traversal skip them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Validated {
+    rays: usize,
+    n_rays: usize,
+    order: usize,
+    order_len: usize,
+    level0: usize,
+    nodes: usize,
+    subdivision: u32,
 }
 
 impl BruteForce {
@@ -76,6 +109,7 @@ impl BruteForce {
     pub fn from_scene(scene: &Scene) -> BruteForce {
         BruteForce {
             tris: TriangleSet::new(scene),
+            validated: Mutex::new(None),
         }
     }
 
@@ -162,6 +196,7 @@ impl BruteForce {
         hits: &mut [Hit],
     ) -> Result<(u64, u64)> {
         if pairs.is_empty() {
+            check_rays(rays)?;
             return Ok((0, 0));
         }
         let n_rays = rays.len();
@@ -173,8 +208,31 @@ impl BruteForce {
             return Err(CoreError::InvalidInput("hierarchy has no levels".into()));
         };
         let order = &hierarchy.order;
-        check_permutation(order, n_rays)?;
         let n_nodes = level0.len();
+        let key = Validated {
+            rays: rays.as_ptr() as usize,
+            n_rays,
+            order: order.as_ptr() as usize,
+            order_len: order.len(),
+            level0: level0.as_ptr() as usize,
+            nodes: n_nodes,
+            subdivision: hierarchy.subdivision,
+        };
+        check_permutation(order, n_rays)?;
+        // Every ray is checked once per (rays, hierarchy) buffers: the traverser sends many
+        // batches of one hierarchy, and reading all the rays (64 bytes each) per batch would
+        // cost O(rays) per batch, i.e. O(rays²) per traversal as batches shrink with more
+        // rays. The rays a batch tests are checked below anyway.
+        let mut validated = self
+            .validated
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if *validated != Some(key) {
+            *validated = None;
+            check_rays(rays)?;
+            *validated = Some(key);
+        }
+        drop(validated);
         let n_tris = self.tris.len();
         // One parallel pass: every pair in range, and whether the pairs are already strictly
         // increasing (sorted, no duplicates), as the traversal emits them.
@@ -206,11 +264,19 @@ impl BruteForce {
         let mut local = vec![Hit::MISS; groups.len() * sub];
         let tris = self.tris.triangles();
         let current: &[Hit] = hits;
-        let (tests, found): (u64, u64) = groups
+        // The rays a node tests and its order entries are checked as they are read (cheap,
+        // and it keeps bad input an error even if the buffers were changed in place since
+        // they were validated); `bad` is the first node that failed.
+        let (tests, found, bad) = groups
             .par_iter()
+            .enumerate()
             .zip(local.par_chunks_mut(sub))
-            .map(|(g, out)| {
+            .map(|((gi, g), out)| {
                 let leaves = &order[g.first_leaf..g.first_leaf + g.leaves];
+                let usable = leaves.iter().all(|&r| rays[r as usize].is_valid());
+                if !usable {
+                    return (0, 0, gi);
+                }
                 for (slot, &r) in out.iter_mut().zip(leaves) {
                     *slot = current[r as usize];
                 }
@@ -221,9 +287,24 @@ impl BruteForce {
                     tests += t;
                     found += f;
                 }
-                (tests, found)
+                (tests, found, usize::MAX)
             })
-            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+            .reduce(
+                || (0, 0, usize::MAX),
+                |a, b| (a.0 + b.0, a.1 + b.1, a.2.min(b.2)),
+            );
+        if bad != usize::MAX {
+            // A ray changed in place since it was validated: report it as `check_rays` does.
+            *self
+                .validated
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner) = None;
+            check_rays(rays)?;
+            return Err(CoreError::InvalidInput(format!(
+                "hierarchy node {} has an unusable ray",
+                sorted[groups[bad].pairs.start].node
+            )));
+        }
         for (g, out) in groups.iter().zip(local.chunks(sub)) {
             for (&r, h) in order[g.first_leaf..g.first_leaf + g.leaves].iter().zip(out) {
                 hits[r as usize] = *h;
@@ -342,6 +423,12 @@ fn scan_pairs(pairs: &[Candidate], n_nodes: usize, n_tris: usize) -> (bool, bool
 
 /// Checks that `hits` matches `rays` and every ray is valid.
 pub(crate) fn check_batch(rays: &[Ray], hits: &[Hit]) -> Result<()> {
+    check_lengths(rays, hits)?;
+    check_rays(rays)
+}
+
+/// Checks that `hits` matches `rays`.
+fn check_lengths(rays: &[Ray], hits: &[Hit]) -> Result<()> {
     if rays.len() != hits.len() {
         return Err(CoreError::InvalidInput(format!(
             "{} rays but {} hit slots",
@@ -349,6 +436,11 @@ pub(crate) fn check_batch(rays: &[Ray], hits: &[Hit]) -> Result<()> {
             hits.len()
         )));
     }
+    Ok(())
+}
+
+/// Checks that every ray is valid ([`Ray::is_valid`]).
+fn check_rays(rays: &[Ray]) -> Result<()> {
     // A cheap parallel check first; the position is searched only when a ray is bad.
     if !rays
         .par_chunks(SCAN_CHUNK)
@@ -405,13 +497,15 @@ impl Intersector<Cpu> for BruteForce {
         hits: &mut Vec<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
-        check_batch(rays, hits)?;
+        check_lengths(rays, hits)?;
         let tests = match query {
-            Query::Scene => rays
-                .par_chunks(PACKET)
-                .zip(hits.par_chunks_mut(PACKET))
-                .map(|(r, h)| self.scene_packet(r, h, mode))
-                .sum(),
+            Query::Scene => {
+                check_rays(rays)?;
+                rays.par_chunks(PACKET)
+                    .zip(hits.par_chunks_mut(PACKET))
+                    .map(|(r, h)| self.scene_packet(r, h, mode))
+                    .sum()
+            }
             Query::Candidates { hierarchy, batch } => {
                 let (tests, found) = self.candidates(rays, hierarchy, &batch.pairs, mode, hits)?;
                 if !batch.pairs.is_empty() {
@@ -968,6 +1062,55 @@ pub(crate) mod tests {
             );
             assert!(matches!(r, Err(CoreError::InvalidInput(_))), "{r:?}");
         }
+    }
+
+    #[test]
+    fn rays_changed_in_place_between_batches_are_caught() {
+        let scene = soup(15, 40);
+        let b = BruteForce::from_scene(&scene);
+        let mut rays = random_rays(&scene, 16, 16);
+        let h = hierarchy((0..16).rev().collect(), 4);
+        let batch = |node: u32| CandidateBatch::<Cpu> {
+            pairs: (0..40).map(|tri| Candidate { node, tri }).collect(),
+        };
+        let mut hits = vec![Hit::MISS; rays.len()];
+        let mut go = |rays: &Vec<Ray>, node: u32| {
+            let batch = batch(node);
+            let q = Query::Candidates {
+                hierarchy: &h,
+                batch: &batch,
+            };
+            b.intersect(
+                &Cpu,
+                rays,
+                q,
+                HitMode::Closest,
+                &mut hits,
+                &mut Stats::default(),
+            )
+        };
+        go(&rays, 0).unwrap();
+        // Ray 15 is leaf 0, in node 0: the next batch of node 1 does not test it, node 0's does.
+        rays[15].origin.x = f32::NAN;
+        go(&rays, 1).unwrap();
+        let r = go(&rays, 0);
+        assert!(matches!(r, Err(CoreError::InvalidInput(_))), "{r:?}");
+        // And a fresh traversal (a new hierarchy) checks every ray up front.
+        let h2 = hierarchy((0..16).collect(), 4);
+        let batch = batch(0);
+        let q = Query::Candidates {
+            hierarchy: &h2,
+            batch: &batch,
+        };
+        let r = b.intersect(
+            &Cpu,
+            &rays,
+            q,
+            HitMode::Closest,
+            &mut hits,
+            &mut Stats::default(),
+        );
+        assert!(matches!(r, Err(CoreError::InvalidInput(_))), "{r:?}");
     }
 
     #[test]
