@@ -923,7 +923,7 @@ pub(crate) mod tests {
                 .flat_map(|node| {
                     (0..b.triangles().len() as u32).map(move |tri| Candidate { node, tri })
                 })
-                .filter(|_| rng.next_u64() % 2 == 0)
+                .filter(|_| rng.next_u64() & 1 == 0)
                 .collect();
             let half = pairs.len() / 2;
             let mut second = pairs.split_off(half);
