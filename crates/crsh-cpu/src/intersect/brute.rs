@@ -41,13 +41,15 @@
 //! a candidate batch is inconsistent (node or triangle out of range, `order` not a
 //! permutation of the rays, zero subdivision, no level).
 //!
-//! Candidate queries check `order` on every batch (a bit set, cheap) but read every ray only
-//! once per (rays, hierarchy): the intersector remembers the buffers (addresses and lengths)
-//! whose rays it last validated, and the later batches of the same traversal skip that
-//! O(rays) scan of 64-byte rays, which would otherwise make a traversal O(rays²) as its
-//! triangle batches shrink with more rays. The rays a batch tests are checked every time, so
-//! a ray made invalid in place after validation is an error as soon as a batch would test it
-//! (one that no batch tests cannot change any result).
+//! The traverser sends many candidate batches per hierarchy, and its batches shrink as rays
+//! grow, so checking all of `order` and every ray per batch would make a traversal
+//! O(rays²). Instead the intersector keeps a copy of the last `order` it found to be a
+//! permutation (a batch whose `order` equals it, a sequential compare, skips the bit-set
+//! check), and remembers the buffers (addresses and lengths of the rays and the hierarchy)
+//! whose rays it last validated, so the later batches of the same traversal skip that scan of
+//! 64-byte rays. The rays a batch tests are checked every time, so a ray made invalid in
+//! place after validation is an error as soon as a batch would test it (one that no batch
+//! tests cannot change any result).
 
 use std::sync::{Arc, Mutex};
 
@@ -71,8 +73,8 @@ pub const PACKET: usize = 16;
 #[derive(Debug)]
 pub struct BruteForce {
     tris: TriangleSet,
-    /// The (rays, hierarchy) buffers whose candidate queries were last fully validated.
-    validated: Mutex<Option<Validated>>,
+    /// What the candidate queries last validated.
+    validated: Mutex<Validated>,
 }
 
 impl Clone for BruteForce {
@@ -80,15 +82,24 @@ impl Clone for BruteForce {
     fn clone(&self) -> BruteForce {
         BruteForce {
             tris: self.tris.clone(),
-            validated: Mutex::new(None),
+            validated: Mutex::default(),
         }
     }
 }
 
-/// Identifies the buffers of a candidate query (addresses and lengths) that passed the full
-/// checks, so the next batches of the same traversal skip them.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// What the candidate queries last validated, so the next batches of the same traversal
+/// skip the O(rays) checks.
+#[derive(Debug, Default)]
 struct Validated {
+    /// The buffers whose rays were all valid.
+    rays: Option<RaysKey>,
+    /// The last `order` found to be a permutation of its length.
+    order: Option<Vec<u32>>,
+}
+
+/// Identifies the buffers of a candidate query (addresses and lengths).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct RaysKey {
     rays: usize,
     n_rays: usize,
     order: usize,
@@ -109,7 +120,7 @@ impl BruteForce {
     pub fn from_scene(scene: &Scene) -> BruteForce {
         BruteForce {
             tris: TriangleSet::new(scene),
-            validated: Mutex::new(None),
+            validated: Mutex::default(),
         }
     }
 
@@ -209,7 +220,7 @@ impl BruteForce {
         };
         let order = &hierarchy.order;
         let n_nodes = level0.len();
-        let key = Validated {
+        let key = RaysKey {
             rays: rays.as_ptr() as usize,
             n_rays,
             order: order.as_ptr() as usize,
@@ -218,19 +229,22 @@ impl BruteForce {
             nodes: n_nodes,
             subdivision: hierarchy.subdivision,
         };
-        check_permutation(order, n_rays)?;
-        // Every ray is checked once per (rays, hierarchy) buffers: the traverser sends many
-        // batches of one hierarchy, and reading all the rays (64 bytes each) per batch would
-        // cost O(rays) per batch, i.e. O(rays²) per traversal as batches shrink with more
-        // rays. The rays a batch tests are checked below anyway.
+        // The O(rays) checks, skipped when this traversal's earlier batches did them (see the
+        // module doc); the rays a batch tests are checked below anyway.
         let mut validated = self
             .validated
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        if *validated != Some(key) {
-            *validated = None;
+        if validated.order.as_deref() != Some(order.as_slice()) || order.len() != n_rays {
+            check_permutation(order, n_rays)?;
+            let copy = validated.order.get_or_insert_with(Vec::new);
+            copy.clear();
+            copy.extend_from_slice(order);
+        }
+        if validated.rays != Some(key) {
+            validated.rays = None;
             check_rays(rays)?;
-            *validated = Some(key);
+            validated.rays = Some(key);
         }
         drop(validated);
         let n_tris = self.tris.len();
@@ -295,10 +309,10 @@ impl BruteForce {
             );
         if bad != usize::MAX {
             // A ray changed in place since it was validated: report it as `check_rays` does.
-            *self
-                .validated
+            self.validated
                 .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner) = None;
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .rays = None;
             check_rays(rays)?;
             return Err(CoreError::InvalidInput(format!(
                 "hierarchy node {} has an unusable ray",
@@ -1111,6 +1125,35 @@ pub(crate) mod tests {
             &mut Stats::default(),
         );
         assert!(matches!(r, Err(CoreError::InvalidInput(_))), "{r:?}");
+    }
+
+    #[test]
+    fn order_changed_in_place_between_batches_is_caught() {
+        let scene = soup(17, 30);
+        let b = BruteForce::from_scene(&scene);
+        let rays = random_rays(&scene, 18, 12);
+        let mut h = hierarchy((0..12).collect(), 4);
+        let batch = CandidateBatch::<Cpu> {
+            pairs: vec![Candidate { node: 0, tri: 1 }],
+        };
+        let mut hits = vec![Hit::MISS; rays.len()];
+        for (i, want_ok) in [(11, true), (10, false), (11, true)] {
+            // Leaf 11 (outside node 0) names ray 11, then ray 10 twice, then 11 again.
+            h.order[11] = i;
+            let q = Query::Candidates {
+                hierarchy: &h,
+                batch: &batch,
+            };
+            let r = b.intersect(
+                &Cpu,
+                &rays,
+                q,
+                HitMode::Closest,
+                &mut hits,
+                &mut Stats::default(),
+            );
+            assert_eq!(r.is_ok(), want_ok, "order[11] = {i}: {r:?}");
+        }
     }
 
     #[test]
