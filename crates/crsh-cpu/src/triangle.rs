@@ -1,10 +1,10 @@
 //! The one ray-triangle test of the CPU backend: Möller-Trumbore on precomputed triangles.
 //!
 //! Every intersector of this crate (brute force, its candidate-pair mode, the CWBVH) and the
-//! rasterizer's visibility-buffer resolve call [`mt_lane`] through [`PreparedTriangle`] or
-//! [`TriangleBlock`], with the per-ray values of [`RayPre`], so they compute the same `t`,
-//! `u`, `v` with the same floating-point operations in the same order: their hits are
-//! identical bit for bit, not merely close.
+//! rasterizer's visibility-buffer resolve call [`mt_lane`] through [`PreparedTriangle`],
+//! [`TriangleBlock`] or [`RayPacket`], with the per-ray values of [`RayPre`], so they compute
+//! the same `t`, `u`, `v` with the same floating-point operations in the same order: their
+//! hits are identical bit for bit, not merely close.
 //!
 //! # Data
 //!
@@ -12,7 +12,9 @@
 //! determinant scale `det_eps = DET_REL_EPS·|e1|·|e2|`, prepared once per scene
 //! ([`TriangleSet::new`]): 40 bytes in [`PreparedTriangle`] (array of structures, for BVH
 //! leaves and candidate pairs) and in [`TriangleBlock`]s of [`LANES`] triangles (structure of
-//! arrays, for the brute-force loop, which the compiler vectorizes).
+//! arrays, for the brute-force loop, which the compiler vectorizes). The candidate tests turn
+//! it around: one triangle against up to [`LANES`] rays of a hierarchy node held as a
+//! [`RayPacket`] (structure of arrays of the rays).
 //!
 //! # Epsilon policy
 //!
@@ -247,6 +249,77 @@ impl TriangleBlock {
             out.v[l] = v;
         }
         out
+    }
+}
+
+/// Up to [`LANES`] rays in structure-of-arrays form, for testing one triangle against several
+/// rays at once (the candidate tests of [`crate::intersect::brute`]: a hierarchy node's rays
+/// against each of its candidate triangles). Each lane holds the [`RayPre`] values of its ray,
+/// so [`RayPacket::test`] computes, lane by lane, exactly what [`PreparedTriangle::intersect`]
+/// computes for that ray, bit for bit. Unused lanes have a zero direction and an empty
+/// interval: they never hit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RayPacket {
+    /// Origin x, y, z per lane.
+    pub o: [[f32; LANES]; 3],
+    /// Direction x, y, z per lane.
+    pub d: [[f32; LANES]; 3],
+    /// `|d|` per lane (as [`RayPre::d_len`]).
+    pub d_len: [f32; LANES],
+    /// `t_min` per lane.
+    pub t_min: [f32; LANES],
+    /// `t_max` per lane.
+    pub t_max: [f32; LANES],
+}
+
+impl RayPacket {
+    /// A packet with no rays (every lane unused).
+    pub const EMPTY: RayPacket = RayPacket {
+        o: [[0.0; LANES]; 3],
+        d: [[0.0; LANES]; 3],
+        d_len: [0.0; LANES],
+        t_min: [0.0; LANES],
+        t_max: [0.0; LANES],
+    };
+
+    /// Puts `ray` in lane `lane` (`< LANES`).
+    #[inline(always)]
+    pub fn set(&mut self, lane: usize, ray: &Ray) {
+        let r = RayPre::of(ray);
+        for k in 0..3 {
+            self.o[k][lane] = r.o[k];
+            self.d[k][lane] = r.d[k];
+        }
+        self.d_len[lane] = r.d_len;
+        self.t_min[lane] = ray.t_min;
+        self.t_max[lane] = ray.t_max;
+    }
+
+    /// Tests `tri` against every lane: the bit `l` of the returned mask is set exactly when
+    /// [`PreparedTriangle::intersect`] reports a hit for lane `l`'s ray, and then the lane's
+    /// `t`, `u`, `v` are the same values (elsewhere `t` is `+∞`).
+    #[inline(always)]
+    pub fn test(&self, tri: &PreparedTriangle) -> (u32, BlockHits) {
+        let mut out = BlockHits {
+            t: [f32::INFINITY; LANES],
+            u: [0.0; LANES],
+            v: [0.0; LANES],
+        };
+        let mut mask = 0u32;
+        for l in 0..LANES {
+            let r = RayPre {
+                o: [self.o[0][l], self.o[1][l], self.o[2][l]],
+                d: [self.d[0][l], self.d[1][l], self.d[2][l]],
+                d_len: self.d_len[l],
+            };
+            let (det_ok, t, u, v) = mt_lane(tri.v0, tri.e1, tri.e2, tri.det_eps, &r);
+            let hit = det_ok & inside(u, v) & (t > self.t_min[l]) & (t < self.t_max[l]);
+            out.t[l] = if hit { t } else { f32::INFINITY };
+            out.u[l] = u;
+            out.v[l] = v;
+            mask |= (hit as u32) << l;
+        }
+        (mask, out)
     }
 }
 
@@ -564,6 +637,62 @@ pub(crate) mod tests {
                             );
                         }
                         None => assert_eq!(bh.t[l], f32::INFINITY),
+                    }
+                }
+            }
+        }
+        assert!(hits > 100, "too few hits to be a test: {hits}");
+    }
+
+    #[test]
+    fn packets_match_scalar_bit_for_bit() {
+        let mut rng = TestRng(9);
+        let tris: Vec<PreparedTriangle> = (0..40)
+            .map(|i| {
+                let a = rng.vec3(-1.0, 1.0);
+                if i % 13 == 0 {
+                    PreparedTriangle::new(a, a, a + Vec3::X)
+                } else {
+                    PreparedTriangle::new(a, a + rng.vec3(-0.6, 0.6), a + rng.vec3(-0.6, 0.6))
+                }
+            })
+            .collect();
+        let mut hits = 0;
+        for round in 0..60 {
+            // 1..=LANES rays aimed near the triangles, with finite and infinite intervals.
+            let count = 1 + round % LANES;
+            let rays: Vec<Ray> = (0..count)
+                .map(|i| {
+                    let o = rng.vec3(-2.0, 2.0);
+                    let t = &tris[(round * 7 + i) % tris.len()];
+                    let target = Vec3::from(t.v0)
+                        + Vec3::from(t.e1) * rng.range(-0.1, 0.7)
+                        + Vec3::from(t.e2) * rng.range(-0.1, 0.7);
+                    let t_max = if i % 3 == 0 { 2.0 } else { f32::INFINITY };
+                    crate::intersect::brute::tests::test_ray(o, target - o, 1e-4, t_max, i)
+                })
+                .collect();
+            let mut packet = RayPacket::EMPTY;
+            for (l, r) in rays.iter().enumerate() {
+                packet.set(l, r);
+            }
+            for tri in &tris {
+                let (mask, bh) = packet.test(tri);
+                assert_eq!(mask >> count, 0, "an unused lane hit");
+                for (l, ray) in rays.iter().enumerate() {
+                    match tri.intersect(&RayPre::of(ray), ray.t_min, ray.t_max) {
+                        Some((t, u, v)) => {
+                            hits += 1;
+                            assert_ne!(mask & (1 << l), 0);
+                            assert_eq!(
+                                (bh.t[l].to_bits(), bh.u[l].to_bits(), bh.v[l].to_bits()),
+                                (t.to_bits(), u.to_bits(), v.to_bits())
+                            );
+                        }
+                        None => {
+                            assert_eq!(mask & (1 << l), 0);
+                            assert_eq!(bh.t[l], f32::INFINITY);
+                        }
                     }
                 }
             }

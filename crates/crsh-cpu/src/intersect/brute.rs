@@ -23,6 +23,12 @@
 //! whose rays are `hierarchy.order[leaf]`. Pairs are sorted and de-duplicated first, so the
 //! result does not depend on their order; per ray the triangles are tested in increasing id
 //! order with the same merge rules as above (any-hit: the lowest-id hit, stop at the first).
+//!
+//! Work is per node (rayon over the nodes of the batch): the node's rays (up to [`LANES`] at
+//! a time) sit in the lanes of a [`RayPacket`] and each candidate triangle is loaded once and
+//! tested against all of them, with the same per-lane arithmetic as the scalar test. Pairs
+//! that arrive strictly increasing, as the `crsh` traverser emits them, are used in place
+//! (one parallel scan checks that and the ranges); others are copied and sorted.
 //! Each (ray, triangle) test performed is counted, and also recorded as the hierarchy's
 //! level-0 entry of [`Stats::levels`] (`Stats::add_level(kind, 0, tests, hits)`, the kind
 //! taken from the rays, `hits` the tests that found an intersection): the final-test row of
@@ -34,8 +40,18 @@
 //! ([`Ray::is_valid`]: NaN / infinite origin or direction, zero direction, NaN interval), or
 //! a candidate batch is inconsistent (node or triangle out of range, `order` not a
 //! permutation of the rays, zero subdivision, no level).
+//!
+//! The traverser sends many candidate batches per hierarchy, and its batches shrink as rays
+//! grow, so checking all of `order` and every ray per batch would make a traversal
+//! O(rays²). Instead the intersector keeps a copy of the last `order` it found to be a
+//! permutation (a batch whose `order` equals it, a sequential compare, skips the bit-set
+//! check), and remembers the buffers (addresses and lengths of the rays and the hierarchy)
+//! whose rays it last validated, so the later batches of the same traversal skip that scan of
+//! 64-byte rays. The rays a batch tests are checked every time, so a ray made invalid in
+//! place after validation is an error as soon as a batch would test it (one that no batch
+//! tests cannot change any result).
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use crsh_core::{
     Candidate, CoreError, Hit, HitMode, Intersector, Query, Ray, RayHierarchy, RayKind, Result,
@@ -45,7 +61,7 @@ use crsh_scene::Scene;
 use rayon::prelude::*;
 
 use crate::backend::Cpu;
-use crate::triangle::{RayPre, TriangleSet, LANES};
+use crate::triangle::{PreparedTriangle, RayPacket, RayPre, TriangleSet, LANES};
 
 #[cfg(doc)]
 use crate::triangle::TriangleBlock;
@@ -54,9 +70,43 @@ use crate::triangle::TriangleBlock;
 pub const PACKET: usize = 16;
 
 /// The brute-force intersector (variant `brute`, no parameters).
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct BruteForce {
     tris: TriangleSet,
+    /// What the candidate queries last validated.
+    validated: Mutex<Validated>,
+}
+
+impl Clone for BruteForce {
+    /// A copy with the same triangles and nothing validated yet.
+    fn clone(&self) -> BruteForce {
+        BruteForce {
+            tris: self.tris.clone(),
+            validated: Mutex::default(),
+        }
+    }
+}
+
+/// What the candidate queries last validated, so the next batches of the same traversal
+/// skip the O(rays) checks.
+#[derive(Debug, Default)]
+struct Validated {
+    /// The buffers whose rays were all valid.
+    rays: Option<RaysKey>,
+    /// The last `order` found to be a permutation of its length.
+    order: Option<Vec<u32>>,
+}
+
+/// Identifies the buffers of a candidate query (addresses and lengths).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct RaysKey {
+    rays: usize,
+    n_rays: usize,
+    order: usize,
+    order_len: usize,
+    level0: usize,
+    nodes: usize,
+    subdivision: u32,
 }
 
 impl BruteForce {
@@ -70,6 +120,7 @@ impl BruteForce {
     pub fn from_scene(scene: &Scene) -> BruteForce {
         BruteForce {
             tris: TriangleSet::new(scene),
+            validated: Mutex::default(),
         }
     }
 
@@ -156,6 +207,7 @@ impl BruteForce {
         hits: &mut [Hit],
     ) -> Result<(u64, u64)> {
         if pairs.is_empty() {
+            check_rays(rays)?;
             return Ok((0, 0));
         }
         let n_rays = rays.len();
@@ -167,99 +219,230 @@ impl BruteForce {
             return Err(CoreError::InvalidInput("hierarchy has no levels".into()));
         };
         let order = &hierarchy.order;
-        check_permutation(order, n_rays)?;
         let n_nodes = level0.len();
+        let key = RaysKey {
+            rays: rays.as_ptr() as usize,
+            n_rays,
+            order: order.as_ptr() as usize,
+            order_len: order.len(),
+            level0: level0.as_ptr() as usize,
+            nodes: n_nodes,
+            subdivision: hierarchy.subdivision,
+        };
+        // The O(rays) checks, skipped when this traversal's earlier batches did them (see the
+        // module doc); the rays a batch tests are checked below anyway.
+        let mut validated = self
+            .validated
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if validated.order.as_deref() != Some(order.as_slice()) || order.len() != n_rays {
+            check_permutation(order, n_rays)?;
+            let copy = validated.order.get_or_insert_with(Vec::new);
+            copy.clear();
+            copy.extend_from_slice(order);
+        }
+        if validated.rays != Some(key) {
+            validated.rays = None;
+            check_rays(rays)?;
+            validated.rays = Some(key);
+        }
+        drop(validated);
         let n_tris = self.tris.len();
-        if let Some(bad) = pairs
-            .par_iter()
-            .find_first(|c| c.node as usize >= n_nodes || c.tri as usize >= n_tris)
-        {
+        // One parallel pass: every pair in range, and whether the pairs are already strictly
+        // increasing (sorted, no duplicates), as the traversal emits them.
+        let (in_range, increasing) = scan_pairs(pairs, n_nodes, n_tris);
+        if !in_range {
+            let bad = pairs
+                .iter()
+                .find(|c| c.node as usize >= n_nodes || c.tri as usize >= n_tris)
+                .expect("the scan found one");
             return Err(CoreError::InvalidInput(format!(
                 "candidate (node {}, triangle {}) out of range ({} nodes, {} triangles)",
                 bad.node, bad.tri, n_nodes, n_tris
             )));
         }
-        let mut sorted = pairs.to_vec();
-        sorted.par_sort_unstable();
-        sorted.dedup();
+        let owned: Vec<Candidate>;
+        let sorted: &[Candidate] = if increasing {
+            pairs
+        } else {
+            let mut v = pairs.to_vec();
+            v.par_sort_unstable();
+            v.dedup();
+            owned = v;
+            &owned
+        };
+        let groups = node_runs(sorted, sub, n_rays);
 
-        // Active nodes: (node, first pair, end pair, first leaf, leaf count).
-        let mut groups: Vec<(usize, usize, usize, usize)> = Vec::new();
-        let mut start = 0;
-        while start < sorted.len() {
-            let node = sorted[start].node as usize;
-            let mut end = start + 1;
-            while end < sorted.len() && sorted[end].node as usize == node {
-                end += 1;
-            }
-            let first_leaf = (node * sub).min(n_rays);
-            let leaves = ((node + 1) * sub).min(n_rays) - first_leaf;
-            if leaves > 0 {
-                groups.push((start, end, first_leaf, leaves));
-            }
-            start = end;
-        }
-        // Gather the current hits of the active nodes' rays into one buffer, split per node.
-        let mut local: Vec<Hit> = groups
-            .iter()
-            .flat_map(|&(_, _, first, leaves)| {
-                order[first..first + leaves]
-                    .iter()
-                    .map(|&r| hits[r as usize])
-            })
-            .collect();
-        let mut slices: Vec<&mut [Hit]> = Vec::with_capacity(groups.len());
-        let mut rest: &mut [Hit] = &mut local;
-        for &(_, _, _, leaves) in &groups {
-            let (head, tail) = rest.split_at_mut(leaves);
-            slices.push(head);
-            rest = tail;
-        }
+        // Each active node gets `sub` slots of `local` (the last node may use fewer): its
+        // rays' current hits are gathered, updated in parallel, and scattered back.
+        let mut local = vec![Hit::MISS; groups.len() * sub];
         let tris = self.tris.triangles();
-        let (tests, found): (u64, u64) = groups
+        let current: &[Hit] = hits;
+        // The rays a node tests and its order entries are checked as they are read (cheap,
+        // and it keeps bad input an error even if the buffers were changed in place since
+        // they were validated); `bad` is the first node that failed.
+        let (tests, found, bad) = groups
             .par_iter()
-            .zip(slices.into_par_iter())
-            .map(|(&(p0, p1, first, _), out)| {
-                let node_pairs = &sorted[p0..p1];
+            .enumerate()
+            .zip(local.par_chunks_mut(sub))
+            .map(|((gi, g), out)| {
+                let leaves = &order[g.first_leaf..g.first_leaf + g.leaves];
+                let usable = leaves.iter().all(|&r| rays[r as usize].is_valid());
+                if !usable {
+                    return (0, 0, gi);
+                }
+                for (slot, &r) in out.iter_mut().zip(leaves) {
+                    *slot = current[r as usize];
+                }
                 let mut tests = 0u64;
                 let mut found = 0u64;
-                for (j, best) in out.iter_mut().enumerate() {
-                    let ray = &rays[order[first + j] as usize];
-                    if mode == HitMode::Any && best.is_hit() {
-                        continue;
-                    }
-                    let r = RayPre::of(ray);
-                    for c in node_pairs {
-                        tests += 1;
-                        if let Some(h) = tris[c.tri as usize].hit(&r, ray.t_min, ray.t_max, c.tri) {
-                            found += 1;
-                            if mode == HitMode::Any {
-                                *best = h;
-                                break;
-                            }
-                            if h.closer_than(best) {
-                                *best = h;
-                            }
-                        }
-                    }
+                for (ids, best) in leaves.chunks(LANES).zip(out.chunks_mut(LANES)) {
+                    let (t, f) = node_packet(rays, ids, &sorted[g.pairs.clone()], tris, mode, best);
+                    tests += t;
+                    found += f;
                 }
-                (tests, found)
+                (tests, found, usize::MAX)
             })
-            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-        // Scatter back.
-        let mut k = 0;
-        for &(_, _, first, leaves) in &groups {
-            for &r in &order[first..first + leaves] {
-                hits[r as usize] = local[k];
-                k += 1;
+            .reduce(
+                || (0, 0, usize::MAX),
+                |a, b| (a.0 + b.0, a.1 + b.1, a.2.min(b.2)),
+            );
+        if bad != usize::MAX {
+            // A ray changed in place since it was validated: report it as `check_rays` does.
+            self.validated
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .rays = None;
+            check_rays(rays)?;
+            return Err(CoreError::InvalidInput(format!(
+                "hierarchy node {} has an unusable ray",
+                sorted[groups[bad].pairs.start].node
+            )));
+        }
+        for (g, out) in groups.iter().zip(local.chunks(sub)) {
+            for (&r, h) in order[g.first_leaf..g.first_leaf + g.leaves].iter().zip(out) {
+                hits[r as usize] = *h;
             }
         }
         Ok((tests, found))
     }
 }
 
+/// A run of candidate pairs that share a node with rays: the pairs' range in the sorted
+/// array and the node's leaves.
+struct NodeRun {
+    pairs: std::ops::Range<usize>,
+    first_leaf: usize,
+    leaves: usize,
+}
+
+/// Splits the sorted pairs into runs of one node each, skipping nodes without leaves.
+fn node_runs(sorted: &[Candidate], sub: usize, n_rays: usize) -> Vec<NodeRun> {
+    let mut runs = Vec::new();
+    let mut start = 0;
+    while start < sorted.len() {
+        let node = sorted[start].node;
+        let end = start + sorted[start..].partition_point(|c| c.node == node);
+        let first_leaf = (node as usize * sub).min(n_rays);
+        let leaves = ((node as usize + 1) * sub).min(n_rays) - first_leaf;
+        if leaves > 0 {
+            runs.push(NodeRun {
+                pairs: start..end,
+                first_leaf,
+                leaves,
+            });
+        }
+        start = end;
+    }
+    runs
+}
+
+/// Tests the rays `ids` (at most [`LANES`] of one node) against the node's triangles, in
+/// increasing triangle order, merging into `best` (their current hits) with the module doc's
+/// rules; returns `(tests, hits found)`. Each triangle is loaded once for all the rays, which
+/// sit in the lanes of a [`RayPacket`]; per ray the decisions and counts are those of testing
+/// the triangles one after the other (any-hit: the lowest-id hit, then the ray stops).
+fn node_packet(
+    rays: &[Ray],
+    ids: &[u32],
+    node_pairs: &[Candidate],
+    tris: &[PreparedTriangle],
+    mode: HitMode,
+    best: &mut [Hit],
+) -> (u64, u64) {
+    let mut packet = RayPacket::EMPTY;
+    let mut active = 0u32;
+    for (l, &r) in ids.iter().enumerate() {
+        if mode == HitMode::Any && best[l].is_hit() {
+            continue;
+        }
+        packet.set(l, &rays[r as usize]);
+        active |= 1 << l;
+    }
+    let mut tests = 0u64;
+    let mut found = 0u64;
+    for c in node_pairs {
+        if active == 0 {
+            break;
+        }
+        tests += active.count_ones() as u64;
+        let (mask, bh) = packet.test(&tris[c.tri as usize]);
+        let mut hit = mask & active;
+        found += hit.count_ones() as u64;
+        while hit != 0 {
+            let l = hit.trailing_zeros() as usize;
+            hit &= hit - 1;
+            let h = Hit {
+                t: bh.t[l],
+                tri: c.tri,
+                u: bh.u[l],
+                v: bh.v[l],
+            };
+            match mode {
+                HitMode::Any => {
+                    best[l] = h;
+                    active &= !(1 << l);
+                }
+                HitMode::Closest => {
+                    if h.closer_than(&best[l]) {
+                        best[l] = h;
+                    }
+                }
+            }
+        }
+    }
+    (tests, found)
+}
+
+/// Pairs per chunk of the parallel scans.
+const SCAN_CHUNK: usize = 1 << 14;
+
+/// Whether every pair is in range, and whether the pairs are strictly increasing.
+fn scan_pairs(pairs: &[Candidate], n_nodes: usize, n_tris: usize) -> (bool, bool) {
+    pairs
+        .par_chunks(SCAN_CHUNK)
+        .enumerate()
+        .map(|(k, chunk)| {
+            let in_range = chunk
+                .iter()
+                .all(|c| (c.node as usize) < n_nodes && (c.tri as usize) < n_tris);
+            // Include the boundary with the previous chunk.
+            let from = (k * SCAN_CHUNK).saturating_sub(1);
+            let window = &pairs[from..k * SCAN_CHUNK + chunk.len()];
+            let increasing = window.windows(2).all(|w| w[0] < w[1]);
+            (in_range, increasing)
+        })
+        .reduce(|| (true, true), |a, b| (a.0 && b.0, a.1 && b.1))
+}
+
 /// Checks that `hits` matches `rays` and every ray is valid.
 pub(crate) fn check_batch(rays: &[Ray], hits: &[Hit]) -> Result<()> {
+    check_lengths(rays, hits)?;
+    check_rays(rays)
+}
+
+/// Checks that `hits` matches `rays`.
+fn check_lengths(rays: &[Ray], hits: &[Hit]) -> Result<()> {
     if rays.len() != hits.len() {
         return Err(CoreError::InvalidInput(format!(
             "{} rays but {} hit slots",
@@ -267,7 +450,20 @@ pub(crate) fn check_batch(rays: &[Ray], hits: &[Hit]) -> Result<()> {
             hits.len()
         )));
     }
-    if let Some(i) = rays.par_iter().position_first(|r| !r.is_valid()) {
+    Ok(())
+}
+
+/// Checks that every ray is valid ([`Ray::is_valid`]).
+fn check_rays(rays: &[Ray]) -> Result<()> {
+    // A cheap parallel check first; the position is searched only when a ray is bad.
+    if !rays
+        .par_chunks(SCAN_CHUNK)
+        .all(|c| c.iter().all(Ray::is_valid))
+    {
+        let i = rays
+            .iter()
+            .position(|r| !r.is_valid())
+            .expect("the scan found one");
         return Err(CoreError::InvalidInput(format!(
             "ray {i} is not valid (non-finite or zero direction, or NaN interval): {:?}",
             rays[i]
@@ -284,13 +480,18 @@ fn check_permutation(order: &[u32], n: usize) -> Result<()> {
             order.len()
         )));
     }
-    let mut seen = vec![false; n];
+    // One bit per ray.
+    let mut seen = vec![0u64; n.div_ceil(64)];
     for &r in order {
         let r = r as usize;
-        if r >= n || std::mem::replace(&mut seen[r], true) {
-            return Err(CoreError::InvalidInput(format!(
-                "hierarchy order is not a permutation of the rays (entry {r})"
-            )));
+        let bit = 1u64 << (r % 64);
+        match seen.get_mut(r / 64) {
+            Some(word) if r < n && *word & bit == 0 => *word |= bit,
+            _ => {
+                return Err(CoreError::InvalidInput(format!(
+                    "hierarchy order is not a permutation of the rays (entry {r})"
+                )))
+            }
         }
     }
     Ok(())
@@ -310,13 +511,15 @@ impl Intersector<Cpu> for BruteForce {
         hits: &mut Vec<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
-        check_batch(rays, hits)?;
+        check_lengths(rays, hits)?;
         let tests = match query {
-            Query::Scene => rays
-                .par_chunks(PACKET)
-                .zip(hits.par_chunks_mut(PACKET))
-                .map(|(r, h)| self.scene_packet(r, h, mode))
-                .sum(),
+            Query::Scene => {
+                check_rays(rays)?;
+                rays.par_chunks(PACKET)
+                    .zip(hits.par_chunks_mut(PACKET))
+                    .map(|(r, h)| self.scene_packet(r, h, mode))
+                    .sum()
+            }
             Query::Candidates { hierarchy, batch } => {
                 let (tests, found) = self.candidates(rays, hierarchy, &batch.pairs, mode, hits)?;
                 if !batch.pairs.is_empty() {
@@ -665,6 +868,123 @@ pub(crate) mod tests {
         }
     }
 
+    /// The candidate query written the obvious way: pairs sorted and de-duplicated, then per
+    /// ray of each node, its triangles one at a time; returns the (tests, hits found) counts.
+    fn naive_candidates(
+        set: &TriangleSet,
+        rays: &[Ray],
+        h: &RayHierarchy<Cpu>,
+        pairs: &[Candidate],
+        mode: HitMode,
+        hits: &mut [Hit],
+    ) -> (u64, u64) {
+        let mut sorted = pairs.to_vec();
+        sorted.sort();
+        sorted.dedup();
+        let sub = h.subdivision as usize;
+        let (mut tests, mut found) = (0, 0);
+        for node in 0..h.levels[0].len() {
+            let tris: Vec<u32> = sorted
+                .iter()
+                .filter(|c| c.node as usize == node)
+                .map(|c| c.tri)
+                .collect();
+            let leaves = (node * sub).min(rays.len())..((node + 1) * sub).min(rays.len());
+            for &r in &h.order[leaves] {
+                let ray = &rays[r as usize];
+                let best = &mut hits[r as usize];
+                if mode == HitMode::Any && best.is_hit() {
+                    continue;
+                }
+                for &tri in &tris {
+                    tests += 1;
+                    let pre = RayPre::of(ray);
+                    if let Some(x) =
+                        set.triangles()[tri as usize].hit(&pre, ray.t_min, ray.t_max, tri)
+                    {
+                        found += 1;
+                        if mode == HitMode::Any {
+                            *best = x;
+                            break;
+                        }
+                        if x.closer_than(best) {
+                            *best = x;
+                        }
+                    }
+                }
+            }
+        }
+        (tests, found)
+    }
+
+    #[test]
+    fn candidates_match_the_naive_loop_exactly() {
+        let scene = soup(21, 90);
+        let b = BruteForce::from_scene(&scene);
+        let rays = random_rays(&scene, 22, 157);
+        let mut rng = TestRng(23);
+        let mut order: Vec<u32> = (0..rays.len() as u32).collect();
+        for i in (1..order.len()).rev() {
+            order.swap(i, rng.next_u64() as usize % (i + 1));
+        }
+        // Subdivisions below, at and above LANES (nodes of several packets), partial last node.
+        for sub in [1u32, 3, 8, 11, 20] {
+            let h = hierarchy(order.clone(), sub);
+            let nodes = h.levels[0].len() as u32;
+            // A random half of the pairs, in two batches: the first sorted as the traverser
+            // emits them, the second shuffled with duplicates.
+            let mut pairs: Vec<Candidate> = (0..nodes)
+                .flat_map(|node| {
+                    (0..b.triangles().len() as u32).map(move |tri| Candidate { node, tri })
+                })
+                .filter(|_| rng.next_u64() & 1 == 0)
+                .collect();
+            let half = pairs.len() / 2;
+            let mut second = pairs.split_off(half);
+            second.extend_from_within(..second.len() / 5);
+            for i in (1..second.len()).rev() {
+                second.swap(i, rng.next_u64() as usize % (i + 1));
+            }
+            for mode in [HitMode::Closest, HitMode::Any] {
+                // Start from some stored hits (closer than anything, or misses).
+                let start: Vec<Hit> = (0..rays.len())
+                    .map(|i| match i % 9 {
+                        0 => Hit {
+                            t: 1e-3,
+                            tri: 5,
+                            u: 0.1,
+                            v: 0.1,
+                        },
+                        _ => Hit::MISS,
+                    })
+                    .collect();
+                let mut want = start.clone();
+                let mut got = start.clone();
+                let mut stats = Stats::default();
+                let mut counts = (0, 0);
+                for part in [&pairs, &second] {
+                    let c = naive_candidates(&b.tris, &rays, &h, part, mode, &mut want);
+                    counts = (counts.0 + c.0, counts.1 + c.1);
+                    let batch = CandidateBatch::<Cpu> {
+                        pairs: part.to_vec(),
+                    };
+                    let q = Query::Candidates {
+                        hierarchy: &h,
+                        batch: &batch,
+                    };
+                    b.intersect(&Cpu, &rays, q, mode, &mut got, &mut stats)
+                        .unwrap();
+                }
+                let what = format!("sub {sub} {mode:?}");
+                assert_eq!(got, want, "{what}");
+                assert_eq!(stats.tests.ray_triangle, counts.0, "{what}");
+                let found: u64 = stats.levels.iter().map(|r| r.hits).sum();
+                assert_eq!(found, counts.1, "{what}");
+                assert!(counts.1 > 0, "{what}: no hits, not a test");
+            }
+        }
+    }
+
     #[test]
     fn bad_input_is_an_error() {
         let scene = soup(11, 10);
@@ -755,6 +1075,84 @@ pub(crate) mod tests {
                 &mut Stats::default(),
             );
             assert!(matches!(r, Err(CoreError::InvalidInput(_))), "{r:?}");
+        }
+    }
+
+    #[test]
+    fn rays_changed_in_place_between_batches_are_caught() {
+        let scene = soup(15, 40);
+        let b = BruteForce::from_scene(&scene);
+        let mut rays = random_rays(&scene, 16, 16);
+        let h = hierarchy((0..16).rev().collect(), 4);
+        let batch = |node: u32| CandidateBatch::<Cpu> {
+            pairs: (0..40).map(|tri| Candidate { node, tri }).collect(),
+        };
+        let mut hits = vec![Hit::MISS; rays.len()];
+        let mut go = |rays: &Vec<Ray>, node: u32| {
+            let batch = batch(node);
+            let q = Query::Candidates {
+                hierarchy: &h,
+                batch: &batch,
+            };
+            b.intersect(
+                &Cpu,
+                rays,
+                q,
+                HitMode::Closest,
+                &mut hits,
+                &mut Stats::default(),
+            )
+        };
+        go(&rays, 0).unwrap();
+        // Ray 15 is leaf 0, in node 0: the next batch of node 1 does not test it, node 0's does.
+        rays[15].origin.x = f32::NAN;
+        go(&rays, 1).unwrap();
+        let r = go(&rays, 0);
+        assert!(matches!(r, Err(CoreError::InvalidInput(_))), "{r:?}");
+        // And a fresh traversal (a new hierarchy) checks every ray up front.
+        let h2 = hierarchy((0..16).collect(), 4);
+        let batch = batch(0);
+        let q = Query::Candidates {
+            hierarchy: &h2,
+            batch: &batch,
+        };
+        let r = b.intersect(
+            &Cpu,
+            &rays,
+            q,
+            HitMode::Closest,
+            &mut hits,
+            &mut Stats::default(),
+        );
+        assert!(matches!(r, Err(CoreError::InvalidInput(_))), "{r:?}");
+    }
+
+    #[test]
+    fn order_changed_in_place_between_batches_is_caught() {
+        let scene = soup(17, 30);
+        let b = BruteForce::from_scene(&scene);
+        let rays = random_rays(&scene, 18, 12);
+        let mut h = hierarchy((0..12).collect(), 4);
+        let batch = CandidateBatch::<Cpu> {
+            pairs: vec![Candidate { node: 0, tri: 1 }],
+        };
+        let mut hits = vec![Hit::MISS; rays.len()];
+        for (i, want_ok) in [(11, true), (10, false), (11, true)] {
+            // Leaf 11 (outside node 0) names ray 11, then ray 10 twice, then 11 again.
+            h.order[11] = i;
+            let q = Query::Candidates {
+                hierarchy: &h,
+                batch: &batch,
+            };
+            let r = b.intersect(
+                &Cpu,
+                &rays,
+                q,
+                HitMode::Closest,
+                &mut hits,
+                &mut Stats::default(),
+            );
+            assert_eq!(r.is_ok(), want_ok, "order[11] = {i}: {r:?}");
         }
     }
 

@@ -1,0 +1,279 @@
+//! Criterion benches of the hot CPU stages on one fixed batch of shadow rays.
+//!
+//! The batch: the shared Sponza scene (`$CRSH_SCENES/sponza/sponza.toml`, else
+//! `../shared/scenes` next to the workspace) when present, else the built-in `cornell-mirrors`
+//! (the choice is printed); a 256×256 G-buffer from the `raster` primary stage, and the shadow
+//! rays `raygen::whitted` spawns from it. Every group reports throughput in rays of that batch.
+//!
+//! Groups (see the README's "Benchmarks"):
+//! - `hashing`: `thesis` with layout `interleave` and `concat`, and `morton`;
+//! - `sorting`: `compress` and `radix` on the keys of each hasher;
+//! - `hierarchy`: `sphere_cone` (subdivision 8, depth 2) over the thesis-sorted rays;
+//! - `traversal`: the `crsh` traverser, with a sink that only counts the candidates;
+//! - `final_tests`: the `brute` intersector on the candidate batches of that traversal;
+//! - `bvh`: the whole-scene `bvh` any-hit query of the same rays, the baseline.
+//!
+//! Run with `cargo bench -p crsh-cpu --bench stages` (add `-- --quick` for a short run, or a
+//! group name to filter).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
+use crsh_core::{
+    CandidateBatch, Hit, PipelineConfig, Query, Ray, RayHierarchy, RayKind, Stages, Stats,
+};
+use crsh_cpu::{build_stages, preset, Cpu};
+use crsh_scene::Scene;
+
+/// G-buffer size of the batch.
+const SIZE: u32 = 256;
+
+/// The fixed batch every group works on.
+struct Batch {
+    scene: Arc<Scene>,
+    rays: Vec<Ray>,
+    /// The rays' order by their thesis keys (layout `interleave`, compress sorter: the `crsh`
+    /// preset's).
+    order: Vec<u32>,
+    /// The hierarchy over `order`.
+    hierarchy: RayHierarchy<Cpu>,
+    /// The candidate batches of the `crsh` traversal of `hierarchy`.
+    candidates: Vec<CandidateBatch<Cpu>>,
+}
+
+/// The shared Sponza manifest, if the scenes directory has it.
+fn sponza() -> Option<PathBuf> {
+    let dir = std::env::var_os("CRSH_SCENES")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes")
+        });
+    let path = dir.join("sponza/sponza.toml");
+    path.is_file().then_some(path)
+}
+
+/// The `crsh` preset with `sets` applied (`stage.param=value`), built for `scene`.
+fn stages(scene: &Arc<Scene>, sets: &[&str]) -> Stages<Cpu> {
+    let mut cfg: PipelineConfig = preset("crsh").expect("the crsh preset exists");
+    for s in sets {
+        cfg.set(s).unwrap_or_else(|e| panic!("--set {s}: {e}"));
+    }
+    build_stages(&cfg, scene).unwrap_or_else(|e| panic!("building {sets:?}: {e}"))
+}
+
+fn prepare() -> Batch {
+    let scene = match sponza() {
+        Some(path) => {
+            let scene = crsh_scene::load_path(&path)
+                .unwrap_or_else(|e| panic!("loading {}: {e}", path.display()));
+            eprintln!("bench scene: sponza ({})", path.display());
+            scene
+        }
+        None => {
+            eprintln!(
+                "bench scene: built-in cornell-mirrors (sponza/sponza.toml not found under \
+                 CRSH_SCENES or ../shared/scenes)"
+            );
+            crsh_scene::load("cornell-mirrors").expect("built-in scene")
+        }
+    };
+    let scene = Arc::new(scene);
+    let st = stages(&scene, &[]);
+    let mut stats = Stats::default();
+    let surfaces = st
+        .primary
+        .gbuffer(&Cpu, SIZE, SIZE, &mut stats)
+        .expect("G-buffer");
+    let rays = st
+        .raygen
+        .generate(&Cpu, &surfaces, RayKind::Shadow, &mut stats)
+        .expect("shadow rays");
+    assert!(!rays.is_empty(), "the bench scene spawns no shadow rays");
+    let hasher = st.hasher.as_ref().expect("crsh hashes");
+    let keys = hasher.hash(&Cpu, &rays, &mut stats).expect("keys");
+    let order = st
+        .sorter
+        .as_ref()
+        .expect("crsh sorts")
+        .sort(&Cpu, &keys, hasher.key_bits(), &mut stats)
+        .expect("order");
+    let builder = st.hierarchy.as_ref().expect("crsh builds a hierarchy");
+    let hierarchy = builder
+        .build(&Cpu, &rays, order.clone(), &mut stats)
+        .expect("hierarchy");
+    let mut candidates = Vec::new();
+    st.traverser
+        .as_ref()
+        .expect("crsh traverses")
+        .traverse(
+            &Cpu,
+            &rays,
+            RayKind::Shadow,
+            &hierarchy,
+            &mut |batch, _| {
+                candidates.push(batch);
+                Ok(())
+            },
+            &mut stats,
+        )
+        .expect("traversal");
+    let pairs: usize = candidates.iter().map(|b| b.pairs.len()).sum();
+    eprintln!(
+        "bench batch: {} triangles, {SIZE}x{SIZE} G-buffer, {} shadow rays, {} hierarchy \
+         levels, {} candidate batches, {pairs} candidate pairs",
+        scene.triangle_count(),
+        rays.len(),
+        hierarchy.levels.len(),
+        candidates.len(),
+    );
+    Batch {
+        scene,
+        rays,
+        order,
+        hierarchy,
+        candidates,
+    }
+}
+
+fn benches(c: &mut Criterion) {
+    let b = prepare();
+    let n = b.rays.len() as u64;
+    let scene = &b.scene;
+
+    let mut g = c.benchmark_group("hashing");
+    g.throughput(Throughput::Elements(n));
+    let hashers = [
+        ("thesis_interleave", vec!["hash.layout=interleave"]),
+        ("thesis_concat", vec!["hash.layout=concat"]),
+        ("morton", vec!["hash.kind=morton"]),
+    ];
+    let mut keysets = Vec::new();
+    for (name, sets) in &hashers {
+        let st = stages(scene, sets);
+        let h = st.hasher.expect("a hasher");
+        g.bench_function(*name, |bench| {
+            bench.iter(|| h.hash(&Cpu, &b.rays, &mut Stats::default()).unwrap())
+        });
+        keysets.push((
+            *name,
+            h.hash(&Cpu, &b.rays, &mut Stats::default()).unwrap(),
+            h.key_bits(),
+        ));
+    }
+    g.finish();
+
+    let mut g = c.benchmark_group("sorting");
+    g.throughput(Throughput::Elements(n));
+    for sorter in ["compress", "radix"] {
+        let st = stages(scene, &[&format!("sort.kind={sorter}")]);
+        let s = st.sorter.expect("a sorter");
+        for (keys_name, keys, bits) in &keysets {
+            g.bench_function(format!("{sorter}/{keys_name}"), |bench| {
+                bench.iter(|| s.sort(&Cpu, keys, *bits, &mut Stats::default()).unwrap())
+            });
+        }
+    }
+    g.finish();
+
+    let st = stages(scene, &[]);
+    let mut g = c.benchmark_group("hierarchy");
+    g.throughput(Throughput::Elements(n));
+    let builder = st.hierarchy.as_ref().expect("a builder");
+    g.bench_function("sphere_cone_s8_d2", |bench| {
+        bench.iter_batched(
+            || b.order.clone(),
+            |order| {
+                builder
+                    .build(&Cpu, &b.rays, order, &mut Stats::default())
+                    .unwrap()
+            },
+            BatchSize::LargeInput,
+        )
+    });
+    g.finish();
+
+    let mut g = c.benchmark_group("traversal");
+    g.throughput(Throughput::Elements(n));
+    g.sample_size(10);
+    let traverser = st.traverser.as_ref().expect("a traverser");
+    g.bench_function("crsh", |bench| {
+        bench.iter(|| {
+            let mut pairs = 0usize;
+            traverser
+                .traverse(
+                    &Cpu,
+                    &b.rays,
+                    RayKind::Shadow,
+                    &b.hierarchy,
+                    &mut |batch, _| {
+                        pairs += batch.pairs.len();
+                        Ok(())
+                    },
+                    &mut Stats::default(),
+                )
+                .unwrap();
+            pairs
+        })
+    });
+    g.finish();
+
+    let mut g = c.benchmark_group("final_tests");
+    g.throughput(Throughput::Elements(n));
+    g.sample_size(10);
+    let mode = RayKind::Shadow.hit_mode();
+    g.bench_function("brute_candidates", |bench| {
+        bench.iter(|| {
+            let mut hits = vec![Hit::MISS; b.rays.len()];
+            let mut stats = Stats::default();
+            for batch in &b.candidates {
+                let q = Query::Candidates {
+                    hierarchy: &b.hierarchy,
+                    batch,
+                };
+                st.intersector
+                    .intersect(&Cpu, &b.rays, q, mode, &mut hits, &mut stats)
+                    .unwrap();
+            }
+            hits
+        })
+    });
+    g.finish();
+
+    let mut g = c.benchmark_group("bvh");
+    g.throughput(Throughput::Elements(n));
+    g.sample_size(10);
+    let bvh = stages(scene, &["intersect.kind=bvh"]).intersector;
+    g.bench_function("whole_scene_any_hit", |bench| {
+        bench.iter(|| {
+            let mut hits = vec![Hit::MISS; b.rays.len()];
+            bvh.intersect(
+                &Cpu,
+                &b.rays,
+                Query::Scene,
+                mode,
+                &mut hits,
+                &mut Stats::default(),
+            )
+            .unwrap();
+            hits
+        })
+    });
+    g.finish();
+}
+
+/// Short runs: the machine this was written on has 2 shared cores.
+fn config() -> Criterion {
+    Criterion::default()
+        .sample_size(20)
+        .warm_up_time(Duration::from_millis(500))
+        .measurement_time(Duration::from_secs(3))
+}
+
+criterion_group! {
+    name = stages_group;
+    config = config();
+    targets = benches
+}
+criterion_main!(stages_group);
