@@ -315,7 +315,13 @@ fn trace_ms(s: &Stats) -> f64 {
 
 fn mrays(s: &Stats) -> f64 {
     let ms = trace_ms(s);
-    let rays = s.traced_rays - s.per_kind.get("primary").map_or(0, |p| p.rays);
+    // Secondary rays, the rays `trace_ms` covers (ray-cast primaries are left out of both).
+    let rays: u64 = s
+        .per_kind
+        .iter()
+        .filter(|(k, _)| k.as_str() != "primary")
+        .map(|(_, v)| v.rays)
+        .sum();
     if ms > 0.0 {
         rays as f64 / ms * 1e-3
     } else {

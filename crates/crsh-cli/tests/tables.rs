@@ -113,6 +113,20 @@ fn thesis_tables_on_the_builtin_scenes() {
         let total = num(t, "total_tests");
         assert_eq!(total, num(t, "bounds_tests") + num(t, "ray_triangle_tests"));
         assert!(total < num(t, "brute_force_tests"), "{who}");
+        // Mrays/s is the traced (secondary) rays over their tracing time.
+        let (rays, ms, m) = (
+            num(t, "traced_rays") as f64,
+            t["trace_ms"].parse::<f64>().unwrap(),
+            t["mrays_per_s"].parse::<f64>().unwrap(),
+        );
+        if ms > 0.001 {
+            // `trace_ms` is printed to 0.001 ms, `mrays_per_s` to 1e-4.
+            let (lo, hi) = (rays / (ms + 0.0005) * 1e-3, rays / (ms - 0.0005) * 1e-3);
+            assert!(
+                m >= lo - 1e-4 && m <= hi + 1e-4,
+                "{who}: {m} Mrays/s, want {lo}..{hi}"
+            );
+        }
         if t["pipeline"] == "bvh" {
             assert_eq!(t["subdivision"], "", "{who}");
             continue;
