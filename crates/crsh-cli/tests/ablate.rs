@@ -8,37 +8,17 @@ use std::process::{Command, Output};
 
 use serde_json::Value;
 
+mod common;
+use common::{assert_ok, text};
+
 /// A fresh scratch directory for one test.
 fn scratch(test: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("crsh-ablate-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).expect("create scratch dir");
-    d
+    common::scratch("ablate", test)
 }
 
-/// Runs `crsh args...` in `dir`.
+/// Runs `crsh args...` in `dir`, without `CRSH_SCENES` (the plans must not need it).
 fn crsh(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_crsh"))
-        .args(args)
-        .current_dir(dir)
-        .env_remove("RAYON_NUM_THREADS")
-        .env_remove("CRSH_SCENES")
-        .output()
-        .expect("run crsh")
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
-
-fn assert_ok(o: &Output) {
-    assert!(
-        o.status.success(),
-        "crsh failed ({:?})\nstdout:\n{}\nstderr:\n{}",
-        o.status.code(),
-        text(&o.stdout),
-        text(&o.stderr)
-    );
+    common::crsh_with(dir, args, &["CRSH_SCENES"])
 }
 
 fn read_json(path: &Path) -> Value {
