@@ -141,11 +141,7 @@ pub fn write_all(results: &Results, dir: &Path) -> Result<Vec<(String, Vec<Chart
     };
     let mut out = Vec::new();
     for scene in results.scenes() {
-        let cells: Vec<&CellResult> = results
-            .cells
-            .iter()
-            .filter(|c| c.scene == scene && c.ok())
-            .collect();
+        let cells: Vec<&CellResult> = results.ok_cells(&scene);
         let mut files = Vec::new();
         if cells.is_empty() {
             out.push((scene, files));

@@ -32,11 +32,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 pub fn headline(results: &Results) -> String {
     let mut out = String::new();
     for scene in results.scenes() {
-        let cells: Vec<&CellResult> = results
-            .cells
-            .iter()
-            .filter(|c| c.scene == scene && c.ok())
-            .collect();
+        let cells: Vec<&CellResult> = results.ok_cells(&scene);
         let failed = results
             .cells
             .iter()

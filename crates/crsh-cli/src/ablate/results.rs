@@ -311,6 +311,14 @@ impl Results {
             .collect()
     }
 
+    /// The cells of `scene` that ran, in plan order.
+    pub fn ok_cells(&self, scene: &str) -> Vec<&CellResult> {
+        self.cells
+            .iter()
+            .filter(|c| c.scene == scene && c.ok())
+            .collect()
+    }
+
     /// The swept parameter keys over all cells, sorted.
     pub fn param_keys(&self) -> Vec<String> {
         let keys: BTreeSet<&String> = self.cells.iter().flat_map(|c| c.params.keys()).collect();
