@@ -32,6 +32,9 @@ const SIZE: u32 = 256;
 
 /// The fixed batch every group works on.
 struct Batch {
+    /// `sponza` or `cornell-mirrors`: the last part of every benchmark id, so criterion never
+    /// compares results of one scene with the other's.
+    tag: &'static str,
     scene: Arc<Scene>,
     rays: Vec<Ray>,
     /// The rays' order by their thesis keys (layout `interleave`, compress sorter: the `crsh`
@@ -64,19 +67,22 @@ fn stages(scene: &Arc<Scene>, sets: &[&str]) -> Stages<Cpu> {
 }
 
 fn prepare() -> Batch {
-    let scene = match sponza() {
+    let (tag, scene) = match sponza() {
         Some(path) => {
             let scene = crsh_scene::load_path(&path)
                 .unwrap_or_else(|e| panic!("loading {}: {e}", path.display()));
             eprintln!("bench scene: sponza ({})", path.display());
-            scene
+            ("sponza", scene)
         }
         None => {
             eprintln!(
                 "bench scene: built-in cornell-mirrors (sponza/sponza.toml not found under \
                  CRSH_SCENES or ../shared/scenes)"
             );
-            crsh_scene::load("cornell-mirrors").expect("built-in scene")
+            (
+                "cornell-mirrors",
+                crsh_scene::load("cornell-mirrors").expect("built-in scene"),
+            )
         }
     };
     let scene = Arc::new(scene);
@@ -129,6 +135,7 @@ fn prepare() -> Batch {
         candidates.len(),
     );
     Batch {
+        tag,
         scene,
         rays,
         order,
@@ -153,7 +160,7 @@ fn benches(c: &mut Criterion) {
     for (name, sets) in &hashers {
         let st = stages(scene, sets);
         let h = st.hasher.expect("a hasher");
-        g.bench_function(*name, |bench| {
+        g.bench_function(format!("{name}/{}", b.tag), |bench| {
             bench.iter(|| h.hash(&Cpu, &b.rays, &mut Stats::default()).unwrap())
         });
         keysets.push((
@@ -170,7 +177,7 @@ fn benches(c: &mut Criterion) {
         let st = stages(scene, &[&format!("sort.kind={sorter}")]);
         let s = st.sorter.expect("a sorter");
         for (keys_name, keys, bits) in &keysets {
-            g.bench_function(format!("{sorter}/{keys_name}"), |bench| {
+            g.bench_function(format!("{sorter}/{keys_name}/{}", b.tag), |bench| {
                 bench.iter(|| s.sort(&Cpu, keys, *bits, &mut Stats::default()).unwrap())
             });
         }
@@ -181,7 +188,7 @@ fn benches(c: &mut Criterion) {
     let mut g = c.benchmark_group("hierarchy");
     g.throughput(Throughput::Elements(n));
     let builder = st.hierarchy.as_ref().expect("a builder");
-    g.bench_function("sphere_cone_s8_d2", |bench| {
+    g.bench_function(format!("sphere_cone_s8_d2/{}", b.tag), |bench| {
         bench.iter_batched(
             || b.order.clone(),
             |order| {
@@ -198,7 +205,7 @@ fn benches(c: &mut Criterion) {
     g.throughput(Throughput::Elements(n));
     g.sample_size(10);
     let traverser = st.traverser.as_ref().expect("a traverser");
-    g.bench_function("crsh", |bench| {
+    g.bench_function(format!("crsh/{}", b.tag), |bench| {
         bench.iter(|| {
             let mut pairs = 0usize;
             traverser
@@ -223,7 +230,7 @@ fn benches(c: &mut Criterion) {
     g.throughput(Throughput::Elements(n));
     g.sample_size(10);
     let mode = RayKind::Shadow.hit_mode();
-    g.bench_function("brute_candidates", |bench| {
+    g.bench_function(format!("brute_candidates/{}", b.tag), |bench| {
         bench.iter(|| {
             let mut hits = vec![Hit::MISS; b.rays.len()];
             let mut stats = Stats::default();
@@ -245,7 +252,7 @@ fn benches(c: &mut Criterion) {
     g.throughput(Throughput::Elements(n));
     g.sample_size(10);
     let bvh = stages(scene, &["intersect.kind=bvh"]).intersector;
-    g.bench_function("whole_scene_any_hit", |bench| {
+    g.bench_function(format!("whole_scene_any_hit/{}", b.tag), |bench| {
         bench.iter(|| {
             let mut hits = vec![Hit::MISS; b.rays.len()];
             bvh.intersect(
