@@ -606,3 +606,32 @@ fn progress_is_reported_and_timings_recorded() {
         (f.stats.rays.total() - f.stats.rays.primary) * scene.triangle_count() as u64
     );
 }
+
+/// The `f32` pipelines against the `f64` reference (`brute64`): on the built-in scenes they
+/// agree on every ray's hit or miss and nearest triangle, and their distances differ by
+/// rounding only.
+#[test]
+fn f32_pipelines_match_the_f64_reference_on_the_builtin_scenes() {
+    for name in crsh_scene::builtin::NAMES {
+        let scene = builtin(name);
+        for pipeline in ["bvh", "crsh", "rah"] {
+            let f = frame(
+                &scene,
+                &config(pipeline, &[]),
+                &opts(48, 48, 3),
+                Some("brute64"),
+            );
+            let acc = f.stats.accuracy.clone().expect("reference given");
+            assert!(
+                acc.rays > 0 && acc.t_compared > 0,
+                "{name} {pipeline}: {acc:?}"
+            );
+            assert!(acc.hit_agreement() >= 0.9999, "{name} {pipeline}: {acc:?}");
+            assert!(
+                acc.mean_abs_t_error() < 1e-5 * scene.bounds.diagonal().max(1.0) as f64,
+                "{name} {pipeline}: mean |t| error {}",
+                acc.mean_abs_t_error()
+            );
+        }
+    }
+}

@@ -19,6 +19,7 @@ use crate::hash::morton_octa::{self, MortonOcta};
 use crate::hash::thesis::{self, ThesisHasher};
 use crate::hierarchy::sphere_cone::{self, SphereConeBuilder};
 use crate::intersect::brute::BruteForce;
+use crate::intersect::brute64::BruteForce64;
 use crate::intersect::bvh::CwBvh;
 use crate::primary::raster::Raster;
 use crate::primary::raycast::RayCast;
@@ -91,6 +92,7 @@ pub fn catalogue() -> Vec<StageVariantInfo> {
             doc: "every ray against every triangle: the exact reference, N×M tests (§3.2.9)",
             params: vec![],
         },
+        crate::intersect::brute64::info(),
         StageVariantInfo {
             stage: StageKind::Intersect,
             name: "bvh",
@@ -183,6 +185,15 @@ fn no_cpu_variant(slot: StageKind, spec: &StageSpec) -> CoreError {
 pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<Scene>) -> Result<Stages<Cpu>> {
     let mut cfg = cfg.clone();
     cfg.resolve(&catalogue())?;
+    if cfg.hierarchy.is_some() && cfg.intersect.kind == "brute64" {
+        return Err(CoreError::Unsupported {
+            stage: "intersect",
+            variant: "brute64".into(),
+            what: "the final tests of a ray-space hierarchy (it answers whole-scene queries \
+                   only: use it as --reference, or with the brute / bvh pipelines)"
+                .into(),
+        });
+    }
     let primary: Box<dyn crsh_core::PrimaryVisibility<Cpu>> = match cfg.primary.kind.as_str() {
         "raster" => Box::new(Raster::new(scene, &cfg.primary)?),
         "raycast" => Box::new(RayCast::new(scene, &cfg.primary)?),
@@ -255,6 +266,7 @@ pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<Scene>) -> Result<Stages<C
 fn make_intersector(spec: &StageSpec, scene: &Arc<Scene>) -> Result<Box<dyn Intersector<Cpu>>> {
     Ok(match spec.kind.as_str() {
         "brute" => Box::new(BruteForce::new(scene, spec)?),
+        "brute64" => Box::new(BruteForce64::new(scene, spec)?),
         "bvh" => Box::new(CwBvh::new(scene, spec)?),
         _ => return Err(no_cpu_variant(StageKind::Intersect, spec)),
     })

@@ -1,4 +1,5 @@
 //! Intersector variants (exact ray-triangle tests, §3.2.9).
 
 pub mod brute;
+pub mod brute64;
 pub mod bvh;
