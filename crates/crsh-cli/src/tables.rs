@@ -33,7 +33,7 @@ use crate::args::TablesArgs;
 use crate::error::{CliError, CliResult};
 use crate::output;
 use crate::render::{configure_threads, pipeline_config, stage_error};
-use crate::report::group;
+use crate::report::{group, mrays_per_s};
 
 /// One hierarchy configuration.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -305,28 +305,14 @@ fn per_ray(s: &Stats) -> f64 {
     }
 }
 
+/// Tracing time of every traced kind (rasterized primaries trace nothing and report 0).
 fn trace_ms(s: &Stats) -> f64 {
-    s.per_kind
-        .iter()
-        .filter(|(k, _)| k.as_str() != "primary")
-        .map(|(_, v)| v.trace_ms)
-        .sum()
+    s.per_kind.values().map(|v| v.trace_ms).sum()
 }
 
+/// Traced rays over their tracing time, as `crsh render` reports it.
 fn mrays(s: &Stats) -> f64 {
-    let ms = trace_ms(s);
-    // Secondary rays, the rays `trace_ms` covers (ray-cast primaries are left out of both).
-    let rays: u64 = s
-        .per_kind
-        .iter()
-        .filter(|(k, _)| k.as_str() != "primary")
-        .map(|(_, v)| v.rays)
-        .sum();
-    if ms > 0.0 {
-        rays as f64 / ms * 1e-3
-    } else {
-        0.0
-    }
+    mrays_per_s(s).get("overall").copied().unwrap_or(0.0)
 }
 
 /// `x` with three significant digits (Mrays/s spans 0.001 to 100 between methods).
