@@ -553,11 +553,19 @@ fn bad_pipelines_are_errors_not_panics() {
         Err(CoreError::InvalidInput(_))
     ));
     // The object BVH answers whole-scene queries only, not a hierarchy's candidate pairs.
-    let bvh_under_hierarchy = config("crsh", &["intersect.kind=bvh"]);
-    assert!(matches!(
-        run(&bvh_under_hierarchy, None),
-        Err(CoreError::Unsupported { .. })
-    ));
+    // The object BVH and the f64 reference answer whole-scene queries only, not a
+    // hierarchy's candidate pairs: the pipeline is rejected when its stages are built.
+    for kind in ["intersect.kind=bvh", "intersect.kind=brute64"] {
+        let under_hierarchy = config("crsh", &[kind]);
+        assert!(matches!(
+            run(&under_hierarchy, None),
+            Err(CoreError::Unsupported { .. })
+        ));
+        assert!(matches!(
+            crsh_cpu::build_stages(&under_hierarchy, &scene),
+            Err(CoreError::Unsupported { .. })
+        ));
+    }
     let bad_param = config("bvh", &["raygen.epsilon=bright"]);
     assert!(matches!(
         run(&bad_param, None),

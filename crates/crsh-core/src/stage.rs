@@ -163,6 +163,12 @@ pub enum Query<'a, B: Backend> {
 pub trait Intersector<B: Backend>: Send + Sync {
     /// Variant name (`brute`, `bvh`, ...).
     fn name(&self) -> &str;
+    /// Whether it answers [`Query::Candidates`], i.e. can run the final tests of a ray-space
+    /// hierarchy; variants that only test the whole scene say `false`, and pipelines that
+    /// pair them with a hierarchy are rejected when they are built.
+    fn supports_candidates(&self) -> bool {
+        true
+    }
     /// Tests `rays` as `query` says and merges the results into `hits` (one per ray, same
     /// order; pass a buffer of [`Hit::MISS`] to start): for [`HitMode::Closest`] a hit replaces
     /// the stored one when [`Hit::closer_than`] says so; for [`HitMode::Any`] any hit may be

@@ -185,15 +185,6 @@ fn no_cpu_variant(slot: StageKind, spec: &StageSpec) -> CoreError {
 pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<Scene>) -> Result<Stages<Cpu>> {
     let mut cfg = cfg.clone();
     cfg.resolve(&catalogue())?;
-    if cfg.hierarchy.is_some() && cfg.intersect.kind == "brute64" {
-        return Err(CoreError::Unsupported {
-            stage: "intersect",
-            variant: "brute64".into(),
-            what: "the final tests of a ray-space hierarchy (it answers whole-scene queries \
-                   only: use it as --reference, or with the brute / bvh pipelines)"
-                .into(),
-        });
-    }
     let primary: Box<dyn crsh_core::PrimaryVisibility<Cpu>> = match cfg.primary.kind.as_str() {
         "raster" => Box::new(Raster::new(scene, &cfg.primary)?),
         "raycast" => Box::new(RayCast::new(scene, &cfg.primary)?),
@@ -251,6 +242,16 @@ pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<Scene>) -> Result<Stages<C
             })
         })
         .transpose()?;
+    let intersector = make_intersector(&cfg.intersect, scene)?;
+    if hierarchy.is_some() && !intersector.supports_candidates() {
+        return Err(CoreError::Unsupported {
+            stage: "intersect",
+            variant: cfg.intersect.kind.clone(),
+            what: "the final tests of a ray-space hierarchy (it answers whole-scene queries \
+                   only: use it as --reference, or in a pipeline without a hierarchy)"
+                .into(),
+        });
+    }
     Ok(Stages {
         primary,
         raygen,
@@ -258,7 +259,7 @@ pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<Scene>) -> Result<Stages<C
         sorter,
         hierarchy,
         traverser,
-        intersector: make_intersector(&cfg.intersect, scene)?,
+        intersector,
         shader,
     })
 }

@@ -162,6 +162,10 @@ impl Intersector<Cpu> for BruteForce64 {
         "brute64"
     }
 
+    fn supports_candidates(&self) -> bool {
+        false
+    }
+
     fn intersect(
         &self,
         _backend: &Cpu,

@@ -312,6 +312,10 @@ impl Intersector<Cpu> for CwBvh {
         "bvh"
     }
 
+    fn supports_candidates(&self) -> bool {
+        false
+    }
+
     fn intersect(
         &self,
         _backend: &Cpu,
