@@ -27,7 +27,9 @@ pub use backend::Backend;
 pub use bounds::{Aabb, Cone, Sphere, SphereCone};
 pub use config::{ParamInfo, ParamValue, PipelineConfig, StageKind, StageSpec, StageVariantInfo};
 pub use error::{CoreError, Result};
-pub use pipeline::{render_frame, Frame, FrameOptions, Progress, Stages};
+pub use pipeline::{
+    count_self_hits, render_frame, trace_batch, Frame, FrameOptions, Progress, Stages,
+};
 pub use ray::{Hit, HitMode, Ray, RayKind, Surface, NO_HIT};
 pub use stage::{
     Candidate, CandidateBatch, Hasher, HierarchyBuilder, Intersector, PrimaryVisibility, Query,

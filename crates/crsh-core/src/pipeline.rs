@@ -15,7 +15,7 @@ use std::time::Instant;
 
 use crate::backend::Backend;
 use crate::error::{CoreError, Result};
-use crate::ray::{Hit, HitMode, Ray, RayKind};
+use crate::ray::{Hit, HitMode, Ray, RayKind, Surface};
 use crate::stage::{
     Hasher, HierarchyBuilder, Intersector, PrimaryVisibility, Query, RayGen, Shader, Sorter,
     Traverser,
@@ -158,7 +158,7 @@ pub fn render_frame<B: Backend>(
                 .raygen
                 .generate(d.backend, &surfaces, RayKind::Shadow, &mut d.stats)
         })?;
-        let shadow_hits = driver.trace(RayKind::Shadow, &shadow)?;
+        let shadow_hits = driver.trace(RayKind::Shadow, &shadow, &surfaces)?;
         driver.timed("shading", |d| {
             d.stages.shader.shade_direct(
                 d.backend,
@@ -186,7 +186,7 @@ pub fn render_frame<B: Backend>(
             if backend.len(&rays) == 0 {
                 continue;
             }
-            let hits = driver.trace(kind, &rays)?;
+            let hits = driver.trace(kind, &rays, &surfaces)?;
             next.push(driver.timed("shading", |d| {
                 d.stages
                     .shader
@@ -250,68 +250,20 @@ impl<B: Backend> Driver<'_, B> {
     }
 
     /// Traces one batch of `kind` through the optional hierarchy stages and the intersector.
-    fn trace(&mut self, kind: RayKind, rays: &B::Buffer<Ray>) -> Result<B::Buffer<Hit>> {
+    /// `surfaces` are the records the rays were spawned from (their [`Ray::source`]), for the
+    /// self-hit count of the accuracy pass.
+    fn trace(
+        &mut self,
+        kind: RayKind,
+        rays: &B::Buffer<Ray>,
+        surfaces: &B::Buffer<Surface>,
+    ) -> Result<B::Buffer<Hit>> {
         let backend = self.backend;
         let n = backend.len(rays);
         let mode = kind.hit_mode();
         let tests_before = self.stats.tests;
         let t0 = Instant::now();
-        let mut hits = backend.filled(n, Hit::MISS)?;
-        if n > 0 {
-            if let (Some(builder), Some(traverser)) =
-                (&self.stages.hierarchy, &self.stages.traverser)
-            {
-                let order = match (&self.stages.hasher, &self.stages.sorter) {
-                    (Some(hasher), Some(sorter)) => {
-                        let keys =
-                            self.timed("hashing", |d| hasher.hash(backend, rays, &mut d.stats))?;
-                        self.timed("sorting", |d| {
-                            sorter.sort(backend, &keys, hasher.key_bits(), &mut d.stats)
-                        })?
-                    }
-                    _ => backend.upload(&(0..n as u32).collect::<Vec<u32>>())?,
-                };
-                let hierarchy = self.timed("hierarchy_creation", |d| {
-                    builder.build(backend, rays, order, &mut d.stats)
-                })?;
-                let intersector = &self.stages.intersector;
-                let mut final_tests = std::time::Duration::ZERO;
-                let t_trav = Instant::now();
-                traverser.traverse(
-                    backend,
-                    rays,
-                    kind,
-                    &hierarchy,
-                    &mut |batch, stats| {
-                        let t = Instant::now();
-                        let q = Query::Candidates {
-                            hierarchy: &hierarchy,
-                            batch: &batch,
-                        };
-                        intersector.intersect(backend, rays, q, mode, &mut hits, stats)?;
-                        backend.sync()?;
-                        final_tests += t.elapsed();
-                        Ok(())
-                    },
-                    &mut self.stats,
-                )?;
-                backend.sync()?;
-                self.stats
-                    .add_time("traversal", t_trav.elapsed().saturating_sub(final_tests));
-                self.stats.add_time("final_tests", final_tests);
-            } else {
-                self.timed("intersection", |d| {
-                    d.stages.intersector.intersect(
-                        backend,
-                        rays,
-                        Query::Scene,
-                        mode,
-                        &mut hits,
-                        &mut d.stats,
-                    )
-                })?;
-            }
-        }
+        let hits = trace_batch(backend, self.stages, kind, rays, &mut self.stats)?;
         let elapsed = t0.elapsed().as_secs_f64() * 1e3;
         let after = self.stats.tests;
         self.stats.rays.add(kind, n as u64);
@@ -342,10 +294,133 @@ impl<B: Backend> Driver<'_, B> {
                 .accuracy
                 .get_or_insert_with(AccuracyCounts::default);
             compare_hits(&got, &want, mode, acc);
+            let rays = backend.download(rays)?;
+            let surfaces = backend.download(surfaces)?;
+            acc.self_hits += count_self_hits(&rays, &got, &surfaces);
             self.stats.add_time("reference", t.elapsed());
         }
         Ok(hits)
     }
+}
+
+/// Traces one batch of rays of `kind` with the tracing stages of `stages`: hash, sort, build the
+/// ray-space hierarchy and traverse it, with the intersector's final tests on the candidates
+/// (when the pipeline has a hierarchy), or the intersector on the whole scene. Returns one hit
+/// per ray (any hit for shadow rays, the nearest for the others). Adds the counters and the
+/// stage times (`hashing`, `sorting`, `hierarchy_creation`, `traversal`, `final_tests` or
+/// `intersection`) to `stats`, but not the per-kind ray counts, which [`render_frame`] keeps.
+///
+/// This is what [`render_frame`] runs for every batch; tools that make their own rays (the
+/// stability suite, benchmarks of one stage) call it directly.
+pub fn trace_batch<B: Backend>(
+    backend: &B,
+    stages: &Stages<B>,
+    kind: RayKind,
+    rays: &B::Buffer<Ray>,
+    stats: &mut Stats,
+) -> Result<B::Buffer<Hit>> {
+    if stages.hierarchy.is_some() != stages.traverser.is_some() {
+        return Err(CoreError::InvalidInput(
+            "a ray-space hierarchy needs a traverser and vice versa".into(),
+        ));
+    }
+    if stages.hasher.is_some() != stages.sorter.is_some() {
+        return Err(CoreError::InvalidInput(
+            "a hasher needs a sorter and vice versa".into(),
+        ));
+    }
+    let n = backend.len(rays);
+    let mode = kind.hit_mode();
+    let mut hits = backend.filled(n, Hit::MISS)?;
+    if n == 0 {
+        return Ok(hits);
+    }
+    let timed = |stats: &mut Stats, key: &str, f: &mut dyn FnMut(&mut Stats) -> Result<()>| {
+        let recorded = |s: &Stats| s.timings_ms.values().sum::<f64>();
+        let before = recorded(stats);
+        let t0 = Instant::now();
+        f(stats)?;
+        backend.sync()?;
+        let nested = (recorded(stats) - before).max(0.0);
+        let own = (t0.elapsed().as_secs_f64() * 1e3 - nested).max(0.0);
+        *stats.timings_ms.entry(key.to_string()).or_insert(0.0) += own;
+        Ok::<(), CoreError>(())
+    };
+    if let (Some(builder), Some(traverser)) = (&stages.hierarchy, &stages.traverser) {
+        let order = match (&stages.hasher, &stages.sorter) {
+            (Some(hasher), Some(sorter)) => {
+                let mut keys = None;
+                timed(stats, "hashing", &mut |s| {
+                    keys = Some(hasher.hash(backend, rays, s)?);
+                    Ok(())
+                })?;
+                let keys = keys.expect("set by the hashing stage");
+                let mut order = None;
+                timed(stats, "sorting", &mut |s| {
+                    order = Some(sorter.sort(backend, &keys, hasher.key_bits(), s)?);
+                    Ok(())
+                })?;
+                order.expect("set by the sorting stage")
+            }
+            _ => backend.upload(&(0..n as u32).collect::<Vec<u32>>())?,
+        };
+        let mut hierarchy = None;
+        let mut order = Some(order);
+        timed(stats, "hierarchy_creation", &mut |s| {
+            let order = order.take().expect("the hierarchy is built once");
+            hierarchy = Some(builder.build(backend, rays, order, s)?);
+            Ok(())
+        })?;
+        let hierarchy = hierarchy.expect("set by the hierarchy stage");
+        let intersector = &stages.intersector;
+        let mut final_tests = std::time::Duration::ZERO;
+        let t_trav = Instant::now();
+        traverser.traverse(
+            backend,
+            rays,
+            kind,
+            &hierarchy,
+            &mut |batch, stats| {
+                let t = Instant::now();
+                let q = Query::Candidates {
+                    hierarchy: &hierarchy,
+                    batch: &batch,
+                };
+                intersector.intersect(backend, rays, q, mode, &mut hits, stats)?;
+                backend.sync()?;
+                final_tests += t.elapsed();
+                Ok(())
+            },
+            stats,
+        )?;
+        backend.sync()?;
+        stats.add_time("traversal", t_trav.elapsed().saturating_sub(final_tests));
+        stats.add_time("final_tests", final_tests);
+    } else {
+        timed(stats, "intersection", &mut |s| {
+            stages
+                .intersector
+                .intersect(backend, rays, Query::Scene, mode, &mut hits, s)
+        })?;
+    }
+    Ok(hits)
+}
+
+/// Secondary rays whose reported hit is the very triangle of the surface they were spawned
+/// from ([`Ray::source`] into `surfaces`): a straight ray meets a plane once, at its origin
+/// surface point, so such a hit is always a self-intersection (shadow acne, a reflection that
+/// finds its own face). A lower bound: hits on a neighbouring triangle of a curved mesh, or an
+/// any-hit query that reports another occluder first, are not counted.
+pub fn count_self_hits(rays: &[Ray], hits: &[Hit], surfaces: &[Surface]) -> u64 {
+    rays.iter()
+        .zip(hits)
+        .filter(|(r, h)| {
+            h.is_hit()
+                && surfaces
+                    .get(r.source as usize)
+                    .is_some_and(|s| s.is_hit() && s.tri == h.tri)
+        })
+        .count() as u64
 }
 
 /// Adds the agreement of `got` with `want` (same rays) to `acc`: hit/miss must agree, and for
@@ -374,6 +449,7 @@ pub fn compare_hits(got: &[Hit], want: &[Hit], mode: HitMode, acc: &mut Accuracy
 #[cfg(test)]
 mod tests {
     use super::*;
+    use bytemuck::Zeroable;
 
     fn hit(t: f32, tri: u32) -> Hit {
         Hit {
@@ -402,5 +478,29 @@ mod tests {
         let mut any = AccuracyCounts::default();
         compare_hits(&[hit(2.0, 3)], &[hit(3.0, 4)], HitMode::Any, &mut any);
         assert_eq!(any.hit_agreement(), 1.0);
+    }
+
+    #[test]
+    fn self_hits_are_hits_on_the_source_triangle() {
+        let surface = |tri| Surface {
+            tri,
+            ..Surface::background(0, glam::Vec3::Z, glam::Vec3::ONE, 0)
+        };
+        let surfaces = [surface(7), surface(8), surface(crate::NO_HIT)];
+        let ray = |source| Ray {
+            source,
+            ..Ray::zeroed()
+        };
+        let rays = [ray(0), ray(0), ray(1), ray(2), ray(9)];
+        let hits = [
+            hit(1e-6, 7),
+            hit(1.0, 3),
+            Hit::MISS,
+            hit(1.0, 7),
+            hit(1.0, 7),
+        ];
+        // Only the first: the second hits another triangle, the third misses, the fourth's
+        // source is a background record and the fifth's source does not exist.
+        assert_eq!(count_self_hits(&rays, &hits, &surfaces), 1);
     }
 }

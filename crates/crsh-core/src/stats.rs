@@ -141,6 +141,10 @@ pub struct AccuracyCounts {
     /// Σ `|t − t_reference|` over the `t_compared` rays (the distance error of agreeing hits).
     #[serde(default)]
     pub t_abs_error_sum: f64,
+    /// Secondary rays (of the pipeline under test) whose hit is the triangle they were spawned
+    /// from: self-intersections ([`crate::pipeline::count_self_hits`]; a lower bound).
+    #[serde(default)]
+    pub self_hits: u64,
 }
 
 impl AccuracyCounts {
@@ -150,6 +154,15 @@ impl AccuracyCounts {
             1.0
         } else {
             self.agreeing as f64 / self.rays as f64
+        }
+    }
+
+    /// `self_hits / rays` (0 when nothing was compared).
+    pub fn self_hit_rate(&self) -> f64 {
+        if self.rays == 0 {
+            0.0
+        } else {
+            self.self_hits as f64 / self.rays as f64
         }
     }
 
