@@ -81,8 +81,22 @@ pub fn catalogue() -> Vec<StageVariantInfo> {
                     name: "epsilon",
                     default: ParamValue::Float(1e-5),
                     choices: &[],
-                    doc: "origin offset along the geometric normal and t_min, as a fraction of \
-                          the scene's bounding-box diagonal",
+                    doc: "the offset distance of the `normal` and `scaled` policies, as a \
+                          fraction of the scene's bounding-box diagonal",
+                },
+                ParamInfo {
+                    name: "offset",
+                    default: ParamValue::Str("normal".into()),
+                    choices: &["normal", "scaled", "fixed", "wachter"],
+                    doc: "self-intersection policy: origin moved along the geometric normal and \
+                          t_min (normal), t_min only (scaled: epsilon, fixed: fixed_epsilon), or \
+                          Wächter & Binder's ULP offset with t_min = 0 (wachter)",
+                },
+                ParamInfo {
+                    name: "fixed_epsilon",
+                    default: ParamValue::Float(1e-4),
+                    choices: &[],
+                    doc: "t_min of the `fixed` policy, an absolute distance in scene units",
                 },
             ],
         },

@@ -41,26 +41,49 @@
 //! transparency)`, so a perfect mirror or a perfectly clear surface casts no shadow rays (the
 //! shader gives them no direct light anyway).
 //!
-//! # Epsilon policy
+//! # Offset policy (self-intersection)
 //!
-//! A secondary ray must not find the surface it leaves. With `off = epsilon × |scene bounding
-//! box diagonal|` (param `epsilon`, default 1e-5, relative so that it scales with the scene):
-//! - the origin of a reflection or refraction ray is the hit point moved by `off` along the
-//!   geometric normal, to the side the ray leaves into (the sign of `d · n_geo`), and its
-//!   interval starts at `t_min = off`;
-//! - a shadow ray's surface end point is the hit point moved by `off` along the geometric
-//!   normal towards the light; the interval is `(off, |segment| − off)`, so it excludes both the
-//!   light and the surface by the same distance (a light sitting on a wall does not shadow
-//!   itself). When the light is closer than `2 off` the interval is empty and the light is
-//!   seen.
+//! A secondary ray must not find the surface it leaves. How it avoids it is the param `offset`
+//! ([`OffsetPolicy`]), with `off = epsilon × |scene bounding box diagonal|` (param `epsilon`,
+//! default 1e-5, relative so that it scales with the scene):
+//! - `normal` (default): the origin of a reflection or refraction ray is the hit point moved
+//!   by `off` along the geometric normal, to the side the ray leaves into (the sign of
+//!   `d · n_geo`), and its interval starts at `t_min = off`; a shadow ray's surface end point
+//!   is the hit point moved by `off` along the geometric normal towards the light; the
+//!   interval is `(off, |segment| − off)`, so it excludes both the light and the surface by the
+//!   same distance (a light sitting on a wall does not shadow itself). When the light is
+//!   closer than `2 off` the interval is empty and the light is seen.
+//! - `scaled`: no offset; the ray starts at the hit point itself and only its interval moves:
+//!   `t_min = off`, and a bounded (shadow) segment also stops `off` short of its far end, so it
+//!   excludes the light by the same distance, as with `normal`.
+//! - `fixed`: as `scaled`, with the absolute distance `fixed_epsilon` (default 1e-4, in scene
+//!   units) instead of `off`: the classic constant, which is too small for a large or
+//!   translated scene (where `t ≈ fixed_epsilon` is below the rounding error of the hit
+//!   point) and too large for a small one. Kept for comparison.
+//! - `wachter`: Wächter & Binder, "A Fast and Robust Method for Avoiding Self-Intersection",
+//!   Ray Tracing Gems ch. 6 (2019), [`offset_ray`]: the surface end point moves a fixed number
+//!   of units in the last place (ULPs) of each coordinate along the geometric normal (flipped
+//!   to the side the ray leaves into), or a fixed distance near the origin, so the offset
+//!   grows with the magnitude of the coordinates and not with the scene's size. A ray leaving
+//!   the surface starts at the offset point with the open interval `t_min = 0`. A shadow
+//!   segment from the light (`shadow_origin = light`) ends at the offset point less
+//!   [`WACHTER_T_ULPS`] ULPs of its length: there the intersector's `t` carries the rounding
+//!   error of a point `|segment|` away from the ray's origin, which the offset does not cover
+//!   (measured: ending exactly at the offset point leaves acne where the light is steep above
+//!   the surface, one ray in 4096 on a plane lit from 89° at distance 20). At the *light* end the segment excludes the distance
+//!   [`offset_ray`] would move the light along the segment (a few hundred ULPs of the light's
+//!   coordinates, or 1/65536 near the origin), not 0: a light sitting on a wall starts its
+//!   shadow rays inside the wall's plane, where the open interval alone would let rounding
+//!   report the wall at `t` just above 0 and shadow everything. A surface crossing the
+//!   segment closer to the light than that gap is missed; put lights further from geometry
+//!   than that (any light off a surface by more than ~1e-4 of its coordinates is).
 //!
-//! The offset moves along the *geometric* normal because the shading normal may tilt away from
-//! the face; the distance is relative so that one default serves a Cornell box (size ~2) and
-//! Sponza (size ~4000). A reflection direction computed from a tilted shading normal may point
+//! The offsets move along the *geometric* normal because the shading normal may tilt away
+//! from the face. A reflection direction computed from a tilted shading normal may point
 //! slightly below the face; it is followed as eq. 3.4 gives it (the origin then moves to the
 //! back side), not bent.
 //!
-//! The policy lives in one function, [`epsilon_segment`].
+//! The policy lives in one function, [`offset_segment`].
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -100,7 +123,7 @@ impl MatRays {
 }
 
 /// The Whitted ray generator (seed 000 §3.2.3, eq. 3.1-3.7). See the module docs for the
-/// conventions and the epsilon policy.
+/// conventions and the offset policies.
 #[derive(Clone, Debug)]
 pub struct Whitted {
     lights: Vec<Vec3>,
@@ -109,6 +132,7 @@ pub struct Whitted {
     cull_backfacing: bool,
     min_throughput: f32,
     offset: f32,
+    policy: OffsetPolicy,
 }
 
 /// Where a secondary ray goes, relative to the surface point it belongs to.
@@ -135,41 +159,157 @@ pub struct Segment {
     pub t_max: f32,
 }
 
-/// The epsilon policy, in one function (see the module docs): the segment of the ray `leg`
-/// from or to the surface point `p` with unit geometric normal `geo_normal`, where `off` is
-/// `epsilon × scene diagonal`. The surface end is `p` moved by `off` along `geo_normal` to the
-/// side the ray leaves into (the front side for a ray parallel to the surface); `t_min = off`,
-/// and a bounded segment also stops `off` short of its far end (`t_max ≥ t_min`). `None` when
-/// the direction is zero or not finite (a light at the surface point).
-pub fn epsilon_segment(p: Vec3, geo_normal: Vec3, leg: Leg, off: f32) -> Option<Segment> {
+impl Segment {
+    /// The point at distance `t` along the segment's ray, `origin + t · dir`.
+    pub fn at(&self, t: f32) -> Vec3 {
+        self.origin + self.dir * t
+    }
+}
+
+/// How a secondary ray avoids the surface it leaves (the `offset` param; see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum OffsetPolicy {
+    /// Origin moved by this distance along the geometric normal, and `t_min` of the same size
+    /// (the default, `epsilon × scene diagonal`).
+    Normal(f32),
+    /// Origin at the hit point, `t_min` = this distance (`epsilon × scene diagonal`).
+    Scaled(f32),
+    /// Origin at the hit point, `t_min` = this absolute distance (`fixed_epsilon`).
+    Fixed(f32),
+    /// Wächter & Binder's ULP offset ([`offset_ray`]), `t_min = 0` at the surface end.
+    Wachter,
+}
+
+impl OffsetPolicy {
+    /// The param value naming this policy (`normal`, `scaled`, `fixed`, `wachter`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            OffsetPolicy::Normal(_) => "normal",
+            OffsetPolicy::Scaled(_) => "scaled",
+            OffsetPolicy::Fixed(_) => "fixed",
+            OffsetPolicy::Wachter => "wachter",
+        }
+    }
+}
+
+/// Coordinates closer to 0 than this move by a fixed distance in [`offset_ray`] (RTG ch. 6
+/// `origin()`).
+pub const WACHTER_ORIGIN: f32 = 1.0 / 32.0;
+/// The fixed distance (times the normal component) near the origin (RTG ch. 6 `float_scale()`).
+pub const WACHTER_FLOAT_SCALE: f32 = 1.0 / 65536.0;
+/// The ULP count (times the normal component) elsewhere (RTG ch. 6 `int_scale()`).
+pub const WACHTER_INT_SCALE: f32 = 256.0;
+
+/// ULPs of the segment length by which a `wachter` shadow segment from the light
+/// (`shadow_origin = light`) stops short of the offset surface point (see the module docs).
+pub const WACHTER_T_ULPS: f32 = 32.0;
+
+/// The unit in the last place of the finite `x ≥ 0` (the gap to the next float up).
+fn ulp(x: f32) -> f32 {
+    f32::from_bits(x.to_bits() + 1) - x
+}
+
+/// Wächter & Binder's `offset_ray(p, n)` (Ray Tracing Gems ch. 6, 2019): `p` moved off its
+/// surface to the side of the unit normal `n`. Each coordinate `p_i` with `|p_i| ≥ 1/32`
+/// moves by `⌊256 n_i⌋` units in the last place (added to the float's bit pattern, towards
+/// `+∞` for `n_i > 0` whatever the sign of `p_i`); a coordinate closer to 0 moves by
+/// `n_i / 65536`, since ULPs vanish there. The move is thus a fixed multiple of the rounding
+/// error of the coordinates, which is what bounds the error of a computed hit point.
+pub fn offset_ray(p: Vec3, n: Vec3) -> Vec3 {
+    let component = |p: f32, n: f32| {
+        if p.abs() < WACHTER_ORIGIN {
+            p + WACHTER_FLOAT_SCALE * n
+        } else {
+            let ulps = (WACHTER_INT_SCALE * n) as i32;
+            let bits = p.to_bits() as i32;
+            let moved = if p < 0.0 {
+                bits.wrapping_sub(ulps)
+            } else {
+                bits.wrapping_add(ulps)
+            };
+            f32::from_bits(moved as u32)
+        }
+    };
+    Vec3::new(
+        component(p.x, n.x),
+        component(p.y, n.y),
+        component(p.z, n.z),
+    )
+}
+
+/// The offset policy, in one function (see the module docs): the segment of the ray `leg` from
+/// or to the surface point `p` with unit geometric normal `geo_normal` under `policy`. "The
+/// side the ray leaves into" is the side of `geo_normal` the direction (or the other end
+/// point) lies on, the front side for a ray parallel to the surface. A bounded segment's
+/// interval is never negative (`t_max ≥ t_min`: empty when the far end is closer than the
+/// gaps). `None` when the direction is zero or not finite (a light at the surface point).
+pub fn offset_segment(
+    p: Vec3,
+    geo_normal: Vec3,
+    leg: Leg,
+    policy: &OffsetPolicy,
+) -> Option<Segment> {
     let leaving = match leg {
         Leg::Along(d) => d,
         Leg::To(q) | Leg::From(q) => q - p,
     };
-    let side = if leaving.dot(geo_normal) < 0.0 {
-        -off
+    let n = if leaving.dot(geo_normal) < 0.0 {
+        -geo_normal
     } else {
-        off
+        geo_normal
     };
-    let start = p + geo_normal * side;
-    let (origin, seg, bounded) = match leg {
-        Leg::Along(d) => (start, d, false),
-        Leg::To(q) => (start, q - start, true),
-        Leg::From(q) => (q, start - q, true),
+    // The surface end point, the gap excluded at the surface end and the gap at the far end
+    // (`None`: Wächter's gap at the light, which depends on the segment's direction).
+    let (start, near, far) = match *policy {
+        OffsetPolicy::Normal(off) => (p + n * off, off, Some(off)),
+        OffsetPolicy::Scaled(d) | OffsetPolicy::Fixed(d) => (p, d, Some(d)),
+        OffsetPolicy::Wachter => (offset_ray(p, n), 0.0, None),
+    };
+    let (origin, seg, light) = match leg {
+        Leg::Along(d) => (start, d, None),
+        Leg::To(q) => (start, q - start, Some(q)),
+        Leg::From(q) => (q, start - q, Some(q)),
     };
     let dir = seg.normalize_or_zero();
     if dir == Vec3::ZERO || !dir.is_finite() {
         return None;
     }
-    let t_max = if bounded {
-        (seg.length() - off).max(off)
-    } else {
-        f32::INFINITY
+    let Some(q) = light else {
+        return Some(Segment {
+            origin,
+            dir,
+            t_min: near,
+            t_max: f32::INFINITY,
+        });
+    };
+    // Wächter's gap at the light end q: the distance offset_ray would move q along the
+    // segment (the direction from the light to the surface in both conventions, so that both
+    // test the same segment).
+    let far = far.unwrap_or_else(|| {
+        let towards_surface = if matches!(leg, Leg::From(_)) {
+            dir
+        } else {
+            -dir
+        };
+        (offset_ray(q, towards_surface) - q).length()
+    });
+    let len = seg.length();
+    let near = match (policy, leg) {
+        // The surface end of a segment from the light: the intersector's `t` there carries
+        // the rounding error of a distance `len` from the origin, which Wächter's offset
+        // (relative to the surface point's coordinates) does not cover once the light is far
+        // or the ray steep; stop a few ULPs of `len` short of the offset point.
+        (OffsetPolicy::Wachter, Leg::From(_)) => WACHTER_T_ULPS * ulp(len),
+        _ => near,
+    };
+    let (t_min, t_max) = match leg {
+        Leg::From(_) => (far, (len - near).max(far)),
+        _ => (near, (len - far).max(near)),
     };
     Some(Segment {
         origin,
         dir,
-        t_min: off,
+        t_min,
         t_max,
     })
 }
@@ -206,8 +346,10 @@ pub fn refraction_direction(incident: Vec3, normal: Vec3, ior: f32, front_face: 
 
 impl Whitted {
     /// A generator for `scene` with the parameters of a resolved `spec`: `shadow_origin`
-    /// (`light`|`surface`), `cull_backfacing` (bool), `min_throughput` (≥ 0) and `epsilon`
-    /// (relative to the scene's bounding-box diagonal, in `[0, 0.1]`).
+    /// (`light`|`surface`), `cull_backfacing` (bool), `min_throughput` (≥ 0), `epsilon`
+    /// (relative to the scene's bounding-box diagonal, in `[0, 0.1]`), `offset`
+    /// (`normal`|`scaled`|`fixed`|`wachter`, see [`OffsetPolicy`]) and `fixed_epsilon` (an
+    /// absolute distance ≥ 0).
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<Self> {
         let shadow_origin = match spec.str("shadow_origin")? {
             "light" => ShadowOrigin::Light,
@@ -232,6 +374,13 @@ impl Whitted {
             return Err(CoreError::InvalidParam {
                 key: "raygen.epsilon".into(),
                 reason: format!("{epsilon} is outside 0..=0.1 (a fraction of the scene diagonal)"),
+            });
+        }
+        let fixed_epsilon = spec.f64("fixed_epsilon")?;
+        if !fixed_epsilon.is_finite() || fixed_epsilon < 0.0 {
+            return Err(CoreError::InvalidParam {
+                key: "raygen.fixed_epsilon".into(),
+                reason: format!("{fixed_epsilon} must be a finite distance ≥ 0"),
             });
         }
         let diagonal = scene.bounds.diagonal();
@@ -267,19 +416,38 @@ impl Whitted {
                 "light at {l} is not finite"
             )));
         }
+        let offset = (epsilon * diagonal as f64) as f32;
+        let policy = match spec.str("offset")? {
+            "normal" => OffsetPolicy::Normal(offset),
+            "scaled" => OffsetPolicy::Scaled(offset),
+            "fixed" => OffsetPolicy::Fixed(fixed_epsilon as f32),
+            "wachter" => OffsetPolicy::Wachter,
+            other => {
+                return Err(CoreError::InvalidParam {
+                    key: "raygen.offset".into(),
+                    reason: format!("`{other}` is not one of normal, scaled, fixed, wachter"),
+                })
+            }
+        };
         Ok(Whitted {
             lights,
             materials,
             shadow_origin,
             cull_backfacing,
             min_throughput: min_throughput as f32,
-            offset: (epsilon * diagonal as f64) as f32,
+            offset,
+            policy,
         })
     }
 
-    /// The absolute offset distance of the epsilon policy (`epsilon × scene diagonal`).
+    /// The relative policies' distance, `epsilon × scene diagonal` (whatever the policy).
     pub fn offset(&self) -> f32 {
         self.offset
+    }
+
+    /// The offset policy in use (param `offset`).
+    pub fn policy(&self) -> OffsetPolicy {
+        self.policy
     }
 
     fn keeps(&self, throughput: Vec3) -> bool {
@@ -302,7 +470,7 @@ impl Whitted {
             ShadowOrigin::Surface => Leg::To(l),
         };
         // `None`: the light sits on the surface point; nothing can lie in between.
-        let seg = epsilon_segment(s.position, s.geo_normal, leg, self.offset)?;
+        let seg = offset_segment(s.position, s.geo_normal, leg, &self.policy)?;
         Some(Ray {
             origin: seg.origin,
             t_min: seg.t_min,
@@ -334,7 +502,7 @@ impl Whitted {
         if !self.keeps(throughput) {
             return None;
         }
-        let seg = epsilon_segment(s.position, s.geo_normal, Leg::Along(dir), self.offset)?;
+        let seg = offset_segment(s.position, s.geo_normal, Leg::Along(dir), &self.policy)?;
         Some(Ray {
             origin: seg.origin,
             t_min: seg.t_min,
@@ -518,6 +686,10 @@ pub(crate) mod tests {
         s.params
             .insert("min_throughput".into(), ParamValue::Float(1e-3));
         s.params.insert("epsilon".into(), ParamValue::Float(1e-5));
+        s.params
+            .insert("offset".into(), ParamValue::Str("normal".into()));
+        s.params
+            .insert("fixed_epsilon".into(), ParamValue::Float(1e-4));
         for (k, v) in params {
             s.params.insert(k.to_string(), v.clone());
         }
@@ -633,22 +805,171 @@ pub(crate) mod tests {
     fn epsilon_segments() {
         let (p, n, off) = (Vec3::new(1.0, 2.0, 3.0), Vec3::Y, 0.01);
         let l = Vec3::new(1.0, 7.0, 3.0);
-        let to = epsilon_segment(p, n, Leg::To(l), off).unwrap();
+        let to = offset_segment(p, n, Leg::To(l), &OffsetPolicy::Normal(off)).unwrap();
         assert_eq!(to.origin, Vec3::new(1.0, 2.01, 3.0));
         assert_eq!((to.dir, to.t_min), (Vec3::Y, off));
         assert!((to.t_max - (4.99 - off)).abs() < 1e-5);
-        let from = epsilon_segment(p, n, Leg::From(l), off).unwrap();
+        let from = offset_segment(p, n, Leg::From(l), &OffsetPolicy::Normal(off)).unwrap();
         assert_eq!((from.origin, from.dir), (l, -Vec3::Y));
         assert!((from.t_max - to.t_max).abs() < 1e-5);
         // Leaving through the back: the origin moves below.
-        let down = epsilon_segment(p, n, Leg::Along(-Vec3::Y), off).unwrap();
+        let down = offset_segment(p, n, Leg::Along(-Vec3::Y), &OffsetPolicy::Normal(off)).unwrap();
         assert_eq!(down.origin, Vec3::new(1.0, 1.99, 3.0));
         assert_eq!(down.t_max, f32::INFINITY);
         // A light closer than 2·off: empty interval (nothing between), not a negative one.
-        let near = epsilon_segment(p, n, Leg::To(p + Vec3::Y * 0.015), off).unwrap();
+        let near = offset_segment(
+            p,
+            n,
+            Leg::To(p + Vec3::Y * 0.015),
+            &OffsetPolicy::Normal(off),
+        )
+        .unwrap();
         assert_eq!(near.t_max, near.t_min);
-        assert!(epsilon_segment(p, n, Leg::From(p + n * off), off).is_none());
-        assert!(epsilon_segment(p, n, Leg::Along(Vec3::ZERO), off).is_none());
+        assert!(offset_segment(p, n, Leg::From(p + n * off), &OffsetPolicy::Normal(off)).is_none());
+        assert!(offset_segment(p, n, Leg::Along(Vec3::ZERO), &OffsetPolicy::Normal(off)).is_none());
+    }
+
+    #[test]
+    fn scaled_fixed_and_wachter_segments() {
+        let (p, n) = (Vec3::new(1.0, 2.0, 3.0), Vec3::Y);
+        let l = Vec3::new(1.0, 7.0, 3.0);
+        for policy in [OffsetPolicy::Scaled(0.01), OffsetPolicy::Fixed(0.01)] {
+            // No offset: the ray starts at the hit point, only its interval moves.
+            let to = offset_segment(p, n, Leg::To(l), &policy).unwrap();
+            assert_eq!((to.origin, to.dir, to.t_min), (p, Vec3::Y, 0.01));
+            assert!((to.t_max - 4.99).abs() < 1e-5);
+            let from = offset_segment(p, n, Leg::From(l), &policy).unwrap();
+            assert_eq!((from.origin, from.t_min), (l, 0.01));
+            assert!((from.at(from.t_max) - to.at(to.t_min)).length() < 1e-5);
+            let down = offset_segment(p, n, Leg::Along(-Vec3::Y), &policy).unwrap();
+            assert_eq!(
+                (down.origin, down.t_min, down.t_max),
+                (p, 0.01, f32::INFINITY)
+            );
+        }
+        let w = OffsetPolicy::Wachter;
+        let up = offset_segment(p, n, Leg::Along(Vec3::Y), &w).unwrap();
+        assert_eq!(up.t_min, 0.0);
+        assert!(up.origin.y > p.y && up.origin.x == p.x && up.origin.z == p.z);
+        // 256 ULPs of y = 2 (ULP 2^-22).
+        assert_eq!(up.origin.y, 2.0 + 256.0 * 2f32.powi(-22));
+        let down = offset_segment(p, n, Leg::Along(-Vec3::Y), &w).unwrap();
+        assert!(down.origin.y < p.y);
+        // Light convention: the segment runs towards the offset point; the light end
+        // excludes Wächter's gap at the light (both conventions, same segment).
+        let from = offset_segment(p, n, Leg::From(l), &w).unwrap();
+        let to = offset_segment(p, n, Leg::To(l), &w).unwrap();
+        assert_eq!(from.origin, l);
+        assert_eq!(to.origin, up.origin);
+        assert_eq!(to.t_min, 0.0);
+        // ... stopping WACHTER_T_ULPS ULPs of its length short of the offset point.
+        let len = (up.origin - l).length();
+        assert_eq!(from.t_max, len - WACHTER_T_ULPS * ulp(len));
+        assert!((from.at(len) - up.origin).length() <= 1e-6);
+        assert!(from.t_min > 0.0 && from.t_min < 1e-3);
+        assert!((from.t_min - (to.at(to.t_max) - l).length()).abs() < 1e-6);
+        // Near the origin the move is 1/65536 along the normal.
+        let o = offset_segment(Vec3::ZERO, n, Leg::Along(Vec3::Y), &w).unwrap();
+        assert_eq!(o.origin, Vec3::new(0.0, 1.0 / 65536.0, 0.0));
+        // Negative coordinates move towards +∞ for a positive normal component too.
+        assert!(offset_ray(Vec3::splat(-5.0), Vec3::ONE.normalize())
+            .cmpgt(Vec3::splat(-5.0))
+            .all());
+    }
+
+    /// A deterministic splitmix64 stream of floats in `[0, 1)`.
+    struct Mix(u64);
+
+    impl Mix {
+        fn next(&mut self) -> f64 {
+            self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+            let mut z = self.0;
+            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+        }
+
+        fn unit(&mut self) -> Vec3 {
+            loop {
+                let v = Vec3::new(
+                    (2.0 * self.next() - 1.0) as f32,
+                    (2.0 * self.next() - 1.0) as f32,
+                    (2.0 * self.next() - 1.0) as f32,
+                );
+                if (0.01..=1.0).contains(&v.length_squared()) {
+                    return v.normalize();
+                }
+            }
+        }
+    }
+
+    /// Signed distance (f64, exact inputs) of `q` from the plane of the f32 triangle `t`, in
+    /// units of its f64 normal's length (the sign is all that matters).
+    fn plane_side(t: &[Vec3; 3], q: Vec3) -> f64 {
+        let d = |v: Vec3| [v.x as f64, v.y as f64, v.z as f64];
+        let (a, b, c, q) = (d(t[0]), d(t[1]), d(t[2]), d(q));
+        let e1 = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+        let e2 = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+        let n = [
+            e1[1] * e2[2] - e1[2] * e2[1],
+            e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0],
+        ];
+        (q[0] - a[0]) * n[0] + (q[1] - a[1]) * n[1] + (q[2] - a[2]) * n[2]
+    }
+
+    #[test]
+    fn wachter_offset_leaves_the_plane_at_every_magnitude_and_fixed_does_not() {
+        let mut rng = Mix(5);
+        let mut fixed_failures = Vec::new();
+        for exp in -3..=7 {
+            let magnitude = 10f32.powi(exp);
+            let extent = magnitude.min(10.0);
+            let (mut tried, mut fixed_bad) = (0u32, 0u32);
+            while tried < 2000 {
+                // A triangle of size ~extent translated to ~magnitude from the origin.
+                let centre = rng.unit() * magnitude;
+                let t = [
+                    centre + rng.unit() * extent,
+                    centre + rng.unit() * extent,
+                    centre + rng.unit() * extent,
+                ];
+                let geo = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
+                if geo == Vec3::ZERO || plane_side(&t, t[0] + geo).abs() == 0.0 {
+                    continue; // degenerate after rounding
+                }
+                // A point on it as a renderer computes it (f32 barycentric interpolation),
+                // and a random side to leave into.
+                let (mut u, mut v) = (rng.next() as f32, rng.next() as f32);
+                if u + v > 1.0 {
+                    (u, v) = (1.0 - u, 1.0 - v);
+                }
+                let p = t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v;
+                let side = if rng.next() < 0.5 { -1.0 } else { 1.0 };
+                let n = geo * side;
+                let w = offset_segment(p, geo, Leg::Along(n), &OffsetPolicy::Wachter).unwrap();
+                let d = plane_side(&t, w.origin) * plane_side(&t, p + n).signum();
+                assert!(
+                    d > 0.0,
+                    "wachter origin {} of {p} on the wrong side of {t:?} (magnitude {magnitude})",
+                    w.origin
+                );
+                // `fixed`: the first point the ray may find, p + n·fixed_epsilon in f32.
+                let f = offset_segment(p, geo, Leg::Along(n), &OffsetPolicy::Fixed(1e-4)).unwrap();
+                let first = f.origin + f.dir * f.t_min;
+                if plane_side(&t, first) * plane_side(&t, p + n).signum() <= 0.0 {
+                    fixed_bad += 1;
+                }
+                tried += 1;
+            }
+            println!(
+                "magnitude 1e{exp}: fixed_epsilon 1e-4 not off the plane for {fixed_bad}/2000"
+            );
+            fixed_failures.push((exp, fixed_bad));
+        }
+        // At 1e7 a ULP is 1, so p + 1e-4·n rounds back to p and lies in the plane or on
+        // either side of it at random.
+        assert!(fixed_failures.iter().any(|&(e, bad)| e == 7 && bad > 0));
     }
 
     #[test]
@@ -660,6 +981,9 @@ pub(crate) mod tests {
             ("min_throughput", ParamValue::Float(f64::NAN)),
             ("shadow_origin", ParamValue::Str("moon".into())),
             ("cull_backfacing", ParamValue::Int(1)),
+            ("offset", ParamValue::Str("tiny".into())),
+            ("fixed_epsilon", ParamValue::Float(-1e-4)),
+            ("fixed_epsilon", ParamValue::Float(f64::INFINITY)),
         ] {
             assert!(
                 Whitted::new(&scene, &spec(std::slice::from_ref(&bad))).is_err(),
