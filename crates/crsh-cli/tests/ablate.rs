@@ -228,6 +228,113 @@ fn quick_plan_end_to_end() {
     assert!(report.contains("id=\"machine-table\"") && report.contains("id=\"plan-text\""));
 }
 
+/// A reduced `plans/accuracy.toml`: the offset policies against one robust reference image,
+/// with the three Pareto charts.
+#[test]
+fn accuracy_axes_draw_three_pareto_charts_with_self_hits() {
+    let dir = scratch("accuracy");
+    let shipped =
+        std::fs::read_to_string(repo_root().join("plans/accuracy.toml")).expect("accuracy plan");
+    let plan = crsh_plan_check(&shipped);
+    std::fs::write(dir.join("acc.toml"), plan).unwrap();
+    let o = crsh(
+        &dir,
+        &["ablate", "--plan", "acc.toml", "--out", "out", "-q"],
+    );
+    assert_ok(&o);
+    let out = dir.join("out");
+    let v = read_json(&out.join("results.json"));
+    assert_eq!(v["plan"]["reference_params"]["raygen.offset"], "wachter");
+    let cs = cells(&v);
+    assert_eq!(cs.len(), 2, "bvh × (normal, wachter)");
+    for c in cs {
+        assert_eq!(c["status"], "ok", "{c:#}");
+        let a = &c["measures"]["accuracy"];
+        assert_eq!(a["reference"], "brute64");
+        assert!(a["self_hits"].is_u64(), "{a:#}");
+        let rate = a["self_hit_rate"].as_f64().expect("self_hit_rate");
+        assert!((0.0..=1.0).contains(&rate));
+        assert_eq!(
+            c["config"]["raygen"]["offset"],
+            c["params"]["raygen.offset"]
+        );
+    }
+    // The reference image is rendered with `raygen.offset = wachter` for every cell: the
+    // wachter cell (same configuration, exact hits) matches it exactly, the normal cell,
+    // whose origins move by another offset, does not (were reference_params ignored, its
+    // reference would be its own configuration and identical too).
+    let by = |policy: &str| {
+        cs.iter()
+            .find(|c| c["params"]["raygen.offset"] == policy)
+            .unwrap()["measures"]["accuracy"]
+            .clone()
+    };
+    let (wachter, normal) = (by("wachter"), by("normal"));
+    assert!(wachter["psnr_db"].is_null(), "{wachter:#}");
+    assert_eq!(wachter["images_identical"], true);
+    assert_eq!(normal["images_identical"], false, "{normal:#}");
+    assert!(normal["psnr_db"].as_f64().is_some_and(|db| db.is_finite()));
+    let csv = parse_csv(&std::fs::read_to_string(out.join("results.csv")).unwrap());
+    for col in ["self_hits", "self_hit_rate", "psnr_db"] {
+        assert!(csv[0].iter().any(|h| h == col), "CSV lacks {col}");
+    }
+    let report = std::fs::read_to_string(out.join("report.html")).unwrap();
+    for kind in [
+        "pareto",
+        "pareto-psnr",
+        "pareto-self-hits",
+        "tests",
+        "stages",
+    ] {
+        let stem = format!("cornell-mirrors-{kind}");
+        assert!(
+            is_png(&out.join(format!("charts/{stem}.png"))),
+            "{stem}.png"
+        );
+        assert!(
+            is_svg(&out.join(format!("charts/{stem}.svg"))),
+            "{stem}.svg"
+        );
+        assert!(
+            report.contains(&format!("id=\"chart-{stem}\"")),
+            "report lacks {stem}"
+        );
+    }
+    assert!(report.contains("self hits (rate)"));
+    let psnr = std::fs::read_to_string(out.join("charts/cornell-mirrors-pareto-psnr.svg")).unwrap();
+    assert!(
+        psnr.contains("identical images drawn at 100 dB"),
+        "ceiling not named"
+    );
+}
+
+/// The shipped accuracy plan, checked and cut down: one scene, one run, bvh only, two
+/// policies (64 pixels and two bounces, as shipped: at 32 pixels and one bounce the `normal`
+/// image happens to match the `wachter` reference exactly).
+fn crsh_plan_check(shipped: &str) -> String {
+    for needle in [
+        "reference = \"brute64\"",
+        "reference_params = { \"raygen.offset\" = \"wachter\" }",
+        "accuracy_axes = [\"hit_agreement\", \"psnr_db\", \"self_hit_rate\"]",
+        "\"raygen.offset\" = [\"normal\", \"scaled\", \"fixed\", \"wachter\"]",
+        "scenes = [\"cornell-mirrors\", \"office-boxes\"]",
+        "width = 64",
+        "depth = 2",
+    ] {
+        assert!(shipped.contains(needle), "accuracy.toml changed: {needle}");
+    }
+    let head = &shipped[..shipped.find("[[pipelines]]").expect("pipelines")];
+    head.replace(
+        "scenes = [\"cornell-mirrors\", \"office-boxes\"]",
+        "scenes = [\"cornell-mirrors\"]",
+    )
+    .replace("repeat = 2", "repeat = 1\nwarmup = 0")
+    .replace(
+        "\"raygen.offset\" = [\"normal\", \"scaled\", \"fixed\", \"wachter\"]",
+        "\"raygen.offset\" = [\"normal\", \"wachter\"]",
+    ) + "[[pipelines]]\npipeline = \"bvh\"\n"
+}
+
 #[test]
 fn failed_cells_are_recorded_and_the_run_goes_on() {
     let dir = scratch("failed");
@@ -540,6 +647,24 @@ fn bad_plans_exit_2_with_one_clear_line() {
         (
             vec!["--backends".into(), "metal".into(), "--out".into(), "o".into()],
             "unknown backend `metal`",
+        ),
+        (
+            vec![
+                "--plan".into(),
+                write("axis.toml", "scenes = [\"cornell-mirrors\"]\naccuracy_axes = [\"beauty\"]\n[[pipelines]]\npipeline = \"bvh\"\n"),
+                "--out".into(),
+                "o".into(),
+            ],
+            "unknown accuracy axis `beauty`",
+        ),
+        (
+            vec![
+                "--plan".into(),
+                write("refparams.toml", "scenes = [\"cornell-mirrors\"]\nreference_params = { \"raygen.bogus\" = 1 }\n[[pipelines]]\npipeline = \"bvh\"\n"),
+                "--out".into(),
+                "o".into(),
+            ],
+            "raygen.bogus",
         ),
     ];
     for (args, needle) in cases {

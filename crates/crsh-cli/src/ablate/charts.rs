@@ -1,8 +1,11 @@
-//! The three charts per scene, drawn with plotters as PNG and SVG:
+//! The charts per scene, drawn with plotters as PNG and SVG:
 //!
-//! 1. `SCENE-pareto`: throughput (Mrays/s, log scale) against hit agreement, every cell a
-//!    point coloured by pipeline, the Pareto front (fastest for its accuracy) drawn and
-//!    labelled;
+//! 1. the Pareto charts, one per accuracy axis of the plan (`accuracy_axes`, [`AccuracyAxis`]):
+//!    throughput (Mrays/s, log scale) against the axis, every cell a point coloured by
+//!    pipeline, the Pareto front (fastest for its accuracy) drawn and labelled:
+//!    `SCENE-pareto` (hit agreement), `SCENE-pareto-psnr` (image PSNR against the reference
+//!    pipeline; identical images at a marked ceiling), `SCENE-pareto-self-hits` (self-hit
+//!    rate, lower is better, linear axis from 0);
 //! 2. `SCENE-tests`: tests per traced ray per cell, stacked by hierarchy level (the thesis's
 //!    figs 4.7-4.23 comparisons);
 //! 3. `SCENE-stages`: median wall time per stage per cell, stacked (tables 4.25-4.27).
@@ -18,7 +21,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::{register_font, FontStyle};
 
-use super::results::{CellResult, Results};
+use super::results::{CellAccuracy, CellResult, Results};
 use crsh_core::STAGE_TIMINGS;
 
 /// The font every chart uses.
@@ -57,10 +60,64 @@ fn color(i: usize) -> RGBColor {
     PALETTE[i % PALETTE.len()]
 }
 
+/// An accuracy measure a Pareto chart draws against throughput (a plan's `accuracy_axes`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AccuracyAxis {
+    /// `hit_agreement`: fraction of rays whose hit agrees with the reference intersector on
+    /// the very same rays (higher is better).
+    HitAgreement,
+    /// `psnr_db`: PSNR of the image against the reference pipeline's (higher is better;
+    /// identical images at [`PSNR_CEILING_DB`] or above every finite value).
+    PsnrDb,
+    /// `self_hit_rate`: secondary rays hitting their own source triangle per compared ray
+    /// (lower is better).
+    SelfHitRate,
+}
+
+/// Where a Pareto chart of PSNR draws identical images (no finite PSNR), unless some finite
+/// value reaches it (then 10 dB above the largest, rounded up to 10).
+pub const PSNR_CEILING_DB: f64 = 100.0;
+
+impl AccuracyAxis {
+    /// The axis a plan names (`hit_agreement`, `psnr_db`, `self_hit_rate`).
+    pub fn parse(name: &str) -> Option<AccuracyAxis> {
+        match name {
+            "hit_agreement" => Some(AccuracyAxis::HitAgreement),
+            "psnr_db" => Some(AccuracyAxis::PsnrDb),
+            "self_hit_rate" => Some(AccuracyAxis::SelfHitRate),
+            _ => None,
+        }
+    }
+
+    /// The chart kind, also the file stem's suffix: `pareto`, `pareto-psnr`,
+    /// `pareto-self-hits`.
+    pub fn kind(self) -> &'static str {
+        match self {
+            AccuracyAxis::HitAgreement => "pareto",
+            AccuracyAxis::PsnrDb => "pareto-psnr",
+            AccuracyAxis::SelfHitRate => "pareto-self-hits",
+        }
+    }
+
+    /// Whether larger values are more accurate.
+    pub fn higher_is_better(self) -> bool {
+        self != AccuracyAxis::SelfHitRate
+    }
+
+    /// The cell's value on this axis; `None` for PSNR of identical images.
+    fn value(self, a: &CellAccuracy) -> Option<f64> {
+        match self {
+            AccuracyAxis::HitAgreement => Some(a.hit_agreement),
+            AccuracyAxis::PsnrDb => a.psnr_db,
+            AccuracyAxis::SelfHitRate => Some(a.self_hit_rate),
+        }
+    }
+}
+
 /// One chart written to disk: its kind, and the file stem under `charts/`.
 #[derive(Clone, Debug)]
 pub struct ChartFile {
-    /// `pareto`, `tests` or `stages`.
+    /// `pareto`, `pareto-psnr`, `pareto-self-hits`, `tests` or `stages`.
     pub kind: &'static str,
     /// Title shown in the report.
     pub title: String,
@@ -127,7 +184,8 @@ pub fn slug(s: &str) -> String {
 }
 
 /// Draws every chart of every scene into `dir` (`STEM.png`, `STEM.svg`); scenes without a
-/// successful cell get none, and the Pareto chart needs accuracy figures.
+/// successful cell get none, and the Pareto charts (one per `accuracy_axes` entry) need
+/// accuracy figures.
 pub fn write_all(results: &Results, dir: &Path) -> Result<Vec<(String, Vec<ChartFile>)>, String> {
     std::fs::create_dir_all(dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
     let pipelines: Vec<String> = {
@@ -139,6 +197,18 @@ pub fn write_all(results: &Results, dir: &Path) -> Result<Vec<(String, Vec<Chart
         }
         seen
     };
+    let axes: Vec<AccuracyAxis> = results
+        .plan
+        .accuracy_axes
+        .iter()
+        .map(|a| AccuracyAxis::parse(a).ok_or_else(|| format!("unknown accuracy axis `{a}`")))
+        .collect::<Result<_, _>>()?;
+    let reference_params: Vec<String> = results
+        .plan
+        .reference_params
+        .iter()
+        .map(|(k, v)| format!("{k}={v}"))
+        .collect();
     let mut out = Vec::new();
     for scene in results.scenes() {
         let cells: Vec<&CellResult> = results.ok_cells(&scene);
@@ -162,9 +232,11 @@ pub fn write_all(results: &Results, dir: &Path) -> Result<Vec<(String, Vec<Chart
             });
             Ok::<(), String>(())
         };
-        if let Some(p) = Pareto::new(&scene, &cells, &pipelines) {
-            let (svg, png) = render(&p)?;
-            emit("pareto", p.title.clone(), svg, png)?;
+        for &axis in &axes {
+            if let Some(p) = Pareto::new(&scene, &cells, &pipelines, axis, &reference_params) {
+                let (svg, png) = render(&p)?;
+                emit(axis.kind(), p.title.clone(), svg, png)?;
+            }
         }
         let t = StackedBars::tests(&scene, &cells);
         let (svg, png) = render(&t)?;
@@ -204,43 +276,186 @@ pub(crate) fn pareto_front(points: &[(f64, f64)]) -> Vec<usize> {
     front
 }
 
+/// [`pareto_front`] of `(speed, value)` points where a larger value is better when
+/// `higher_is_better`, a smaller one otherwise (self-hit rates).
+pub(crate) fn axis_front(points: &[(f64, f64)], higher_is_better: bool) -> Vec<usize> {
+    let sign = if higher_is_better { 1.0 } else { -1.0 };
+    pareto_front(
+        &points
+            .iter()
+            .map(|&(x, y)| (x, sign * y))
+            .collect::<Vec<_>>(),
+    )
+}
+
 struct Pareto {
     title: String,
+    axis: AccuracyAxis,
     reference: String,
+    /// Where identical images are drawn ([`AccuracyAxis::PsnrDb`] only).
+    ceiling: f64,
     pipelines: Vec<String>,
     points: Vec<Point>,
     front: Vec<usize>,
 }
 
 impl Pareto {
-    fn new(scene: &str, cells: &[&CellResult], pipelines: &[String]) -> Option<Pareto> {
+    fn new(
+        scene: &str,
+        cells: &[&CellResult],
+        pipelines: &[String],
+        axis: AccuracyAxis,
+        reference_params: &[String],
+    ) -> Option<Pareto> {
         let mut reference = String::new();
-        let points: Vec<Point> = cells
+        // (label, pipeline, throughput, value; `None`: identical images)
+        let raw: Vec<(String, usize, f64, Option<f64>)> = cells
             .iter()
             .filter_map(|c| {
                 let m = c.measures.as_ref()?;
                 let a = m.accuracy.as_ref()?;
                 let x = *m.mrays_per_s.get("overall")?;
                 reference = a.reference.clone();
-                (x > 0.0).then(|| Point {
-                    label: c.label.clone(),
-                    pipeline: pipelines.iter().position(|p| *p == c.pipeline).unwrap_or(0),
-                    x,
-                    y: a.hit_agreement,
+                (x > 0.0).then(|| {
+                    (
+                        c.label.clone(),
+                        pipelines.iter().position(|p| *p == c.pipeline).unwrap_or(0),
+                        x,
+                        axis.value(a),
+                    )
                 })
             })
             .collect();
-        if points.is_empty() {
+        if raw.is_empty() {
             return None;
         }
-        let front = pareto_front(&points.iter().map(|p| (p.x, p.y)).collect::<Vec<_>>());
+        let top = raw
+            .iter()
+            .filter_map(|r| r.3)
+            .fold(f64::NEG_INFINITY, f64::max);
+        let ceiling = if top < PSNR_CEILING_DB {
+            PSNR_CEILING_DB
+        } else {
+            ((top + 10.0) / 10.0).ceil() * 10.0
+        };
+        let points: Vec<Point> = raw
+            .into_iter()
+            .map(|(label, pipeline, x, y)| Point {
+                label,
+                pipeline,
+                x,
+                y: y.unwrap_or(ceiling),
+            })
+            .collect();
+        let front = axis_front(
+            &points.iter().map(|p| (p.x, p.y)).collect::<Vec<_>>(),
+            axis.higher_is_better(),
+        );
+        let title = match axis {
+            AccuracyAxis::HitAgreement => {
+                format!("{scene}: throughput against accuracy (Pareto front labelled)")
+            }
+            AccuracyAxis::PsnrDb => {
+                let with = if reference_params.is_empty() {
+                    String::new()
+                } else {
+                    format!(" {}", reference_params.join(" "))
+                };
+                format!("{scene}: throughput against PSNR (reference: {reference}{with})")
+            }
+            AccuracyAxis::SelfHitRate => format!(
+                "{scene}: throughput against self-intersections (lower is better; front labelled)"
+            ),
+        };
         Some(Pareto {
-            title: format!("{scene}: throughput against accuracy (Pareto front labelled)"),
+            title,
+            axis,
             reference,
+            ceiling,
             pipelines: pipelines.to_vec(),
             points,
             front,
         })
+    }
+
+    /// The y range, the y axis description and the tick label decimals.
+    fn y_axis(&self) -> (f64, f64, String) {
+        let (ymin, ymax) = self
+            .points
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.y), b.max(p.y)));
+        match self.axis {
+            AccuracyAxis::HitAgreement => {
+                let pad = ((ymax - ymin) * 0.12).max(2e-4);
+                // Agreement cannot exceed 1: keep the axis just above it.
+                let y1 = if ymax >= 1.0 {
+                    1.0 + pad * 0.3
+                } else {
+                    ymax + pad
+                };
+                (
+                    ymin - pad,
+                    y1,
+                    format!("hit agreement with `{}` (fraction of rays)", self.reference),
+                )
+            }
+            AccuracyAxis::PsnrDb => {
+                let pad = ((ymax - ymin) * 0.12).max(2.0);
+                (
+                    ymin - pad,
+                    ymax + pad,
+                    format!(
+                        "PSNR vs the reference image, dB (identical images drawn at {} dB)",
+                        self.ceiling
+                    ),
+                )
+            }
+            AccuracyAxis::SelfHitRate => {
+                let pad = (ymax * 0.12).max(1e-5);
+                (
+                    -pad,
+                    ymax + pad,
+                    "self-hit rate, % of compared rays (hit on own source triangle; lower is better)"
+                        .to_string(),
+                )
+            }
+        }
+    }
+
+    /// A y tick label.
+    fn y_label(&self, v: f64, y0: f64, y1: f64) -> String {
+        match self.axis {
+            AccuracyAxis::HitAgreement => {
+                let decimals = if y1 - y0 < 0.01 { 5 } else { 3 };
+                if v > 1.0 + 1e-12 {
+                    String::new()
+                } else {
+                    format!("{v:.decimals$}")
+                }
+            }
+            AccuracyAxis::PsnrDb => {
+                if v > self.ceiling + 1e-9 {
+                    String::new()
+                } else {
+                    format!("{v:.1}")
+                }
+            }
+            AccuracyAxis::SelfHitRate => {
+                if v < -1e-15 {
+                    String::new()
+                } else {
+                    let pct = v * 100.0;
+                    let decimals = if y1 * 100.0 < 0.01 {
+                        4
+                    } else if y1 * 100.0 < 1.0 {
+                        3
+                    } else {
+                        2
+                    };
+                    format!("{pct:.decimals$}%")
+                }
+            }
+        }
     }
 }
 
@@ -255,18 +470,7 @@ impl Chart for Pareto {
             .points
             .iter()
             .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.x), b.max(p.x)));
-        let (ymin, ymax) = self
-            .points
-            .iter()
-            .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.y), b.max(p.y)));
-        let pad = ((ymax - ymin) * 0.12).max(2e-4);
-        // Agreement cannot exceed 1: keep the axis just above it.
-        let y1 = if ymax >= 1.0 {
-            1.0 + pad * 0.3
-        } else {
-            ymax + pad
-        };
-        let y0 = ymin - pad;
+        let (y0, y1, y_desc) = self.y_axis();
         // Whole decades, so the log axis always has labelled powers of ten.
         let x0 = 10f64.powf((xmin / 1.1).log10().floor()) * 0.97;
         let x1 = 10f64.powf((xmax * 1.3).log10().ceil()) * 1.03;
@@ -277,30 +481,35 @@ impl Chart for Pareto {
             .y_label_area_size(90)
             .build_cartesian_2d((x0..x1).log_scale(), y0..y1)
             .map_err(err)?;
-        let decimals = if y1 - y0 < 0.01 { 5 } else { 3 };
         chart
             .configure_mesh()
             .x_desc("throughput, Mrays/s (traced rays / tracing time; log scale)")
-            .y_desc(format!(
-                "hit agreement with `{}` (fraction of rays)",
-                self.reference
-            ))
+            .y_desc(y_desc)
             .x_labels(12)
             .y_labels(8)
             .x_label_formatter(&|v| format_si(*v))
-            .y_label_formatter(&|v| {
-                if *v > 1.0 + 1e-12 {
-                    String::new()
-                } else {
-                    format!("{v:.decimals$}")
-                }
-            })
+            .y_label_formatter(&|v| self.y_label(*v, y0, y1))
             .label_style((FONT, 14))
             .axis_desc_style((FONT, 16))
             .light_line_style(RGBColor(238, 238, 238))
             .max_light_lines(2)
             .draw()
             .map_err(err)?;
+        // Identical images: the ceiling they are drawn at, dashed and named.
+        if self.axis == AccuracyAxis::PsnrDb && self.points.iter().any(|p| p.y == self.ceiling) {
+            chart
+                .draw_series(DashedLineSeries::new(
+                    [(x0, self.ceiling), (x1, self.ceiling)],
+                    6,
+                    4,
+                    RGBColor(127, 127, 127).stroke_width(1),
+                ))
+                .map_err(err)?
+                .label(format!("identical image ({} dB)", self.ceiling))
+                .legend(|(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 18, y)], RGBColor(127, 127, 127))
+                });
+        }
         // The front, as a line under the points.
         let front: Vec<(f64, f64)> = self
             .front
@@ -341,7 +550,11 @@ impl Chart for Pareto {
         }
         chart
             .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
+            .position(if self.axis.higher_is_better() {
+                SeriesLabelPosition::LowerRight
+            } else {
+                SeriesLabelPosition::UpperRight
+            })
             .background_style(WHITE.mix(0.9))
             .border_style(BLACK)
             .label_font((FONT, 14))
@@ -640,6 +853,28 @@ mod tests {
         let pts = [(1.0, 1.0), (2.0, 0.9), (0.5, 0.95), (3.0, 0.5), (2.0, 0.8)];
         assert_eq!(pareto_front(&pts), vec![0, 1, 3]);
         assert_eq!(pareto_front(&[(1.0, 1.0), (1.0, 1.0)]), vec![0]);
+    }
+
+    #[test]
+    fn lower_is_better_fronts_keep_the_fewest_self_hits() {
+        // (speed, self-hit rate): zero rates are the best, and a fast cell with hits stays on
+        // the front only as the fastest.
+        let pts = [
+            (1.0, 0.0),
+            (2.0, 0.001),
+            (0.5, 0.0),
+            (3.0, 0.01),
+            (2.0, 0.002),
+        ];
+        assert_eq!(axis_front(&pts, false), vec![0, 1, 3]);
+        // Read as "higher is better", the fastest point also has the highest rate: alone.
+        assert_eq!(axis_front(&pts, true), vec![3]);
+        for name in crate::ablate::plan::ACCURACY_AXES {
+            let axis = AccuracyAxis::parse(name).expect("every plan axis parses");
+            assert!(axis.kind().starts_with("pareto"));
+        }
+        assert_eq!(AccuracyAxis::parse("psnr"), None);
+        assert!(!AccuracyAxis::SelfHitRate.higher_is_better());
     }
 
     #[test]

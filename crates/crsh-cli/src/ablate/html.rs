@@ -169,7 +169,7 @@ fn cell_table(h: &mut String, sid: &str, cells: &[&CellResult]) {
     let _ = writeln!(h, "<table class=\"cells\" id=\"table-{sid}\">");
     let _ = writeln!(
         h,
-        "<tr><th class=\"l\">cell</th><th class=\"l\">backend</th><th>status</th><th>total ms (median)</th><th>min</th><th>max</th><th>Mrays/s</th><th>rays traced</th><th>tests / ray</th><th>% of brute force</th><th>hit agreement</th><th>PSNR dB</th><th>mean |t| error</th><th>peak candidates MiB</th><th>counters equal</th><th>Pareto front</th></tr>"
+        "<tr><th class=\"l\">cell</th><th class=\"l\">backend</th><th>status</th><th>total ms (median)</th><th>min</th><th>max</th><th>Mrays/s</th><th>rays traced</th><th>tests / ray</th><th>% of brute force</th><th>hit agreement</th><th>PSNR dB</th><th>mean |t| error</th><th>self hits (rate)</th><th>peak candidates MiB</th><th>counters equal</th><th>Pareto front (agreement)</th></tr>"
     );
     for (i, c) in cells.iter().enumerate() {
         let on_front = front.contains(&i);
@@ -179,7 +179,7 @@ fn cell_table(h: &mut String, sid: &str, cells: &[&CellResult]) {
                 let acc = m.accuracy.as_ref();
                 let _ = writeln!(
                     h,
-                    "<tr{}><td class=\"l\">{}</td><td class=\"l\">{}</td><td>ok</td><td>{:.1}</td><td>{:.1}</td><td>{:.1}</td><td>{:.3}</td><td>{}</td><td>{:.1}</td><td>{:.4}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{}</td><td>{}</td></tr>",
+                    "<tr{}><td class=\"l\">{}</td><td class=\"l\">{}</td><td>ok</td><td>{:.1}</td><td>{:.1}</td><td>{:.1}</td><td>{:.3}</td><td>{}</td><td>{:.1}</td><td>{:.4}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.2}</td><td>{}</td><td>{}</td></tr>",
                     if on_front { " class=\"front\"" } else { "" },
                     escape(&c.label),
                     escape(&c.backend),
@@ -196,6 +196,11 @@ fn cell_table(h: &mut String, sid: &str, cells: &[&CellResult]) {
                         None => "∞ (identical)".into(),
                     }),
                     acc.map_or("—".into(), |a| format!("{:.3e}", a.mean_abs_t_error)),
+                    acc.map_or("—".into(), |a| format!(
+                        "{} ({:.3}%)",
+                        a.self_hits,
+                        a.self_hit_rate * 100.0
+                    )),
                     m.peak_candidate_bytes as f64 / (1024.0 * 1024.0),
                     if m.counters_equal_across_repeats { "yes" } else { "NO" },
                     if on_front { "yes" } else { "" },
@@ -204,7 +209,7 @@ fn cell_table(h: &mut String, sid: &str, cells: &[&CellResult]) {
             _ => {
                 let _ = writeln!(
                     h,
-                    "<tr class=\"failed\"><td class=\"l\">{}</td><td class=\"l\">{}</td><td>failed</td><td class=\"l\" colspan=\"13\">{}</td></tr>",
+                    "<tr class=\"failed\"><td class=\"l\">{}</td><td class=\"l\">{}</td><td>failed</td><td class=\"l\" colspan=\"14\">{}</td></tr>",
                     escape(&c.label),
                     escape(&c.backend),
                     escape(&c.reason),

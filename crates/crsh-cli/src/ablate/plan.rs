@@ -28,6 +28,10 @@ pub const DEFAULT_DEPTH: u32 = 3;
 pub const DEFAULT_REFERENCE: &str = "bvh";
 /// Largest `repeat` accepted.
 pub const MAX_REPEAT: u32 = 1000;
+/// The accuracy axes a plan may chart (`accuracy_axes`): hit agreement with the reference
+/// intersector (higher is better), PSNR of the image against the reference pipeline's (higher
+/// is better) and the self-hit rate (lower is better). The default is the first.
+pub const ACCURACY_AXES: &[&str] = &["hit_agreement", "psnr_db", "self_hit_rate"];
 /// Largest number of cells a plan may expand to (guards against a typo'd grid).
 pub const MAX_CELLS: usize = 10_000;
 
@@ -124,6 +128,16 @@ pub struct Plan {
     /// or `none` to skip the accuracy run.
     #[serde(default = "default_reference")]
     pub reference: String,
+    /// `--set` keys → values applied to the reference pipeline after its intersector is
+    /// swapped for `reference` (`{ "raygen.offset" = "wachter" }`): the reference image is
+    /// then rendered with one fixed configuration while the cells vary it. Keys that reach
+    /// the intersector (`intersect.*`) change the hit-agreement reference as well.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub reference_params: BTreeMap<String, GridValue>,
+    /// The accuracy measures drawn against throughput, one Pareto chart per scene each (see
+    /// [`ACCURACY_AXES`]).
+    #[serde(default = "default_accuracy_axes")]
+    pub accuracy_axes: Vec<String>,
     /// Backends (`cpu`; `wgpu` cells are recorded as failed until the GPU pipeline exists).
     #[serde(default = "default_backends")]
     pub backends: Vec<String>,
@@ -151,6 +165,9 @@ fn default_warmup() -> u32 {
 }
 fn default_reference() -> String {
     DEFAULT_REFERENCE.to_string()
+}
+fn default_accuracy_axes() -> Vec<String> {
+    vec![ACCURACY_AXES[0].to_string()]
 }
 fn default_backends() -> Vec<String> {
     vec!["cpu".to_string()]
@@ -265,6 +282,8 @@ impl QuickPlan {
             repeat: self.repeat.unwrap_or(DEFAULT_REPEAT),
             warmup: 1,
             reference: self.reference.unwrap_or_else(default_reference),
+            reference_params: BTreeMap::new(),
+            accuracy_axes: default_accuracy_axes(),
             backends: if self.backends.is_empty() {
                 default_backends()
             } else {
@@ -409,6 +428,27 @@ fn applies(key: &str, base: &PipelineConfig, own: &[&String]) -> bool {
     base.slot(slot).is_some() || own.iter().any(|k| *k == &format!("{stage}.kind"))
 }
 
+/// The reference pipeline `r` with the plan's `reference_params` (`KEY=VALUE` assignments,
+/// `kind` assignments first) applied and checked; a bad key or value is a usage error.
+fn with_reference_params(
+    mut r: PipelineConfig,
+    sets: &[String],
+    catalogue: &[StageVariantInfo],
+) -> CliResult<PipelineConfig> {
+    if sets.is_empty() {
+        return Ok(r);
+    }
+    let mut ordered: Vec<&String> = sets.iter().collect();
+    ordered.sort_by_key(|s| !s.split('=').next().unwrap_or("").ends_with(".kind"));
+    for s in ordered {
+        r.set(s)
+            .map_err(|e| CliError::usage(format!("reference_params {s}: {e}")))?;
+    }
+    r.resolve(catalogue)
+        .map_err(|e| CliError::usage(format!("reference_params: {e}")))?;
+    Ok(r)
+}
+
 /// Every combination of the grid's values, keys in order.
 fn combinations(grid: &[(String, Vec<GridValue>)]) -> Vec<Vec<(String, String)>> {
     let mut out: Vec<Vec<(String, String)>> = vec![Vec::new()];
@@ -500,6 +540,23 @@ pub fn expand(
         "" | "none" | "off" => None,
         r => Some(r.to_string()),
     };
+    let mut axes_seen = std::collections::BTreeSet::new();
+    for a in &plan.accuracy_axes {
+        if !ACCURACY_AXES.contains(&a.as_str()) {
+            return Err(CliError::usage(format!(
+                "unknown accuracy axis `{a}` (axes: {})",
+                ACCURACY_AXES.join(", ")
+            )));
+        }
+        if !axes_seen.insert(a) {
+            return Err(CliError::usage(format!("accuracy axis `{a}` listed twice")));
+        }
+    }
+    let reference_sets: Vec<String> = plan
+        .reference_params
+        .iter()
+        .map(|(k, v)| format!("{k}={v}"))
+        .collect();
 
     // Each pipeline's base config and effective grid, checked once.
     struct Entry {
@@ -588,7 +645,9 @@ pub fn expand(
                             .as_deref()
                             .map(|r| reference_config(&config, r, catalogue))
                             .transpose()
-                            .map_err(|err| CliError::usage(format!("reference: {err}")))?;
+                            .map_err(|err| CliError::usage(format!("reference: {err}")))?
+                            .map(|r| with_reference_params(r, &reference_sets, catalogue))
+                            .transpose()?;
                         for backend in &plan.backends {
                             if cells.len() >= MAX_CELLS {
                                 return Err(CliError::usage(format!(
@@ -775,6 +834,56 @@ mod tests {
         .unwrap_err();
         assert_eq!(e.exit_code(), 2);
         assert!(e.to_string().contains("applies to no pipeline"), "{e}");
+    }
+
+    #[test]
+    fn reference_params_reach_only_the_reference_and_axes_are_checked() {
+        let toml = r#"
+            scenes = ["cornell-mirrors"]
+            reference = "brute64"
+            reference_params = { "raygen.offset" = "wachter" }
+            accuracy_axes = ["hit_agreement", "psnr_db", "self_hit_rate"]
+            [grid]
+            "raygen.offset" = ["normal", "fixed"]
+            [[pipelines]]
+            pipeline = "bvh"
+        "#;
+        let plan = parse_plan(toml).unwrap();
+        let cat = crsh_cpu::catalogue();
+        let cells = expand(&plan, None, &cat).unwrap();
+        assert_eq!(cells.len(), 2);
+        for c in &cells {
+            let r = c.reference.as_ref().unwrap();
+            assert_eq!(r.intersect.kind, "brute64");
+            assert_eq!(r.raygen.params["offset"].to_string(), "wachter");
+            assert_eq!(
+                c.config.raygen.params["offset"].to_string(),
+                c.params["raygen.offset"]
+            );
+        }
+        // The default: no reference params, hit agreement only.
+        let plain = parse_plan("scenes = [\"x\"]\n[[pipelines]]\npipeline = \"bvh\"\n").unwrap();
+        assert!(plain.reference_params.is_empty());
+        assert_eq!(plain.accuracy_axes, vec!["hit_agreement".to_string()]);
+        for (bad, needle) in [
+            (
+                toml.replace("\"raygen.offset\" = \"wachter\"", "\"raygen.bogus\" = 1"),
+                "raygen.bogus",
+            ),
+            (toml.replace("wachter\" }", "sideways\" }"), "sideways"),
+            (
+                toml.replace("\"psnr_db\",", "\"psnr\","),
+                "unknown accuracy axis `psnr`",
+            ),
+            (
+                toml.replace("\"psnr_db\",", "\"hit_agreement\","),
+                "listed twice",
+            ),
+        ] {
+            let e = expand(&parse_plan(&bad).unwrap(), None, &cat).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{bad}");
+            assert!(e.to_string().contains(needle), "{needle}: {e}");
+        }
     }
 
     #[test]

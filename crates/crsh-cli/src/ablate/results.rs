@@ -95,6 +95,11 @@ pub struct CellAccuracy {
     pub nearest_mismatches: u64,
     /// Mean `|t − t_reference|` over agreeing closest-hit rays that hit (scene units).
     pub mean_abs_t_error: f64,
+    /// Secondary rays of the cell whose hit is the triangle they were spawned from
+    /// (self-intersections, `AccuracyCounts::self_hits`; a lower bound).
+    pub self_hits: u64,
+    /// `self_hits / rays_compared` (0 when nothing was compared).
+    pub self_hit_rate: f64,
 }
 
 /// The measurements of a cell that ran.
@@ -424,6 +429,8 @@ impl Results {
                 "hit_agreement",
                 "psnr_db",
                 "mean_abs_t_error",
+                "self_hits",
+                "self_hit_rate",
                 "pixels_differing",
                 "peak_candidate_bytes",
                 "counters_equal_across_repeats",
@@ -517,6 +524,11 @@ impl Results {
             );
             row.push(
                 acc.map(|a| format!("{:.6e}", a.mean_abs_t_error))
+                    .unwrap_or_default(),
+            );
+            row.push(acc.map(|a| a.self_hits.to_string()).unwrap_or_default());
+            row.push(
+                acc.map(|a| format!("{:.8}", a.self_hit_rate))
                     .unwrap_or_default(),
             );
             row.push(

@@ -267,6 +267,8 @@ fn measure(
                 hit_miss_mismatches: a.hit_miss_mismatches,
                 nearest_mismatches: a.nearest_mismatches,
                 mean_abs_t_error: a.mean_abs_t_error,
+                self_hits: counts.self_hits,
+                self_hit_rate: counts.self_hit_rate(),
             })
         }
     };
