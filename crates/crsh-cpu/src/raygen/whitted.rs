@@ -74,7 +74,9 @@
 //!   [`offset_ray`] would move the light along the segment (a few hundred ULPs of the light's
 //!   coordinates, or 1/65536 near the origin), not 0: a light sitting on a wall starts its
 //!   shadow rays inside the wall's plane, where the open interval alone would let rounding
-//!   report the wall at `t` just above 0 and shadow everything. A surface crossing the
+//!   report the wall at `t` just above 0 and shadow everything (measured: with `t_min = 0`
+//!   there, 7 of 16 lights placed on a tilted wall shadowed the whole floor in front of it).
+//!   A surface crossing the
 //!   segment closer to the light than that gap is missed; put lights further from geometry
 //!   than that (any light off a surface by more than ~1e-4 of its coordinates is).
 //!
