@@ -70,15 +70,15 @@
 //!   [`WACHTER_T_ULPS`] ULPs of its length: there the intersector's `t` carries the rounding
 //!   error of a point `|segment|` away from the ray's origin, which the offset does not cover
 //!   (measured: ending exactly at the offset point leaves acne where the light is steep above
-//!   the surface, one ray in 4096 on a plane lit from 89° at distance 20). At the *light* end the segment excludes the distance
-//!   [`offset_ray`] would move the light along the segment (a few hundred ULPs of the light's
-//!   coordinates, or 1/65536 near the origin), not 0: a light sitting on a wall starts its
-//!   shadow rays inside the wall's plane, where the open interval alone would let rounding
-//!   report the wall at `t` just above 0 and shadow everything (measured: with `t_min = 0`
-//!   there, 7 of 16 lights placed on a tilted wall shadowed the whole floor in front of it).
-//!   A surface crossing the
-//!   segment closer to the light than that gap is missed; put lights further from geometry
-//!   than that (any light off a surface by more than ~1e-4 of its coordinates is).
+//!   the surface, one ray in 4096 on a plane lit from 89° at distance 20). At the *light* end
+//!   the segment excludes the distance [`offset_ray`] would move the light along the segment
+//!   (a few hundred ULPs of the light's coordinates, or 1/65536 near the origin), not 0: a
+//!   light sitting on a wall starts its shadow rays inside the wall's plane, where the open
+//!   interval alone would let rounding report the wall at `t` just above 0 and shadow
+//!   everything (measured: with `t_min = 0` there, 7 of 16 lights placed on a tilted wall
+//!   shadowed the whole floor in front of it). A surface crossing the segment closer to the
+//!   light than that gap is missed; put lights further from geometry than that (any light off
+//!   a surface by more than ~1e-4 of its coordinates is).
 //!
 //! The offsets move along the *geometric* normal because the shading normal may tilt away
 //! from the face. A reflection direction computed from a tilted shading normal may point
