@@ -643,3 +643,52 @@ fn f32_pipelines_match_the_f64_reference_on_the_builtin_scenes() {
         }
     }
 }
+
+/// Every exact pipeline can run every ray-triangle test (`intersect.test`), and under one test
+/// they all return the same hits as brute force with that test, bit for bit (the same image),
+/// and agree with the f64 reference up to rounding.
+#[test]
+fn every_exact_pipeline_agrees_with_brute_force_under_each_triangle_test() {
+    let o = opts(40, 40, 3);
+    for name in crsh_scene::builtin::NAMES {
+        let scene = builtin(name);
+        for test in ["watertight", "projected"] {
+            let set = format!("intersect.test={test}");
+            let mut reference = StageSpec::new("brute");
+            reference
+                .params
+                .insert("test".into(), crsh_core::ParamValue::Str(test.into()));
+            let brute = render(
+                &scene,
+                &config("brute", &[&set]),
+                &o,
+                Some(&StageSpec::new("brute64")),
+                &mut |_| {},
+            )
+            .unwrap();
+            let acc = brute.stats.accuracy.clone().unwrap();
+            assert!(acc.hit_agreement() >= 0.9999, "{name} {test}: {acc:?}");
+            for pipeline in ["bvh", "crsh", "rah"] {
+                let f = render(
+                    &scene,
+                    &config(pipeline, &[&set]),
+                    &o,
+                    Some(&reference),
+                    &mut |_| {},
+                )
+                .unwrap_or_else(|e| panic!("{name} {pipeline} {test}: {e}"));
+                let acc = f.stats.accuracy.clone().unwrap();
+                assert_eq!(
+                    acc.hit_agreement(),
+                    1.0,
+                    "{name} {pipeline} {test}: {acc:?}"
+                );
+                assert_eq!(f.stats.rays, brute.stats.rays, "{name} {pipeline} {test}");
+                assert!(
+                    bits(&f.image) == bits(&brute.image),
+                    "{name} {pipeline} {test}: image differs from brute force's"
+                );
+            }
+        }
+    }
+}

@@ -10,8 +10,9 @@
 //! - `sorting`: `compress` and `radix` on the keys of each hasher;
 //! - `hierarchy`: `sphere_cone` (subdivision 8, depth 2) over the thesis-sorted rays;
 //! - `traversal`: the `crsh` traverser, with a sink that only counts the candidates;
-//! - `final_tests`: the `brute` intersector on the candidate batches of that traversal;
-//! - `bvh`: the whole-scene `bvh` any-hit query of the same rays, the baseline.
+//! - `final_tests`: the `brute` intersector on the candidate batches of that traversal, with
+//!   each ray-triangle test (`intersect.test` = `mt`, `watertight`, `projected`);
+//! - `bvh`: the whole-scene `bvh` any-hit query of the same rays, the baseline, with each test.
 //!
 //! Run with `cargo bench -p crsh-cpu --bench stages` (add `-- --quick` for a short run, or a
 //! group name to filter).
@@ -230,43 +231,52 @@ fn benches(c: &mut Criterion) {
     g.throughput(Throughput::Elements(n));
     g.sample_size(10);
     let mode = RayKind::Shadow.hit_mode();
-    g.bench_function(format!("brute_candidates/{}", b.tag), |bench| {
-        bench.iter(|| {
-            let mut hits = vec![Hit::MISS; b.rays.len()];
-            let mut stats = Stats::default();
-            for batch in &b.candidates {
-                let q = Query::Candidates {
-                    hierarchy: &b.hierarchy,
-                    batch,
-                };
-                st.intersector
-                    .intersect(&Cpu, &b.rays, q, mode, &mut hits, &mut stats)
-                    .unwrap();
-            }
-            hits
-        })
-    });
+    for test in crsh_cpu::triangle::TEST_NAMES {
+        let intersector = stages(scene, &[&format!("intersect.test={test}")]).intersector;
+        g.bench_function(format!("brute_candidates_{test}/{}", b.tag), |bench| {
+            bench.iter(|| {
+                let mut hits = vec![Hit::MISS; b.rays.len()];
+                let mut stats = Stats::default();
+                for batch in &b.candidates {
+                    let q = Query::Candidates {
+                        hierarchy: &b.hierarchy,
+                        batch,
+                    };
+                    intersector
+                        .intersect(&Cpu, &b.rays, q, mode, &mut hits, &mut stats)
+                        .unwrap();
+                }
+                hits
+            })
+        });
+    }
     g.finish();
 
     let mut g = c.benchmark_group("bvh");
     g.throughput(Throughput::Elements(n));
     g.sample_size(10);
-    let bvh = stages(scene, &["intersect.kind=bvh"]).intersector;
-    g.bench_function(format!("whole_scene_any_hit/{}", b.tag), |bench| {
-        bench.iter(|| {
-            let mut hits = vec![Hit::MISS; b.rays.len()];
-            bvh.intersect(
-                &Cpu,
-                &b.rays,
-                Query::Scene,
-                mode,
-                &mut hits,
-                &mut Stats::default(),
-            )
-            .unwrap();
-            hits
-        })
-    });
+    for test in crsh_cpu::triangle::TEST_NAMES {
+        let bvh = stages(
+            scene,
+            &["intersect.kind=bvh", &format!("intersect.test={test}")],
+        )
+        .intersector;
+        g.bench_function(format!("whole_scene_any_hit_{test}/{}", b.tag), |bench| {
+            bench.iter(|| {
+                let mut hits = vec![Hit::MISS; b.rays.len()];
+                bvh.intersect(
+                    &Cpu,
+                    &b.rays,
+                    Query::Scene,
+                    mode,
+                    &mut hits,
+                    &mut Stats::default(),
+                )
+                .unwrap();
+                hits
+            })
+        });
+    }
     g.finish();
 }
 

@@ -104,7 +104,14 @@ pub fn catalogue() -> Vec<StageVariantInfo> {
             stage: StageKind::Intersect,
             name: "brute",
             doc: "every ray against every triangle: the exact reference, N×M tests (§3.2.9)",
-            params: vec![],
+            params: vec![ParamInfo {
+                name: "test",
+                default: ParamValue::Str("mt".into()),
+                choices: crate::triangle::TEST_NAMES,
+                doc: "ray-triangle test: `mt` Möller-Trumbore (f32), `watertight` Woop, Benthin \
+                      and Wald 2013 (no ray slips through shared edges), `projected` RTTest's \
+                      projected barycentrics (seed 003 §4.2)",
+            }],
         },
         crate::intersect::brute64::info(),
         StageVariantInfo {
@@ -112,12 +119,23 @@ pub fn catalogue() -> Vec<StageVariantInfo> {
             name: "bvh",
             doc: "obvhs compressed-wide BVH (CWBVH), closest and any hit, node and triangle \
                   tests counted",
-            params: vec![ParamInfo {
-                name: "build_quality",
-                default: ParamValue::Str("medium".into()),
-                choices: &["fast", "medium", "slow"],
-                doc: "obvhs build preset: faster builds or better trees",
-            }],
+            params: vec![
+                ParamInfo {
+                    name: "build_quality",
+                    default: ParamValue::Str("medium".into()),
+                    choices: &["fast", "medium", "slow"],
+                    doc: "obvhs build preset: faster builds or better trees",
+                },
+                ParamInfo {
+                    name: "test",
+                    default: ParamValue::Str("mt".into()),
+                    choices: crate::triangle::TEST_NAMES,
+                    doc:
+                        "ray-triangle test: `mt` Möller-Trumbore (f32), `watertight` Woop, Benthin \
+                      and Wald 2013 (no ray slips through shared edges), `projected` RTTest's \
+                      projected barycentrics (seed 003 §4.2)",
+                },
+            ],
         },
         StageVariantInfo {
             stage: StageKind::Shade,

@@ -4,7 +4,12 @@
 //!
 //! Rays are processed in packets of [`PACKET`] (rayon over packets); each packet sweeps the
 //! scene's triangles in [`TriangleBlock`]s of [`LANES`], so a block is loaded once per packet
-//! rather than once per ray, and the per-lane Möller-Trumbore of [`crate::triangle`] vectorizes.
+//! rather than once per ray, and the per-lane test vectorizes (Möller-Trumbore's
+//! structure-of-arrays blocks do; the other tests run lane by lane).
+//!
+//! The ray-triangle test is the `test` parameter (`mt`, `watertight`, `projected`, see
+//! [`crate::triangle`]): the triangles are prepared for it once, and each query is dispatched
+//! to the loops of that test once, so every loop below is monomorphic.
 //! Nothing is allocated per ray. Each ray's result depends only on the ray and the scene, so
 //! the output is the same for any thread count.
 //!
@@ -61,18 +66,18 @@ use crsh_scene::Scene;
 use rayon::prelude::*;
 
 use crate::backend::Cpu;
-use crate::triangle::{PreparedTriangle, RayPacket, RayPre, TriangleSet, LANES};
+use crate::triangle::{AnyTriangleSet, TestKind, TriangleSet, TriangleTest, LANES};
 
 #[cfg(doc)]
-use crate::triangle::TriangleBlock;
+use crate::triangle::{RayPacket, TriangleBlock};
 
 /// Rays per packet in scene queries.
 pub const PACKET: usize = 16;
 
-/// The brute-force intersector (variant `brute`, no parameters).
+/// The brute-force intersector (variant `brute`; parameter `test`).
 #[derive(Debug)]
 pub struct BruteForce {
-    tris: TriangleSet,
+    tris: AnyTriangleSet,
     /// What the candidate queries last validated.
     validated: Mutex<Validated>,
 }
@@ -110,96 +115,127 @@ struct RaysKey {
 }
 
 impl BruteForce {
-    /// Prepares the triangles of `scene`. `spec` has no parameters to read.
+    /// Prepares the triangles of `scene` for the ray-triangle test of `spec.test`.
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<BruteForce, CoreError> {
-        let _ = spec;
-        Ok(BruteForce::from_scene(scene))
+        Ok(BruteForce::with_test(scene, test_kind(spec, "brute")?))
     }
 
-    /// Prepares the triangles of `scene`.
+    /// Prepares the triangles of `scene` for Möller-Trumbore (the default test).
     pub fn from_scene(scene: &Scene) -> BruteForce {
+        BruteForce::with_test(scene, TestKind::MollerTrumbore)
+    }
+
+    /// Prepares the triangles of `scene` for test `kind`.
+    pub fn with_test(scene: &Scene, kind: TestKind) -> BruteForce {
         BruteForce {
-            tris: TriangleSet::new(scene),
+            tris: AnyTriangleSet::new(scene, kind),
             validated: Mutex::default(),
         }
     }
 
     /// The prepared triangles.
-    pub fn triangles(&self) -> &TriangleSet {
+    pub fn triangles(&self) -> &AnyTriangleSet {
         &self.tris
     }
 
-    /// Scene query for one packet (`rays.len() <= PACKET`); returns the tests performed.
-    fn scene_packet(&self, rays: &[Ray], hits: &mut [Hit], mode: HitMode) -> u64 {
-        let n = self.tris.len();
-        let blocks = self.tris.blocks();
-        let mut pre = [RayPre::new(Default::default(), Default::default()); PACKET];
-        let mut best = [Hit::MISS; PACKET];
-        let mut active = [false; PACKET];
-        let count = rays.len();
-        for i in 0..count {
-            pre[i] = RayPre::of(&rays[i]);
-            best[i] = hits[i];
-            active[i] = mode == HitMode::Closest || !hits[i].is_hit();
-        }
-        let mut tests = 0u64;
-        match mode {
-            HitMode::Closest => {
-                for (k, block) in blocks.iter().enumerate() {
-                    for i in 0..count {
-                        let bh = block.test(&pre[i], rays[i].t_min, rays[i].t_max);
-                        let m = bh.t.iter().fold(f32::INFINITY, |a, &b| a.min(b));
-                        if m < f32::INFINITY && m <= best[i].t {
-                            for l in 0..LANES {
-                                let cand = Hit {
-                                    t: bh.t[l],
-                                    tri: (k * LANES + l) as u32,
-                                    u: bh.u[l],
-                                    v: bh.v[l],
-                                };
-                                if cand.t < f32::INFINITY && cand.closer_than(&best[i]) {
-                                    best[i] = cand;
-                                }
-                            }
-                        }
-                    }
-                }
-                tests = (n * count) as u64;
-            }
-            HitMode::Any => {
-                let mut remaining = active[..count].iter().filter(|&&a| a).count();
-                for (k, block) in blocks.iter().enumerate() {
-                    if remaining == 0 {
-                        break;
-                    }
-                    for i in 0..count {
-                        if !active[i] {
-                            continue;
-                        }
-                        let bh = block.test(&pre[i], rays[i].t_min, rays[i].t_max);
-                        if let Some(l) = (0..LANES).find(|&l| bh.t[l] < f32::INFINITY) {
-                            best[i] = Hit {
+    /// The ray-triangle test in use.
+    pub fn test(&self) -> TestKind {
+        self.tris.kind()
+    }
+}
+
+/// The `test` parameter of intersector `variant`'s `spec`.
+pub(crate) fn test_kind(spec: &StageSpec, variant: &str) -> Result<TestKind> {
+    let name = spec.str("test")?;
+    TestKind::from_name(name).ok_or_else(|| CoreError::InvalidParam {
+        key: format!("{variant}.test"),
+        reason: format!(
+            "`{name}` is not one of {}",
+            crate::triangle::TEST_NAMES.join(", ")
+        ),
+    })
+}
+
+/// Scene query for one packet (`rays.len() <= PACKET`) with test `T`; returns the tests
+/// performed.
+fn scene_packet<T: TriangleTest>(
+    set: &TriangleSet<T>,
+    rays: &[Ray],
+    hits: &mut [Hit],
+    mode: HitMode,
+) -> u64 {
+    let n = set.len();
+    let blocks = set.blocks();
+    let mut pre = [T::ray(Default::default(), Default::default()); PACKET];
+    let mut best = [Hit::MISS; PACKET];
+    let mut active = [false; PACKET];
+    let count = rays.len();
+    for i in 0..count {
+        pre[i] = T::ray_of(&rays[i]);
+        best[i] = hits[i];
+        active[i] = mode == HitMode::Closest || !hits[i].is_hit();
+    }
+    let mut tests = 0u64;
+    match mode {
+        HitMode::Closest => {
+            for (k, block) in blocks.iter().enumerate() {
+                for i in 0..count {
+                    let bh = T::test_block(block, &pre[i], rays[i].t_min, rays[i].t_max);
+                    let m = bh.t.iter().fold(f32::INFINITY, |a, &b| a.min(b));
+                    if m < f32::INFINITY && m <= best[i].t {
+                        for l in 0..LANES {
+                            let cand = Hit {
                                 t: bh.t[l],
                                 tri: (k * LANES + l) as u32,
                                 u: bh.u[l],
                                 v: bh.v[l],
                             };
-                            active[i] = false;
-                            remaining -= 1;
-                            tests += ((k + 1) * LANES).min(n) as u64;
+                            if cand.t < f32::INFINITY && cand.closer_than(&best[i]) {
+                                best[i] = cand;
+                            }
                         }
                     }
                 }
-                tests += (remaining * n) as u64;
             }
+            tests = (n * count) as u64;
         }
-        hits[..count].copy_from_slice(&best[..count]);
-        tests
+        HitMode::Any => {
+            let mut remaining = active[..count].iter().filter(|&&a| a).count();
+            for (k, block) in blocks.iter().enumerate() {
+                if remaining == 0 {
+                    break;
+                }
+                for i in 0..count {
+                    if !active[i] {
+                        continue;
+                    }
+                    let bh = T::test_block(block, &pre[i], rays[i].t_min, rays[i].t_max);
+                    if let Some(l) = (0..LANES).find(|&l| bh.t[l] < f32::INFINITY) {
+                        best[i] = Hit {
+                            t: bh.t[l],
+                            tri: (k * LANES + l) as u32,
+                            u: bh.u[l],
+                            v: bh.v[l],
+                        };
+                        active[i] = false;
+                        remaining -= 1;
+                        tests += ((k + 1) * LANES).min(n) as u64;
+                    }
+                }
+            }
+            tests += (remaining * n) as u64;
+        }
     }
+    hits[..count].copy_from_slice(&best[..count]);
+    tests
+}
 
-    /// Candidate query: see the module doc.
-    fn candidates(
+impl BruteForce {
+    /// Candidate query with test `T` on `set` (this intersector's triangles): see the module
+    /// doc.
+    fn candidates<T: TriangleTest>(
         &self,
+        set: &TriangleSet<T>,
         rays: &[Ray],
         hierarchy: &RayHierarchy<Cpu>,
         pairs: &[Candidate],
@@ -247,7 +283,7 @@ impl BruteForce {
             validated.rays = Some(key);
         }
         drop(validated);
-        let n_tris = self.tris.len();
+        let n_tris = set.len();
         // One parallel pass: every pair in range, and whether the pairs are already strictly
         // increasing (sorted, no duplicates), as the traversal emits them.
         let (in_range, increasing) = scan_pairs(pairs, n_nodes, n_tris);
@@ -276,7 +312,7 @@ impl BruteForce {
         // Each active node gets `sub` slots of `local` (the last node may use fewer): its
         // rays' current hits are gathered, updated in parallel, and scattered back.
         let mut local = vec![Hit::MISS; groups.len() * sub];
-        let tris = self.tris.triangles();
+        let tris = set.triangles();
         let current: &[Hit] = hits;
         // The rays a node tests and its order entries are checked as they are read (cheap,
         // and it keeps bad input an error even if the buffers were changed in place since
@@ -297,7 +333,8 @@ impl BruteForce {
                 let mut tests = 0u64;
                 let mut found = 0u64;
                 for (ids, best) in leaves.chunks(LANES).zip(out.chunks_mut(LANES)) {
-                    let (t, f) = node_packet(rays, ids, &sorted[g.pairs.clone()], tris, mode, best);
+                    let (t, f) =
+                        node_packet::<T>(rays, ids, &sorted[g.pairs.clone()], tris, mode, best);
                     tests += t;
                     found += f;
                 }
@@ -362,21 +399,21 @@ fn node_runs(sorted: &[Candidate], sub: usize, n_rays: usize) -> Vec<NodeRun> {
 /// rules; returns `(tests, hits found)`. Each triangle is loaded once for all the rays, which
 /// sit in the lanes of a [`RayPacket`]; per ray the decisions and counts are those of testing
 /// the triangles one after the other (any-hit: the lowest-id hit, then the ray stops).
-fn node_packet(
+fn node_packet<T: TriangleTest>(
     rays: &[Ray],
     ids: &[u32],
     node_pairs: &[Candidate],
-    tris: &[PreparedTriangle],
+    tris: &[T::Tri],
     mode: HitMode,
     best: &mut [Hit],
 ) -> (u64, u64) {
-    let mut packet = RayPacket::EMPTY;
+    let mut packet = T::empty_packet();
     let mut active = 0u32;
     for (l, &r) in ids.iter().enumerate() {
         if mode == HitMode::Any && best[l].is_hit() {
             continue;
         }
-        packet.set(l, &rays[r as usize]);
+        T::set_lane(&mut packet, l, &rays[r as usize]);
         active |= 1 << l;
     }
     let mut tests = 0u64;
@@ -386,7 +423,7 @@ fn node_packet(
             break;
         }
         tests += active.count_ones() as u64;
-        let (mask, bh) = packet.test(&tris[c.tri as usize]);
+        let (mask, bh) = T::test_packet(&packet, &tris[c.tri as usize]);
         let mut hit = mask & active;
         found += hit.count_ones() as u64;
         while hit != 0 {
@@ -515,13 +552,36 @@ impl Intersector<Cpu> for BruteForce {
         let tests = match query {
             Query::Scene => {
                 check_rays(rays)?;
-                rays.par_chunks(PACKET)
-                    .zip(hits.par_chunks_mut(PACKET))
-                    .map(|(r, h)| self.scene_packet(r, h, mode))
-                    .sum()
+                fn sweep<T: TriangleTest>(
+                    set: &TriangleSet<T>,
+                    rays: &[Ray],
+                    hits: &mut [Hit],
+                    mode: HitMode,
+                ) -> u64 {
+                    rays.par_chunks(PACKET)
+                        .zip(hits.par_chunks_mut(PACKET))
+                        .map(|(r, h)| scene_packet(set, r, h, mode))
+                        .sum()
+                }
+                match &self.tris {
+                    AnyTriangleSet::MollerTrumbore(s) => sweep(s, rays, hits, mode),
+                    AnyTriangleSet::Watertight(s) => sweep(s, rays, hits, mode),
+                    AnyTriangleSet::Projected(s) => sweep(s, rays, hits, mode),
+                }
             }
             Query::Candidates { hierarchy, batch } => {
-                let (tests, found) = self.candidates(rays, hierarchy, &batch.pairs, mode, hits)?;
+                let pairs = &batch.pairs;
+                let (tests, found) = match &self.tris {
+                    AnyTriangleSet::MollerTrumbore(s) => {
+                        self.candidates(s, rays, hierarchy, pairs, mode, hits)?
+                    }
+                    AnyTriangleSet::Watertight(s) => {
+                        self.candidates(s, rays, hierarchy, pairs, mode, hits)?
+                    }
+                    AnyTriangleSet::Projected(s) => {
+                        self.candidates(s, rays, hierarchy, pairs, mode, hits)?
+                    }
+                };
                 if !batch.pairs.is_empty() {
                     let kind = RayKind::from_u32(rays[0].kind).ok_or_else(|| {
                         CoreError::InvalidInput(format!(
@@ -624,12 +684,20 @@ pub(crate) mod tests {
         }
     }
 
-    /// The obvious scalar reference: every triangle, one at a time.
-    fn naive(set: &TriangleSet, ray: &Ray, mode: HitMode) -> Hit {
-        let r = RayPre::of(ray);
+    /// The obvious scalar reference: every triangle, one at a time, with `set`'s test.
+    fn naive(set: &AnyTriangleSet, ray: &Ray, mode: HitMode) -> Hit {
+        match set {
+            AnyTriangleSet::MollerTrumbore(s) => naive_with(s, ray, mode),
+            AnyTriangleSet::Watertight(s) => naive_with(s, ray, mode),
+            AnyTriangleSet::Projected(s) => naive_with(s, ray, mode),
+        }
+    }
+
+    fn naive_with<T: TriangleTest>(set: &TriangleSet<T>, ray: &Ray, mode: HitMode) -> Hit {
+        let r = T::ray_of(ray);
         let mut best = Hit::MISS;
         for (i, t) in set.triangles().iter().enumerate() {
-            if let Some(h) = t.hit(&r, ray.t_min, ray.t_max, i as u32) {
+            if let Some(h) = T::hit(t, &r, ray.t_min, ray.t_max, i as u32) {
                 if mode == HitMode::Any {
                     return h;
                 }
@@ -651,8 +719,15 @@ pub(crate) mod tests {
 
     #[test]
     fn scene_query_matches_naive_loop() {
+        for kind in TestKind::ALL {
+            scene_query_matches_naive_loop_with(kind);
+        }
+    }
+
+    fn scene_query_matches_naive_loop_with(kind: TestKind) {
         let scene = soup(1, 300);
-        let b = BruteForce::from_scene(&scene);
+        let b = BruteForce::with_test(&scene, kind);
+        assert_eq!(b.test(), kind);
         let rays = random_rays(&scene, 2, 403);
         let (closest, stats) = run(&b, &rays, Query::Scene, HitMode::Closest);
         assert_eq!(
@@ -850,13 +925,16 @@ pub(crate) mod tests {
             ("reflection", 0, 8)
         );
         assert_eq!(row.hits + row.misses, 8);
+        let AnyTriangleSet::MollerTrumbore(set) = &b.tris else {
+            panic!("from_scene prepares for Möller-Trumbore");
+        };
         for (i, (ray, hit)) in rays.iter().zip(&hits).enumerate() {
-            let r = RayPre::of(ray);
+            let r = crate::triangle::RayPre::of(ray);
             let mut want = Hit::MISS;
             if i < 4 {
                 for tri in [3u32, 7] {
                     if let Some(x) =
-                        b.tris.triangles()[tri as usize].hit(&r, ray.t_min, ray.t_max, tri)
+                        set.triangles()[tri as usize].hit(&r, ray.t_min, ray.t_max, tri)
                     {
                         if x.closer_than(&want) {
                             want = x;
@@ -871,7 +949,24 @@ pub(crate) mod tests {
     /// The candidate query written the obvious way: pairs sorted and de-duplicated, then per
     /// ray of each node, its triangles one at a time; returns the (tests, hits found) counts.
     fn naive_candidates(
-        set: &TriangleSet,
+        set: &AnyTriangleSet,
+        rays: &[Ray],
+        h: &RayHierarchy<Cpu>,
+        pairs: &[Candidate],
+        mode: HitMode,
+        hits: &mut [Hit],
+    ) -> (u64, u64) {
+        match set {
+            AnyTriangleSet::MollerTrumbore(s) => {
+                naive_candidates_with(s, rays, h, pairs, mode, hits)
+            }
+            AnyTriangleSet::Watertight(s) => naive_candidates_with(s, rays, h, pairs, mode, hits),
+            AnyTriangleSet::Projected(s) => naive_candidates_with(s, rays, h, pairs, mode, hits),
+        }
+    }
+
+    fn naive_candidates_with<T: TriangleTest>(
+        set: &TriangleSet<T>,
         rays: &[Ray],
         h: &RayHierarchy<Cpu>,
         pairs: &[Candidate],
@@ -898,10 +993,14 @@ pub(crate) mod tests {
                 }
                 for &tri in &tris {
                     tests += 1;
-                    let pre = RayPre::of(ray);
-                    if let Some(x) =
-                        set.triangles()[tri as usize].hit(&pre, ray.t_min, ray.t_max, tri)
-                    {
+                    let pre = T::ray_of(ray);
+                    if let Some(x) = T::hit(
+                        &set.triangles()[tri as usize],
+                        &pre,
+                        ray.t_min,
+                        ray.t_max,
+                        tri,
+                    ) {
                         found += 1;
                         if mode == HitMode::Any {
                             *best = x;
@@ -919,8 +1018,14 @@ pub(crate) mod tests {
 
     #[test]
     fn candidates_match_the_naive_loop_exactly() {
+        for kind in TestKind::ALL {
+            candidates_match_the_naive_loop_exactly_with(kind);
+        }
+    }
+
+    fn candidates_match_the_naive_loop_exactly_with(kind: TestKind) {
         let scene = soup(21, 90);
-        let b = BruteForce::from_scene(&scene);
+        let b = BruteForce::with_test(&scene, kind);
         let rays = random_rays(&scene, 22, 157);
         let mut rng = TestRng(23);
         let mut order: Vec<u32> = (0..rays.len() as u32).collect();
@@ -975,7 +1080,7 @@ pub(crate) mod tests {
                     b.intersect(&Cpu, &rays, q, mode, &mut got, &mut stats)
                         .unwrap();
                 }
-                let what = format!("sub {sub} {mode:?}");
+                let what = format!("{kind:?} sub {sub} {mode:?}");
                 assert_eq!(got, want, "{what}");
                 assert_eq!(stats.tests.ray_triangle, counts.0, "{what}");
                 let found: u64 = stats.levels.iter().map(|r| r.hits).sum();

@@ -2,16 +2,17 @@
 //!
 //! The BVH is built once, when the stage is constructed ([`CwBvh::new`]), with obvhs's PLOC
 //! builder and the preset chosen by `build_quality`. Leaf primitives are stored in leaf order
-//! ([`PreparedTriangle`]s indexed by the BVH's primitive slot, plus each slot's scene triangle
-//! id), so a leaf test reads consecutive memory. Degenerate triangles (never hit, see
+//! (triangles prepared for the configured ray-triangle test, indexed by the BVH's primitive
+//! slot, plus each slot's scene triangle id), so a leaf test reads consecutive memory. Degenerate triangles (never hit, see
 //! [`crate::triangle`]) are left out of the tree.
 //!
 //! # Identical to brute force
 //!
-//! Primitive tests use the crate's one triangle test ([`PreparedTriangle::hit`]), on scene
-//! triangle ids, merged with [`Hit::closer_than`]; the node test culls only boxes that cannot
-//! hold a hit that could still win, so closest hits (triangle, `t`, `u`, `v`) are the
-//! brute-force ones bit for bit, ties included:
+//! Primitive tests use the ray-triangle test of parameter `test` (`mt`, `watertight`,
+//! `projected`: [`crate::triangle`]), the same code brute force runs, on scene triangle ids,
+//! merged with [`Hit::closer_than`]; the node test culls only boxes that cannot hold a hit that
+//! could still win, so closest hits (triangle, `t`, `u`, `v`) are the brute-force ones (with the
+//! same test) bit for bit, ties included:
 //!
 //! - obvhs's own node test clamps the entry distance to a fixed `1e-4` (ignoring the ray's
 //!   `t_min`), maps zero direction components to `±1/f32::EPSILON` and rounds without margin;
@@ -52,8 +53,8 @@ use obvhs::BvhBuildParams;
 use rayon::prelude::*;
 
 use crate::backend::Cpu;
-use crate::intersect::brute::check_batch;
-use crate::triangle::{PreparedTriangle, RayPre};
+use crate::intersect::brute::{check_batch, test_kind};
+use crate::triangle::{MollerTrumbore, Projected, TestKind, TriangleSet, TriangleTest, Watertight};
 
 /// Rays per rayon task.
 const CHUNK: usize = 64;
@@ -108,12 +109,20 @@ impl BuildQuality {
 /// The CWBVH intersector (variant `bvh`).
 pub struct CwBvh {
     bvh: obvhs::cwbvh::CwBvh,
-    /// Prepared triangle per BVH primitive slot.
-    leaf_tris: Vec<PreparedTriangle>,
+    /// Prepared triangle per BVH primitive slot, for the configured test.
+    leaf_tris: LeafTriangles,
     /// Scene triangle id per BVH primitive slot.
     leaf_ids: Vec<u32>,
     quality: BuildQuality,
     build_time: Duration,
+}
+
+/// The leaf triangles prepared for one ray-triangle test (matched once per query).
+#[derive(Clone, Debug)]
+enum LeafTriangles {
+    MollerTrumbore(Vec<<MollerTrumbore as TriangleTest>::Tri>),
+    Watertight(Vec<<Watertight as TriangleTest>::Tri>),
+    Projected(Vec<<Projected as TriangleTest>::Tri>),
 }
 
 impl std::fmt::Debug for CwBvh {
@@ -122,34 +131,42 @@ impl std::fmt::Debug for CwBvh {
             .field("nodes", &self.bvh.nodes.len())
             .field("primitives", &self.leaf_ids.len())
             .field("quality", &self.quality)
+            .field("test", &self.test())
             .field("build_time", &self.build_time)
             .finish()
     }
 }
 
 impl CwBvh {
-    /// Builds the BVH of `scene` with `spec.build_quality` (`fast` | `medium` | `slow`).
+    /// Builds the BVH of `scene` with `spec.build_quality` (`fast` | `medium` | `slow`), its
+    /// leaves prepared for `spec.test` (`mt` | `watertight` | `projected`).
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<CwBvh, CoreError> {
         let name = spec.str("build_quality")?;
         let quality = BuildQuality::from_name(name).ok_or_else(|| CoreError::InvalidParam {
             key: "bvh.build_quality".into(),
             reason: format!("`{name}` is not one of {}", BuildQuality::NAMES.join(", ")),
         })?;
-        Ok(CwBvh::build(scene, quality))
+        Ok(CwBvh::build_with_test(
+            scene,
+            quality,
+            test_kind(spec, "bvh")?,
+        ))
     }
 
-    /// Builds the BVH of `scene` with the given preset.
+    /// Builds the BVH of `scene` with the given preset, for Möller-Trumbore.
     pub fn build(scene: &Scene, quality: BuildQuality) -> CwBvh {
-        let prepared: Vec<(u32, PreparedTriangle, [Vec3; 3])> = (0..scene.triangle_count())
-            .map(|t| {
-                let [a, b, c] = scene.triangle(t);
-                (t as u32, PreparedTriangle::new(a, b, c), [a, b, c])
-            })
-            .filter(|(_, p, _)| !p.is_degenerate())
+        CwBvh::build_with_test(scene, quality, TestKind::MollerTrumbore)
+    }
+
+    /// Builds the BVH of `scene` with the given preset, its leaves prepared for test `test`.
+    pub fn build_with_test(scene: &Scene, quality: BuildQuality, test: TestKind) -> CwBvh {
+        let prepared: Vec<(u32, [Vec3; 3])> = (0..scene.triangle_count())
+            .map(|t| (t as u32, scene.triangle(t)))
+            .filter(|(_, [a, b, c])| !crate::triangle::is_degenerate(*a, *b, *c))
             .collect();
         let tris: Vec<Triangle> = prepared
             .iter()
-            .map(|(_, _, [a, b, c])| Triangle {
+            .map(|(_, [a, b, c])| Triangle {
                 v0: (*a).into(),
                 v1: (*b).into(),
                 v2: (*c).into(),
@@ -161,11 +178,25 @@ impl CwBvh {
         } else {
             build_cwbvh_from_tris(&tris, quality.params(), &mut build_time)
         };
-        let (leaf_tris, leaf_ids) = bvh
+        let leaf_ids: Vec<u32> = bvh
             .primitive_indices
             .iter()
-            .map(|&i| (prepared[i as usize].1, prepared[i as usize].0))
-            .unzip();
+            .map(|&i| prepared[i as usize].0)
+            .collect();
+        fn leaves<T: TriangleTest>(scene: &Scene, ids: &[u32]) -> Vec<T::Tri> {
+            TriangleSet::<T>::from_triangles(ids.iter().map(|&t| scene.triangle(t as usize)))
+                .triangles()
+                .to_vec()
+        }
+        let leaf_tris = match test {
+            TestKind::MollerTrumbore => {
+                LeafTriangles::MollerTrumbore(leaves::<MollerTrumbore>(scene, &leaf_ids))
+            }
+            TestKind::Watertight => {
+                LeafTriangles::Watertight(leaves::<Watertight>(scene, &leaf_ids))
+            }
+            TestKind::Projected => LeafTriangles::Projected(leaves::<Projected>(scene, &leaf_ids)),
+        };
         CwBvh {
             bvh,
             leaf_tris,
@@ -180,6 +211,15 @@ impl CwBvh {
         self.quality
     }
 
+    /// The ray-triangle test of the leaves.
+    pub fn test(&self) -> TestKind {
+        match self.leaf_tris {
+            LeafTriangles::MollerTrumbore(_) => TestKind::MollerTrumbore,
+            LeafTriangles::Watertight(_) => TestKind::Watertight,
+            LeafTriangles::Projected(_) => TestKind::Projected,
+        }
+    }
+
     /// Number of BVH nodes.
     pub fn node_count(&self) -> usize {
         self.bvh.nodes.len()
@@ -190,13 +230,20 @@ impl CwBvh {
         self.build_time
     }
 
-    /// Traces one ray; merges into `best` and returns `(bounds, triangle)` test counts.
+    /// Traces one ray with test `T` on `leaf_tris` (this BVH's leaves, prepared for `T`);
+    /// merges into `best` and returns `(bounds, triangle)` test counts.
     #[inline]
-    fn trace(&self, ray: &Ray, mode: HitMode, best: &mut Hit) -> (u64, u64) {
+    fn trace<T: TriangleTest>(
+        &self,
+        leaf_tris: &[T::Tri],
+        ray: &Ray,
+        mode: HitMode,
+        best: &mut Hit,
+    ) -> (u64, u64) {
         if self.bvh.nodes.is_empty() || (mode == HitMode::Any && best.is_hit()) {
             return (0, 0);
         }
-        let r = RayPre::of(ray);
+        let r = T::ray_of(ray);
         let nr = NodeRay::new(ray.origin, ray.dir);
         let t_lo = ray.t_min - ray.t_min.abs() * T_SLACK;
         let mut t_hi = cull_distance(ray.t_max.min(best.t));
@@ -218,7 +265,7 @@ impl CwBvh {
                     let slot = state.primitive_id as usize;
                     prims += 1;
                     let id = self.leaf_ids[slot];
-                    if let Some(h) = self.leaf_tris[slot].hit(&r, ray.t_min, ray.t_max, id) {
+                    if let Some(h) = T::hit(&leaf_tris[slot], &r, ray.t_min, ray.t_max, id) {
                         if mode == HitMode::Any {
                             *best = h;
                             break 'trace;
@@ -333,19 +380,31 @@ impl Intersector<Cpu> for CwBvh {
             });
         }
         check_batch(rays, hits)?;
-        let (bounds, prims) = rays
-            .par_chunks(CHUNK)
-            .zip(hits.par_chunks_mut(CHUNK))
-            .map(|(rs, hs)| {
-                let mut n = (0u64, 0u64);
-                for (ray, h) in rs.iter().zip(hs.iter_mut()) {
-                    let (b, p) = self.trace(ray, mode, h);
-                    n.0 += b;
-                    n.1 += p;
-                }
-                n
-            })
-            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        fn all<T: TriangleTest>(
+            bvh: &CwBvh,
+            leaf_tris: &[T::Tri],
+            rays: &[Ray],
+            mode: HitMode,
+            hits: &mut [Hit],
+        ) -> (u64, u64) {
+            rays.par_chunks(CHUNK)
+                .zip(hits.par_chunks_mut(CHUNK))
+                .map(|(rs, hs)| {
+                    let mut n = (0u64, 0u64);
+                    for (ray, h) in rs.iter().zip(hs.iter_mut()) {
+                        let (b, p) = bvh.trace::<T>(leaf_tris, ray, mode, h);
+                        n.0 += b;
+                        n.1 += p;
+                    }
+                    n
+                })
+                .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+        }
+        let (bounds, prims) = match &self.leaf_tris {
+            LeafTriangles::MollerTrumbore(t) => all::<MollerTrumbore>(self, t, rays, mode, hits),
+            LeafTriangles::Watertight(t) => all::<Watertight>(self, t, rays, mode, hits),
+            LeafTriangles::Projected(t) => all::<Projected>(self, t, rays, mode, hits),
+        };
         stats.add_bounds(bounds);
         stats.add_ray_triangle(prims);
         Ok(())
@@ -369,16 +428,47 @@ mod tests {
         (hits, stats)
     }
 
+    /// Ray `ray` against scene triangle `tri` alone, with test `test`.
+    fn single_hit(scene: &Scene, test: TestKind, tri: u32, ray: &Ray) -> Option<Hit> {
+        fn with<T: TriangleTest>(scene: &Scene, tri: u32, ray: &Ray) -> Option<Hit> {
+            let [a, b, c] = scene.triangle(tri as usize);
+            T::hit(
+                &T::prepare(a, b, c),
+                &T::ray_of(ray),
+                ray.t_min,
+                ray.t_max,
+                tri,
+            )
+        }
+        match test {
+            TestKind::MollerTrumbore => with::<MollerTrumbore>(scene, tri, ray),
+            TestKind::Watertight => with::<Watertight>(scene, tri, ray),
+            TestKind::Projected => with::<Projected>(scene, tri, ray),
+        }
+    }
+
     fn check_against_brute(scene: &Scene, rays: &Vec<Ray>, quality: BuildQuality) {
-        let brute = BruteForce::from_scene(scene);
-        let bvh = CwBvh::build(scene, quality);
+        for test in TestKind::ALL {
+            check_against_brute_with(scene, rays, quality, test);
+        }
+    }
+
+    fn check_against_brute_with(
+        scene: &Scene,
+        rays: &Vec<Ray>,
+        quality: BuildQuality,
+        test: TestKind,
+    ) {
+        let brute = BruteForce::with_test(scene, test);
+        let bvh = CwBvh::build_with_test(scene, quality, test);
+        assert_eq!(bvh.test(), test);
         let (want, _) = run(&brute, rays, HitMode::Closest);
         let (got, stats) = run(&bvh, rays, HitMode::Closest);
         for (i, (g, w)) in got.iter().zip(&want).enumerate() {
             assert_eq!(
                 (g.tri, g.t.to_bits(), g.u.to_bits(), g.v.to_bits()),
                 (w.tri, w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
-                "{quality:?} ray {i}: {:?}: bvh {g:?} brute {w:?}",
+                "{quality:?} {test:?} ray {i}: {:?}: bvh {g:?} brute {w:?}",
                 rays[i]
             );
         }
@@ -393,14 +483,12 @@ mod tests {
                 rays[i]
             );
             if g.is_hit() {
-                let r = RayPre::of(&rays[i]);
-                let again = brute.triangles().triangles()[g.tri as usize].hit(
-                    &r,
-                    rays[i].t_min,
-                    rays[i].t_max,
-                    g.tri,
+                // The any hit found is a hit of that triangle, as the scalar test computes it.
+                assert_eq!(
+                    single_hit(scene, test, g.tri, &rays[i]),
+                    Some(*g),
+                    "{test:?} any ray {i}"
                 );
-                assert_eq!(again, Some(*g));
             }
         }
         assert!(any_stats.tests.ray_triangle <= stats.tests.ray_triangle);
@@ -508,7 +596,17 @@ mod tests {
         ));
         spec.params
             .insert("build_quality".into(), ParamValue::Str("fast".into()));
+        assert!(CwBvh::new(&scene, &spec).is_err(), "no test given");
+        spec.params
+            .insert("test".into(), ParamValue::Str("square".into()));
+        assert!(matches!(
+            CwBvh::new(&scene, &spec),
+            Err(CoreError::InvalidParam { .. })
+        ));
+        spec.params
+            .insert("test".into(), ParamValue::Str("watertight".into()));
         let bvh = CwBvh::new(&scene, &spec).unwrap();
+        assert_eq!(bvh.test(), TestKind::Watertight);
         assert_eq!(bvh.quality(), BuildQuality::Fast);
         let rays = random_rays(&scene, 42, 8);
         let h = RayHierarchy::<Cpu> {

@@ -1,7 +1,8 @@
-//! The one ray-triangle test of the CPU backend: Möller-Trumbore on precomputed triangles.
+//! Möller-Trumbore on precomputed triangles (`intersect.test=mt`, the default), and the
+//! rasterizer's visibility-buffer resolve.
 //!
-//! Every intersector of this crate (brute force, its candidate-pair mode, the CWBVH) and the
-//! rasterizer's visibility-buffer resolve call [`mt_lane`] through [`PreparedTriangle`],
+//! Every intersector of this crate (brute force, its candidate-pair mode, the CWBVH), when
+//! configured with this test, and the rasterizer's visibility-buffer resolve call [`mt_lane`] through [`PreparedTriangle`],
 //! [`TriangleBlock`] or [`RayPacket`], with the per-ray values of [`RayPre`], so they compute
 //! the same `t`, `u`, `v` with the same floating-point operations in the same order: their
 //! hits are identical bit for bit, not merely close.
@@ -10,7 +11,7 @@
 //!
 //! Per triangle `a, b, c` the test reads `v0 = a`, `e1 = b - a`, `e2 = c - a` and a
 //! determinant scale `det_eps = DET_REL_EPS·|e1|·|e2|`, prepared once per scene
-//! ([`TriangleSet::new`]): 40 bytes in [`PreparedTriangle`] (array of structures, for BVH
+//! ([`super::TriangleSet::new`]): 40 bytes in [`PreparedTriangle`] (array of structures, for BVH
 //! leaves and candidate pairs) and in [`TriangleBlock`]s of [`LANES`] triangles (structure of
 //! arrays, for the brute-force loop, which the compiler vectorizes). The candidate tests turn
 //! it around: one triangle against up to [`LANES`] rays of a hierarchy node held as a
@@ -33,22 +34,79 @@
 //!   round their edge functions differently, so a ray passing within rounding distance of the
 //!   edge (relative error of order `ε·|o - v0| / (|e|·sin φ·|cos θ|)`) can slip between
 //!   them. Rays that miss an edge by more than that always hit the triangle on their side
-//!   (see the tests); a watertight test (Woop et al. 2013) would close the gap at a cost.
+//!   (see the tests); the [`super::watertight`] test closes the gap at a cost.
 //! - **Distance.** A hit counts only strictly inside the ray's open interval
 //!   `t_min < t < t_max`. There is no `t` epsilon here: self-intersection is avoided by the ray
 //!   generator's `t_min` (and origin offset).
 //! - **Back faces** are hit like front faces (`det < 0`); culling is the caller's business.
 
 use bytemuck::{Pod, Zeroable};
-use crsh_core::glam::{DVec3, Vec3};
+use crsh_core::glam::Vec3;
 use crsh_core::{Hit, Ray};
-use crsh_scene::Scene;
 
-/// Relative determinant bound (see the module doc's epsilon policy).
-pub const DET_REL_EPS: f32 = 1e-6;
+use super::{inside, is_degenerate, BlockHits, TriangleTest, DET_REL_EPS, LANES};
 
-/// Triangles per [`TriangleBlock`].
-pub const LANES: usize = 8;
+/// The Möller-Trumbore test as a [`TriangleTest`]: [`PreparedTriangle`]s, [`TriangleBlock`]s,
+/// [`RayPre`] and [`RayPacket`].
+#[derive(Clone, Copy, Debug, Default)]
+pub struct MollerTrumbore;
+
+impl TriangleTest for MollerTrumbore {
+    const KIND: super::TestKind = super::TestKind::MollerTrumbore;
+    type Tri = PreparedTriangle;
+    type Block = TriangleBlock;
+    type Ray = RayPre;
+    type Packet = RayPacket;
+
+    #[inline(always)]
+    fn prepare(a: Vec3, b: Vec3, c: Vec3) -> PreparedTriangle {
+        PreparedTriangle::new(a, b, c)
+    }
+
+    #[inline(always)]
+    fn is_degenerate(tri: &PreparedTriangle) -> bool {
+        tri.is_degenerate()
+    }
+
+    fn block(tris: &[PreparedTriangle]) -> TriangleBlock {
+        TriangleBlock::from_triangles(tris)
+    }
+
+    #[inline(always)]
+    fn ray(origin: Vec3, dir: Vec3) -> RayPre {
+        RayPre::new(origin, dir)
+    }
+
+    #[inline(always)]
+    fn intersect(
+        tri: &PreparedTriangle,
+        r: &RayPre,
+        t_min: f32,
+        t_max: f32,
+    ) -> Option<(f32, f32, f32)> {
+        tri.intersect(r, t_min, t_max)
+    }
+
+    #[inline(always)]
+    fn test_block(block: &TriangleBlock, r: &RayPre, t_min: f32, t_max: f32) -> BlockHits {
+        block.test(r, t_min, t_max)
+    }
+
+    #[inline(always)]
+    fn empty_packet() -> RayPacket {
+        RayPacket::EMPTY
+    }
+
+    #[inline(always)]
+    fn set_lane(packet: &mut RayPacket, lane: usize, ray: &Ray) {
+        packet.set(lane, ray);
+    }
+
+    #[inline(always)]
+    fn test_packet(packet: &RayPacket, tri: &PreparedTriangle) -> (u32, BlockHits) {
+        packet.test(tri)
+    }
+}
 
 /// The per-ray values the test needs: origin, direction and `|d|` (computed once per ray, the
 /// same way for every intersector).
@@ -114,12 +172,6 @@ pub fn mt_lane(
     let v = (dx * qx + dy * qy + dz * qz) * inv;
     let t = (e2[0] * qx + e2[1] * qy + e2[2] * qz) * inv;
     (det.abs() > det_eps * r.d_len, t, u, v)
-}
-
-/// The inclusive barycentric test `u >= 0, v >= 0, u + v <= 1` (false for NaN).
-#[inline(always)]
-pub fn inside(u: f32, v: f32) -> bool {
-    (u >= 0.0) & (v >= 0.0) & (u + v <= 1.0)
 }
 
 /// One triangle prepared for the test (40 bytes).
@@ -188,17 +240,6 @@ impl PreparedTriangle {
     }
 }
 
-/// Whether `a, b, c` span (numerically) no area: `|e1 × e2| <= DET_REL_EPS·|e1|·|e2|` in f64,
-/// which includes repeated vertices and collinear ones. Such triangles are never hit.
-pub fn is_degenerate(a: Vec3, b: Vec3, c: Vec3) -> bool {
-    let (a, b, c): (DVec3, DVec3, DVec3) = (a.as_dvec3(), b.as_dvec3(), c.as_dvec3());
-    let (e1, e2) = (b - a, c - a);
-    let cross = e1.cross(e2).length();
-    let bound = DET_REL_EPS as f64 * e1.length() * e2.length();
-    // NaN (non-finite input) counts as degenerate too.
-    cross.partial_cmp(&bound) != Some(std::cmp::Ordering::Greater)
-}
-
 /// [`LANES`] triangles in structure-of-arrays form (320 bytes) for the brute-force loop.
 /// Padding lanes hold degenerate triangles, which never hit.
 #[repr(C)]
@@ -214,18 +255,22 @@ pub struct TriangleBlock {
     pub det_eps: [f32; LANES],
 }
 
-/// Per-lane results of [`TriangleBlock::test`]: `t` (or `+∞` where the lane missed), `u`, `v`.
-#[derive(Clone, Copy, Debug)]
-pub struct BlockHits {
-    /// Hit distance per lane; `f32::INFINITY` where the lane did not hit inside the interval.
-    pub t: [f32; LANES],
-    /// `u` per lane.
-    pub u: [f32; LANES],
-    /// `v` per lane.
-    pub v: [f32; LANES],
-}
-
 impl TriangleBlock {
+    /// Packs up to [`LANES`] triangles (lane `l` = `tris[l]`); the other lanes are zero
+    /// (degenerate, never hit).
+    pub fn from_triangles(tris: &[PreparedTriangle]) -> TriangleBlock {
+        let mut b = TriangleBlock::zeroed();
+        for (l, t) in tris.iter().take(LANES).enumerate() {
+            for k in 0..3 {
+                b.v0[k][l] = t.v0[k];
+                b.e1[k][l] = t.e1[k];
+                b.e2[k][l] = t.e2[k];
+            }
+            b.det_eps[l] = t.det_eps;
+        }
+        b
+    }
+
     /// Tests the ray against all lanes; a lane's `t` is finite exactly when
     /// [`PreparedTriangle::intersect`] would report a hit, with the same `t`, `u`, `v`.
     #[inline(always)]
@@ -323,110 +368,11 @@ impl RayPacket {
     }
 }
 
-/// A scene's triangles prepared once: [`PreparedTriangle`]s in scene order and the same
-/// triangles in [`TriangleBlock`]s (block `k` lane `l` is triangle `k·LANES + l`).
-#[derive(Clone, Debug, Default)]
-pub struct TriangleSet {
-    tris: Vec<PreparedTriangle>,
-    blocks: Vec<TriangleBlock>,
-    degenerate: usize,
-}
-
-impl TriangleSet {
-    /// Prepares every triangle of `scene`.
-    pub fn new(scene: &Scene) -> TriangleSet {
-        TriangleSet::from_triangles((0..scene.triangle_count()).map(|t| scene.triangle(t)))
-    }
-
-    /// Prepares the given triangles (ids are their positions in the iterator).
-    pub fn from_triangles(tris: impl IntoIterator<Item = [Vec3; 3]>) -> TriangleSet {
-        let tris: Vec<PreparedTriangle> = tris
-            .into_iter()
-            .map(|[a, b, c]| PreparedTriangle::new(a, b, c))
-            .collect();
-        let degenerate = tris.iter().filter(|t| t.is_degenerate()).count();
-        let blocks = tris
-            .chunks(LANES)
-            .map(|chunk| {
-                let mut b = TriangleBlock::zeroed();
-                for (l, t) in chunk.iter().enumerate() {
-                    for k in 0..3 {
-                        b.v0[k][l] = t.v0[k];
-                        b.e1[k][l] = t.e1[k];
-                        b.e2[k][l] = t.e2[k];
-                    }
-                    b.det_eps[l] = t.det_eps;
-                }
-                b
-            })
-            .collect();
-        TriangleSet {
-            tris,
-            blocks,
-            degenerate,
-        }
-    }
-
-    /// Number of triangles.
-    pub fn len(&self) -> usize {
-        self.tris.len()
-    }
-
-    /// Whether there are no triangles.
-    pub fn is_empty(&self) -> bool {
-        self.tris.is_empty()
-    }
-
-    /// Number of degenerate triangles (never hit).
-    pub fn degenerate_count(&self) -> usize {
-        self.degenerate
-    }
-
-    /// The prepared triangles in scene order.
-    pub fn triangles(&self) -> &[PreparedTriangle] {
-        &self.tris
-    }
-
-    /// The triangles in blocks of [`LANES`] (the last one padded with degenerate lanes).
-    pub fn blocks(&self) -> &[TriangleBlock] {
-        &self.blocks
-    }
-}
-
 #[cfg(test)]
-pub(crate) mod tests {
+mod tests {
     use super::*;
-
-    /// A small deterministic generator for tests (xorshift64*).
-    pub(crate) struct TestRng(pub u64);
-
-    impl TestRng {
-        pub(crate) fn next_u64(&mut self) -> u64 {
-            self.0 ^= self.0 >> 12;
-            self.0 ^= self.0 << 25;
-            self.0 ^= self.0 >> 27;
-            self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-        }
-        /// Uniform in `[0, 1)`.
-        pub(crate) fn f32(&mut self) -> f32 {
-            (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
-        }
-        pub(crate) fn range(&mut self, lo: f32, hi: f32) -> f32 {
-            lo + (hi - lo) * self.f32()
-        }
-        pub(crate) fn vec3(&mut self, lo: f32, hi: f32) -> Vec3 {
-            Vec3::new(self.range(lo, hi), self.range(lo, hi), self.range(lo, hi))
-        }
-        pub(crate) fn unit(&mut self) -> Vec3 {
-            loop {
-                let v = self.vec3(-1.0, 1.0);
-                let l = v.length();
-                if l > 0.1 && l <= 1.0 {
-                    return v / l;
-                }
-            }
-        }
-    }
+    use crate::triangle::tests::TestRng;
+    use crate::triangle::TriangleSet;
 
     fn tri() -> PreparedTriangle {
         PreparedTriangle::new(Vec3::ZERO, Vec3::X, Vec3::Y)
@@ -586,7 +532,7 @@ pub(crate) mod tests {
                 assert!(t.plane_hit(&r).is_none());
             }
         }
-        let set = TriangleSet::from_triangles(cases.iter().copied().chain([[
+        let set = TriangleSet::<MollerTrumbore>::from_triangles(cases.iter().copied().chain([[
             Vec3::ZERO,
             Vec3::X,
             Vec3::Y,
@@ -611,7 +557,7 @@ pub(crate) mod tests {
                 [a, a + rng.vec3(-0.5, 0.5), a + rng.vec3(-0.5, 0.5)]
             })
             .collect();
-        let set = TriangleSet::from_triangles(tris.iter().copied());
+        let set = TriangleSet::<MollerTrumbore>::from_triangles(tris.iter().copied());
         assert_eq!(set.blocks().len(), 5);
         let mut hits = 0;
         for i in 0..500 {
