@@ -133,24 +133,33 @@ fn degenerate_triangles_are_never_hit() {
 }
 
 #[test]
-fn default_offset_has_no_acne_on_the_plane_from_5_to_89_degrees() {
+fn default_offset_has_no_acne_on_a_plane_lit_at_1_to_89_degrees() {
     // The default policy (origin moved by 1e-5 of the scene diagonal along the geometric
-    // normal, and t_min) must keep a plane lit at 5°-89° acne-free at any sane scale; at 1°
-    // it may not (measured: see the README), so that angle is reported, not asserted.
+    // normal, and t_min) keeps a tilted plane acne-free at 1°-89° with the light near the
+    // scene, at scales 1e-4..1e4 and moved by up to 1e3. It does not when the plane is moved
+    // by 1e5 or 1e7 (the offset falls below the coordinates' ulp) or when the light is 1000
+    // plane sizes away (long shadow rays): those rows are reported, and are what the other
+    // offset policies are for.
     let default_offset = offset_policies().first().cloned();
     let rows: Vec<_> = table()
         .iter()
         .filter(|r| {
-            r.family == "acne" && !r.case.ends_with("-1deg") && r.variant.offset == default_offset
-                || r.variant.offset.is_none() && r.family == "acne" && !r.case.ends_with("-1deg")
+            (r.case.starts_with("acne/plane-")
+                || r.case.starts_with("scale/plane-")
+                || r.case == "far/plane-1e3")
+                && r.variant.offset == default_offset
         })
         .collect();
-    assert!(rows.len() >= 4 * PRESETS.len());
+    assert!(rows.len() >= 8 * PRESETS.len() * intersect_tests().len().max(1));
     for r in rows {
         let o = &r.outcome;
         assert!(o.rays > 1000, "{}: {o:?}", label(r));
         assert_eq!(o.self_intersections, 0, "{}", label(r));
     }
+    // And the far-away plane does show acne, so the case can catch a policy that fails.
+    assert!(table().iter().any(|r| r.case == "far/plane-1e7"
+        && r.variant.offset == default_offset
+        && r.outcome.self_intersections > 0));
 }
 
 #[test]
@@ -197,5 +206,63 @@ fn wachter_offset_has_no_self_intersections_at_any_translation() {
             && matches!(r.family.as_str(), "far" | "scale" | "acne")
     }) {
         assert_eq!(r.outcome.self_intersections, 0, "{}", label(r));
+    }
+}
+
+#[test]
+fn the_expectations_hold_for_the_f64_reference() {
+    // The cases' own answers are right: the f64 reference intersector meets every `Nearest`
+    // and `Miss` expectation, and lets at most 1% of the `MustHit` rays escape (the f64
+    // Möller-Trumbore test is not watertight either: measured, 3 of the 2936 rays aimed at the
+    // icosphere's vertices and edges, none elsewhere), so what the table counts against the f32
+    // pipelines is theirs, not the case's. Needles and grazing rays the f32 test drops are hit.
+    use crsh_core::{Hit, Query, Stats};
+    use crsh_cpu::{build_intersector, Cpu};
+    use crsh_scene::stress::{Expect, Probe};
+    for case in cases() {
+        let (Ok(scene), Probe::Rays { kind, rays, expect }) = (&case.scene, &case.probe) else {
+            continue;
+        };
+        if expect.contains(&Expect::Invalid) {
+            continue;
+        }
+        let reference =
+            build_intersector(&crsh_core::StageSpec::new("brute64"), scene).expect("brute64");
+        let mut hits = vec![Hit::MISS; rays.len()];
+        reference
+            .intersect(
+                &Cpu,
+                rays,
+                Query::Scene,
+                kind.hit_mode(),
+                &mut hits,
+                &mut Stats::default(),
+            )
+            .unwrap();
+        let (mut escapes, mut must) = (0, 0);
+        for (i, (h, e)) in hits.iter().zip(expect).enumerate() {
+            match *e {
+                Expect::MustHit => {
+                    must += 1;
+                    escapes += usize::from(!h.is_hit());
+                }
+                Expect::Miss => assert!(!h.is_hit(), "{} ray {i}: {h:?}", case.name),
+                Expect::Nearest { tri, t } => {
+                    assert!(h.is_hit(), "{} ray {i} missed", case.name);
+                    assert!(
+                        h.tri == tri || (h.t - t).abs() <= 1e-6 * t.abs(),
+                        "{} ray {i}: {h:?}",
+                        case.name
+                    );
+                }
+                Expect::Reference | Expect::Invalid => {}
+            }
+        }
+        eprintln!("{}: brute64 escapes {escapes} of {must}", case.name);
+        assert!(
+            escapes * 100 <= must,
+            "{}: brute64 lets {escapes} of {must} escape",
+            case.name
+        );
     }
 }

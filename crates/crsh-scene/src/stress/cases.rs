@@ -40,8 +40,18 @@ pub fn cases() -> Vec<StressCase> {
             deg,
             1.0,
             DVec3::ZERO,
+            4.0,
         ));
     }
+    // The same plane at 30° with the light 1000 half-sizes away: the offset is relative to the
+    // scene (the plane), but the shadow rays are long.
+    out.push(acne_plane(
+        "acne/far-light-30deg",
+        30.0,
+        1.0,
+        DVec3::ZERO,
+        1000.0,
+    ));
     out.extend([slivers(), needles(), zero_area(), coplanar()]);
     for exp in [3, 5, 7] {
         let t = 10f64.powi(exp);
@@ -49,11 +59,17 @@ pub fn cases() -> Vec<StressCase> {
         out.push(closed(
             &format!("far/icosphere-1e{exp}"),
             meshes::icosphere(4),
-            &[DVec3::ZERO, DVec3::new(20.0, -13.0, 7.0)],
+            &[DVec3::ZERO, DVec3::new(0.31, -0.22, 0.13)],
             64.0,
             shift,
         ));
-        out.push(acne_plane(&format!("far/plane-1e{exp}"), 30.0, 50.0, shift));
+        out.push(acne_plane(
+            &format!("far/plane-1e{exp}"),
+            30.0,
+            50.0,
+            shift,
+            4.0,
+        ));
     }
     for exp in [-4, 4] {
         let s = 10f64.powi(exp);
@@ -69,6 +85,7 @@ pub fn cases() -> Vec<StressCase> {
             30.0,
             s,
             DVec3::ZERO,
+            4.0,
         ));
     }
     out.extend([
@@ -458,13 +475,14 @@ fn tilt() -> DQuat {
 }
 
 /// A 16×16-quad mirror plane of half-size `half`, tilted, moved by `shift`, lit from `deg`
-/// degrees above it by a far light; the camera looks down on it.
-fn acne_plane(name: &str, deg: f64, half: f64, shift: DVec3) -> StressCase {
+/// degrees above it by a light `light_dist` half-sizes from its centre; the camera looks down
+/// on it.
+fn acne_plane(name: &str, deg: f64, half: f64, shift: DVec3, light_dist: f64) -> StressCase {
     let q = tilt();
     let mesh = meshes::grid_plane(16).map(|p| q * (p * half) + shift);
     let elev = deg.to_radians();
     let light_dir = q * DVec3::new(elev.cos(), 0.0, elev.sin());
-    let light_pos = (shift + light_dir * (1000.0 * half)).as_vec3();
+    let light_pos = (shift + light_dir * (light_dist * half)).as_vec3();
     let eye = shift + q * DVec3::new(0.0, -1.2 * half, 2.0 * half);
     let cam = camera(
         eye.as_vec3(),
@@ -477,7 +495,8 @@ fn acne_plane(name: &str, deg: f64, half: f64, shift: DVec3) -> StressCase {
         family: family(name),
         about: format!(
             "a tilted 512-triangle mirror plane (half-size {half:e}, moved by {:e}) lit at \
-             {deg}°: nothing can occlude or reflect, so every secondary-ray hit is acne",
+             {deg}° by a light {light_dist} half-sizes away: nothing can occlude or reflect, so \
+             every secondary-ray hit is acne",
             shift.max_element()
         ),
         scene: scene(
@@ -1139,10 +1158,9 @@ mod tests {
     fn interior_origins_are_inside_and_targets_on_the_mesh() {
         // The closed cases' rays start inside their meshes: every ray origin is nearer the
         // centre than any vertex (the meshes are star-shaped around the centre).
-        for c in cases()
-            .iter()
-            .filter(|c| c.family == "closed" && c.name != "closed/torus")
-        {
+        for c in cases().iter().filter(|c| {
+            (c.family == "closed" || c.name.contains("icosphere")) && c.name != "closed/torus"
+        }) {
             let (Ok(scene), Probe::Rays { rays, .. }) = (&c.scene, &c.probe) else {
                 panic!()
             };
