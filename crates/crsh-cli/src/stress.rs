@@ -141,7 +141,7 @@ pub fn run(args: &StressArgs) -> CliResult<()> {
                 .map_err(|e| CliError::runtime(format!("cannot write {}: {e}", path.display())))
         };
         write("stress.md", md.clone())?;
-        write("stress.csv", csv(&rows))?;
+        write("stress.csv", csv(&cases, &rows))?;
         let json = serde_json::to_string_pretty(&JsonReport {
             threads,
             cases: cases
@@ -342,7 +342,8 @@ fn csv_field(s: &str) -> String {
     }
 }
 
-fn csv(rows: &[StressRow]) -> String {
+fn csv(cases: &[StressCase], rows: &[StressRow]) -> String {
+    let frame = |name: &str| cases.iter().any(|c| c.name == name && c.probe.is_frame());
     let mut s = String::from(
         "case,family,pipeline,test,offset,rays,false_misses,false_miss_rate,false_hits,false_hit_rate,\
          wrong_nearest,wrong_nearest_rate,self_intersections,self_intersection_rate,escapes,escape_rate,\
@@ -357,7 +358,7 @@ fn csv(rows: &[StressRow]) -> String {
             r.family,
             r.variant.pipeline,
             shown(&r.variant.test),
-            r.variant.offset.as_deref().unwrap_or("-"),
+            offset_cell(r, frame(&r.case)),
             o.rays,
             o.false_misses,
             o.rate(o.false_misses),
