@@ -211,6 +211,9 @@ fn offset_cell(r: &StressRow, frame: bool) -> String {
 fn status(o: &StressOutcome) -> String {
     match (&o.error, o.panicked) {
         (_, true) => format!("PANIC: {}", o.error.as_deref().unwrap_or("")),
+        (Some(e), false) if e.chars().count() > 120 => {
+            format!("error: {}…", e.chars().take(120).collect::<String>())
+        }
         (Some(e), false) => format!("error: {e}"),
         (None, false) if o.failures() == 0 => "ok".into(),
         (None, false) => "wrong".into(),
@@ -310,7 +313,8 @@ fn markdown(cases: &[StressCase], rows: &[StressRow], threads: usize) -> String 
         );
     }
     s.push_str("\n## Where each test and offset fails\n\n");
-    let mut wrong: BTreeMap<(String, String), Vec<String>> = BTreeMap::new();
+    // Per (test, offset): the failing cases in suite order, each with its pipelines.
+    let mut wrong: BTreeMap<(String, String), Vec<(String, Vec<String>)>> = BTreeMap::new();
     for r in rows
         .iter()
         .filter(|r| r.outcome.failures() > 0 || r.outcome.panicked)
@@ -319,17 +323,28 @@ fn markdown(cases: &[StressCase], rows: &[StressRow], threads: usize) -> String 
             shown(&r.variant.test).to_string(),
             offset_cell(r, frame(&r.case)),
         );
-        let item = format!("{} ({})", r.case, r.variant.pipeline);
         let list = wrong.entry(key).or_default();
-        if !list.contains(&item) {
-            list.push(item);
+        match list.iter_mut().find(|(c, _)| *c == r.case) {
+            Some((_, pipelines)) if !pipelines.contains(&r.variant.pipeline) => {
+                pipelines.push(r.variant.pipeline.clone())
+            }
+            Some(_) => {}
+            None => list.push((r.case.clone(), vec![r.variant.pipeline.clone()])),
         }
     }
     if wrong.is_empty() {
         s.push_str("No wrong answers anywhere.\n");
     }
     for ((test, offset), list) in wrong {
-        let _ = writeln!(s, "- test `{test}`, offset `{offset}`: {}", list.join(", "));
+        let items: Vec<String> = list
+            .into_iter()
+            .map(|(case, p)| format!("{case} ({})", p.join(", ")))
+            .collect();
+        let _ = writeln!(
+            s,
+            "- test `{test}`, offset `{offset}`: {}",
+            items.join("; ")
+        );
     }
     s
 }
