@@ -314,7 +314,7 @@ fn markdown(cases: &[StressCase], rows: &[StressRow], threads: usize) -> String 
     }
     s.push_str("\n## Where each test and offset fails\n\n");
     // Per (test, offset): the failing cases in suite order, each with its pipelines.
-    let mut wrong: BTreeMap<(String, String), Vec<(String, Vec<String>)>> = BTreeMap::new();
+    let mut wrong: BTreeMap<(String, String), Vec<CasePipelines>> = BTreeMap::new();
     for r in rows
         .iter()
         .filter(|r| r.outcome.failures() > 0 || r.outcome.panicked)
@@ -348,6 +348,9 @@ fn markdown(cases: &[StressCase], rows: &[StressRow], threads: usize) -> String 
     }
     s
 }
+
+/// A case name and the pipelines that got it wrong.
+type CasePipelines = (String, Vec<String>);
 
 fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n']) {
