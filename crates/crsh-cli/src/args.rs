@@ -38,6 +38,10 @@ pub enum Command {
     /// Run a matrix of scenes × pipelines × parameters × backends; write CSV, JSON, charts
     /// and an HTML report (or compare two runs with --compare).
     Ablate(crate::ablate::AblateArgs),
+    /// Run the stability suite (closed meshes, shared edges, acne, slivers, far and scaled
+    /// scenes, wide bundles, invalid rays) against pipelines × intersect tests × offset
+    /// policies; print the table and write CSV / Markdown / JSON.
+    Stress(crate::stress::StressArgs),
 }
 
 /// Where a pipeline runs.

@@ -5,7 +5,8 @@
 //! stats JSON file, and prints a summary; `crsh scenes`, `crsh pipelines` and `crsh adapters`
 //! list what can be rendered, with what, and on which GPUs; `crsh tables` prints seed 000's
 //! evaluation tables for any scenes and hierarchy configurations; `crsh ablate` runs a matrix
-//! of pipelines and parameters and writes data, charts and a report.
+//! of pipelines and parameters and writes data, charts and a report; `crsh stress` runs the
+//! stability suite (procedural cases with known answers) against every pipeline.
 //!
 //! Errors print one line (`error: ...`) on stderr; the exit code is 2 when the command line
 //! cannot be honoured and 1 when the work fails.
@@ -19,6 +20,7 @@ mod listing;
 mod output;
 mod render;
 mod report;
+mod stress;
 mod tables;
 
 use clap::Parser;
@@ -34,6 +36,7 @@ fn run(cli: Cli) -> CliResult<()> {
         Command::Adapters(a) => listing::adapters(&a),
         Command::Tables(a) => tables::run(&a),
         Command::Ablate(a) => ablate::run(&a),
+        Command::Stress(a) => stress::run(&a),
     }
 }
 

@@ -14,6 +14,7 @@
 //! - [`shade::phong`]: barycentric normals and Phong with attenuation (eq. 3.17-3.19).
 //! - [`hash`], [`sort`], [`hierarchy`], [`traverse`]: the ray-space hierarchy stages
 //!   (seed 000 §3.2.3-3.2.8); [`trim`]: head-flag scan compaction (fig. 3.10).
+//! - [`stress`]: runs the stability suite of `crsh_scene::stress` against pipelines.
 
 #![warn(missing_docs)]
 
@@ -26,6 +27,7 @@ pub mod primary;
 pub mod raygen;
 pub mod shade;
 pub mod sort;
+pub mod stress;
 pub mod surface;
 pub mod traverse;
 pub mod triangle;

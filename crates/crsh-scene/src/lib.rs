@@ -14,6 +14,8 @@
 //! - [`SceneBuilder`]: builds and validates a [`Scene`] from meshes, computing normals,
 //!   per-triangle and per-mesh minimal bounding spheres ([`bounding`]) and bounds.
 //!
+//! - [`stress`]: the procedural cases of the stability suite (`crsh stress`).
+//!
 //! Every error names the file and line, or the mesh, where the problem is.
 
 #![warn(missing_docs)]
@@ -25,6 +27,7 @@ pub mod manifest;
 pub mod model;
 pub mod obj;
 mod rng;
+pub mod stress;
 
 use std::path::Path;
 
