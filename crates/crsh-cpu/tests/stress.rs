@@ -79,6 +79,40 @@ fn exact_pipelines_agree_with_brute_force() {
             r.variant.offset.clone(),
         )];
         let (x, y) = (&r.outcome, &b.outcome);
+        // The one known difference (see `crsh_cpu::intersect::bvh`'s module doc): the BVH
+        // culls by geometry, so a spurious self-hit whose computed `t` puts it outside its
+        // triangle's box (rounding noise of a ray leaving the surface with a tiny `t_min`, or
+        // the projected test's cancelling `t` far from the origin) can be culled: bvh may report
+        // fewer self-intersections than brute force, and must agree on everything else.
+        if r.variant.pipeline == "bvh" && x.self_intersections != y.self_intersections {
+            eprintln!(
+                "known: {}: {} self-intersections, brute force {}",
+                label(r),
+                x.self_intersections,
+                y.self_intersections
+            );
+            assert!(x.self_intersections < y.self_intersections, "{}", label(r));
+            assert_eq!(
+                (
+                    x.rays,
+                    x.false_misses,
+                    x.false_hits,
+                    x.wrong_nearest,
+                    x.escapes
+                ),
+                (
+                    y.rays,
+                    y.false_misses,
+                    y.false_hits,
+                    y.wrong_nearest,
+                    y.escapes
+                ),
+                "{} differs from brute",
+                label(r)
+            );
+            compared += 1;
+            continue;
+        }
         assert_eq!(
             (
                 x.rays,

@@ -22,9 +22,12 @@
 //! - **Barycentrics** are inclusive (`u >= 0`, `v >= 0`, `u + v <= 1`, or the watertight test's
 //!   signs), and [`Hit::u`](crsh_core::Hit) / [`Hit::v`](crsh_core::Hit) are the weights of
 //!   the triangle's second and third vertex whichever test computed them.
-//! - **Degenerate triangles** ([`is_degenerate`]: zero area, collinear or repeated vertices,
-//!   non-finite ones, decided in f64 once per scene) never hit, in every test, so the tests agree
-//!   on which triangles exist.
+//! - **Degenerate triangles** never hit. For Möller-Trumbore and the projected test these are
+//!   [`is_degenerate`]'s (zero area, collinear or repeated vertices, non-finite ones, and
+//!   needles whose angle at the first vertex has a sine below [`DET_REL_EPS`]: their f32 normal
+//!   is rounding noise), decided in f64 once per scene; the watertight test, which never forms
+//!   a normal, only drops triangles of exactly zero area ([`watertight::zero_area`]) and hits
+//!   such needles.
 //! - **Back faces** are hit like front faces.
 //! - **Near-parallel rays.** Möller-Trumbore and the projected test reject a ray when the sine
 //!   of its angle to the plane is at most [`DET_REL_EPS`] (relative, so independent of scale);
@@ -673,7 +676,6 @@ pub(crate) mod tests {
             for c in [
                 [Vec3::ZERO, Vec3::ZERO, Vec3::ZERO],
                 [Vec3::ZERO, Vec3::X, Vec3::X * 2.0],
-                [Vec3::ZERO, Vec3::X, Vec3::new(0.5, 1e-9, 0.0)],
                 [Vec3::ZERO, Vec3::X, Vec3::new(f32::NAN, 0.0, 0.0)],
             ] {
                 let t = T::prepare(c[0], c[1], c[2]);

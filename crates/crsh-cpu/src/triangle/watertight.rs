@@ -41,8 +41,7 @@
 //! No tolerance: a ray exactly in the plane (`det = 0`) misses, a ray at a grazing angle hits
 //! wherever its edge functions agree (Möller-Trumbore's relative determinant bound rejects it).
 //! The `t` computed from a nearly-zero `det` is as precise as the operands allow; the interval
-//! test is exact on that `t`. Degenerate triangles ([`super::is_degenerate`]) are prepared as
-//! a point and never hit, as in the other tests. Without the paper's conservative `t` the test
+//! test is exact on that `t`. Without the paper's conservative `t` the test
 //! does not bound the rounding of `t` itself (see the paper's §4 for the extra care a ray-box
 //! traversal needs; our BVH widens its distance interval, see [`crate::intersect::bvh`]).
 
@@ -50,8 +49,7 @@ use crsh_core::glam::Vec3;
 use crsh_core::Ray;
 
 use super::{
-    is_degenerate, lane_block_test, lane_packet_test, BlockHits, LaneBlock, LanePacket,
-    TriangleTest, LANES,
+    lane_block_test, lane_packet_test, BlockHits, LaneBlock, LanePacket, TriangleTest, LANES,
 };
 
 /// The watertight test as a [`TriangleTest`].
@@ -107,6 +105,19 @@ impl WatertightRay {
     }
 }
 
+/// Whether `a, b, c` span exactly no area (in f64, where the cross product of f32 edges is
+/// exact up to one rounding) or are not finite: the only triangles this test calls degenerate.
+/// Needles and slivers thinner than [`super::DET_REL_EPS`] (which the other tests reject as
+/// degenerate: their f32 normal is rounding noise) are real triangles here, because the edge
+/// functions never form a normal.
+pub fn zero_area(a: Vec3, b: Vec3, c: Vec3) -> bool {
+    if !(a.is_finite() && b.is_finite() && c.is_finite()) {
+        return true;
+    }
+    let (a, b, c) = (a.as_dvec3(), b.as_dvec3(), c.as_dvec3());
+    (b - a).cross(c - a) == crsh_core::glam::DVec3::ZERO
+}
+
 /// The test itself: `(t, u, v)` when the edge-function signs agree and `det ≠ 0`, whatever
 /// `t` (the interval is the caller's).
 #[inline(always)]
@@ -155,7 +166,7 @@ impl TriangleTest for Watertight {
     type Packet = LanePacket<WatertightRay>;
 
     fn prepare(a: Vec3, b: Vec3, c: Vec3) -> WatertightTriangle {
-        if is_degenerate(a, b, c) {
+        if zero_area(a, b, c) {
             let p = if a.is_finite() { a } else { Vec3::ZERO };
             return WatertightTriangle {
                 v: [p.to_array(); 3],
