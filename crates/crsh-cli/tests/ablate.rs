@@ -246,7 +246,7 @@ fn accuracy_axes_draw_three_pareto_charts_with_self_hits() {
     let v = read_json(&out.join("results.json"));
     assert_eq!(v["plan"]["reference_params"]["raygen.offset"], "wachter");
     let cs = cells(&v);
-    assert_eq!(cs.len(), 2, "bvh × (normal, wachter)");
+    assert_eq!(cs.len(), 4, "bvh × (mt, watertight) × (normal, wachter)");
     for c in cs {
         assert_eq!(c["status"], "ok", "{c:#}");
         let a = &c["measures"]["accuracy"];
@@ -263,17 +263,21 @@ fn accuracy_axes_draw_three_pareto_charts_with_self_hits() {
     // wachter cell (same configuration, exact hits) matches it exactly, the normal cell,
     // whose origins move by another offset, does not (were reference_params ignored, its
     // reference would be its own configuration and identical too).
-    let by = |policy: &str| {
+    let by = |policy: &str, test: &str| {
         cs.iter()
-            .find(|c| c["params"]["raygen.offset"] == policy)
+            .find(|c| {
+                c["params"]["raygen.offset"] == policy && c["params"]["intersect.test"] == test
+            })
             .unwrap()["measures"]["accuracy"]
             .clone()
     };
-    let (wachter, normal) = (by("wachter"), by("normal"));
-    assert!(wachter["psnr_db"].is_null(), "{wachter:#}");
-    assert_eq!(wachter["images_identical"], true);
-    assert_eq!(normal["images_identical"], false, "{normal:#}");
-    assert!(normal["psnr_db"].as_f64().is_some_and(|db| db.is_finite()));
+    for test in ["mt", "watertight"] {
+        let (wachter, normal) = (by("wachter", test), by("normal", test));
+        assert!(wachter["psnr_db"].is_null(), "{test}: {wachter:#}");
+        assert_eq!(wachter["images_identical"], true, "{test}");
+        assert_eq!(normal["images_identical"], false, "{test}: {normal:#}");
+        assert!(normal["psnr_db"].as_f64().is_some_and(|db| db.is_finite()));
+    }
     let csv = parse_csv(&std::fs::read_to_string(out.join("results.csv")).unwrap());
     for col in ["self_hits", "self_hit_rate", "psnr_db"] {
         assert!(csv[0].iter().any(|h| h == col), "CSV lacks {col}");
@@ -317,6 +321,7 @@ fn crsh_plan_check(shipped: &str) -> String {
         "reference_params = { \"raygen.offset\" = \"wachter\" }",
         "accuracy_axes = [\"hit_agreement\", \"psnr_db\", \"self_hit_rate\"]",
         "\"raygen.offset\" = [\"normal\", \"scaled\", \"fixed\", \"wachter\"]",
+        "\"intersect.test\" = [\"mt\", \"watertight\", \"projected\"]",
         "scenes = [\"cornell-mirrors\", \"office-boxes\"]",
         "width = 64",
         "depth = 2",
@@ -332,6 +337,10 @@ fn crsh_plan_check(shipped: &str) -> String {
     .replace(
         "\"raygen.offset\" = [\"normal\", \"scaled\", \"fixed\", \"wachter\"]",
         "\"raygen.offset\" = [\"normal\", \"wachter\"]",
+    )
+    .replace(
+        "\"intersect.test\" = [\"mt\", \"watertight\", \"projected\"]",
+        "\"intersect.test\" = [\"mt\", \"watertight\"]",
     ) + "[[pipelines]]\npipeline = \"bvh\"\n"
 }
 
