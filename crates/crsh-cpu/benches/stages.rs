@@ -256,11 +256,12 @@ fn benches(c: &mut Criterion) {
     g.throughput(Throughput::Elements(n));
     g.sample_size(10);
     for test in crsh_cpu::triangle::TEST_NAMES {
-        let bvh = stages(
-            scene,
-            &["intersect.kind=bvh", &format!("intersect.test={test}")],
-        )
-        .intersector;
+        // A whole-scene intersector: built on its own (a pipeline with a hierarchy rejects it).
+        let mut spec = crsh_core::StageSpec::new("bvh");
+        spec.params
+            .insert("test".into(), crsh_core::ParamValue::Str(test.to_string()));
+        let bvh = crsh_cpu::build_intersector(&spec, scene)
+            .unwrap_or_else(|e| panic!("building bvh with {test}: {e}"));
         g.bench_function(format!("whole_scene_any_hit_{test}/{}", b.tag), |bench| {
             bench.iter(|| {
                 let mut hits = vec![Hit::MISS; b.rays.len()];
