@@ -402,95 +402,19 @@ pub(crate) mod tests {
         }
     }
 
-    /// The closed meshes of the watertightness test: an icosphere (subdivided, vertices shared
-    /// by index) and a cube of two triangles per face.
+    /// The closed meshes of the watertightness test (the stability suite's): an icosphere
+    /// (2 subdivisions, vertices shared by index) and a cube of shared-edge triangles.
     fn closed_meshes() -> Vec<(&'static str, Vec<[Vec3; 3]>)> {
-        let t = (1.0 + 5f32.sqrt()) / 2.0;
-        let mut v: Vec<Vec3> = [
-            (-1.0, t, 0.0),
-            (1.0, t, 0.0),
-            (-1.0, -t, 0.0),
-            (1.0, -t, 0.0),
-            (0.0, -1.0, t),
-            (0.0, 1.0, t),
-            (0.0, -1.0, -t),
-            (0.0, 1.0, -t),
-            (t, 0.0, -1.0),
-            (t, 0.0, 1.0),
-            (-t, 0.0, -1.0),
-            (-t, 0.0, 1.0),
-        ]
-        .iter()
-        .map(|&(x, y, z)| Vec3::new(x, y, z).normalize())
-        .collect();
-        let mut faces: Vec<[usize; 3]> = vec![
-            [0, 11, 5],
-            [0, 5, 1],
-            [0, 1, 7],
-            [0, 7, 10],
-            [0, 10, 11],
-            [1, 5, 9],
-            [5, 11, 4],
-            [11, 10, 2],
-            [10, 7, 6],
-            [7, 1, 8],
-            [3, 9, 4],
-            [3, 4, 2],
-            [3, 2, 6],
-            [3, 6, 8],
-            [3, 8, 9],
-            [4, 9, 5],
-            [2, 4, 11],
-            [6, 2, 10],
-            [8, 6, 7],
-            [9, 8, 1],
-        ];
-        for _ in 0..2 {
-            let mut mid = std::collections::HashMap::new();
-            let mut next = Vec::new();
-            for f in &faces {
-                let mut m = [0usize; 3];
-                for k in 0..3 {
-                    let (a, b) = (f[k], f[(k + 1) % 3]);
-                    m[k] = *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                        v.push(((v[a] + v[b]) * 0.5).normalize());
-                        v.len() - 1
-                    });
-                }
-                next.extend([
-                    [f[0], m[0], m[2]],
-                    [f[1], m[1], m[0]],
-                    [f[2], m[2], m[1]],
-                    [m[0], m[1], m[2]],
-                ]);
-            }
-            faces = next;
-        }
-        let sphere = faces.iter().map(|f| [v[f[0]], v[f[1]], v[f[2]]]).collect();
-        let c = |x: f32, y: f32, z: f32| Vec3::new(x, y, z) * 0.7;
-        let p = [
-            c(-1.0, -1.0, -1.0),
-            c(1.0, -1.0, -1.0),
-            c(1.0, 1.0, -1.0),
-            c(-1.0, 1.0, -1.0),
-            c(-1.0, -1.0, 1.0),
-            c(1.0, -1.0, 1.0),
-            c(1.0, 1.0, 1.0),
-            c(-1.0, 1.0, 1.0),
-        ];
-        let quads = [
-            [0, 3, 2, 1],
-            [4, 5, 6, 7],
-            [0, 1, 5, 4],
-            [2, 3, 7, 6],
-            [1, 2, 6, 5],
-            [0, 4, 7, 3],
-        ];
-        let cube = quads
-            .iter()
-            .flat_map(|q| [[p[q[0]], p[q[1]], p[q[2]]], [p[q[0]], p[q[2]], p[q[3]]]])
-            .collect();
-        vec![("icosphere", sphere), ("cube", cube)]
+        use crsh_scene::stress::meshes;
+        let tris = |m: &meshes::TriMesh| {
+            (0..m.indices.len())
+                .map(|t| m.triangle(t))
+                .collect::<Vec<_>>()
+        };
+        let sphere = meshes::icosphere(2);
+        let cube = meshes::shared_edge_cube(1).scaled_translated(0.7, Default::default());
+        assert!(sphere.is_closed() && cube.is_closed());
+        vec![("icosphere", tris(&sphere)), ("cube", tris(&cube))]
     }
 
     /// Rays from points inside a closed mesh aimed exactly (in f32) at its edges and vertices:
