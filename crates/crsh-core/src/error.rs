@@ -41,3 +41,14 @@ pub enum CoreError {
     #[error("backend error: {0}")]
     Backend(String),
 }
+
+/// The message of a caught panic (`std::panic::catch_unwind`'s payload): the `&str` or
+/// `String` it was raised with, else `unknown panic`. Tools that keep going after a stage
+/// panics (ablate cells, stability-suite rows) report it with this.
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".to_string())
+}

@@ -26,7 +26,7 @@ pub mod stats;
 pub use backend::Backend;
 pub use bounds::{Aabb, Cone, Sphere, SphereCone};
 pub use config::{ParamInfo, ParamValue, PipelineConfig, StageKind, StageSpec, StageVariantInfo};
-pub use error::{CoreError, Result};
+pub use error::{panic_message, CoreError, Result};
 pub use pipeline::{
     count_self_hits, render_frame, trace_batch, Frame, FrameOptions, Progress, Stages,
 };

@@ -130,10 +130,8 @@ pub fn render_frame<B: Backend>(
     driver.report(progress, "primary visibility".into());
     let tests_before = driver.stats.tests;
     let t_primary = Instant::now();
-    let mut surfaces = driver.timed("primary", |d| {
-        d.stages
-            .primary
-            .gbuffer(d.backend, d.opts.width, d.opts.height, &mut d.stats)
+    let mut surfaces = driver.timed("primary", |s| {
+        stages.primary.gbuffer(backend, opts.width, opts.height, s)
     })?;
     let primary_ms = t_primary.elapsed().as_secs_f64() * 1e3;
     driver.stats.rays.add(RayKind::Primary, pixels as u64);
@@ -153,21 +151,16 @@ pub fn render_frame<B: Backend>(
 
     for depth in 0..=opts.max_depth {
         driver.report(progress, format!("shadow rays, bounce {depth}"));
-        let shadow = driver.timed("ray_creation", |d| {
-            d.stages
+        let shadow = driver.timed("ray_creation", |s| {
+            stages
                 .raygen
-                .generate(d.backend, &surfaces, RayKind::Shadow, &mut d.stats)
+                .generate(backend, &surfaces, RayKind::Shadow, s)
         })?;
         let shadow_hits = driver.trace(RayKind::Shadow, &shadow, &surfaces)?;
-        driver.timed("shading", |d| {
-            d.stages.shader.shade_direct(
-                d.backend,
-                &surfaces,
-                &shadow,
-                &shadow_hits,
-                &mut image,
-                &mut d.stats,
-            )
+        driver.timed("shading", |s| {
+            stages
+                .shader
+                .shade_direct(backend, &surfaces, &shadow, &shadow_hits, &mut image, s)
         })?;
         if depth == opts.max_depth {
             break;
@@ -178,19 +171,15 @@ pub fn render_frame<B: Backend>(
                 progress,
                 format!("{} rays, bounce {}", kind.name(), depth + 1),
             );
-            let rays = driver.timed("ray_creation", |d| {
-                d.stages
-                    .raygen
-                    .generate(d.backend, &surfaces, kind, &mut d.stats)
+            let rays = driver.timed("ray_creation", |s| {
+                stages.raygen.generate(backend, &surfaces, kind, s)
             })?;
             if backend.len(&rays) == 0 {
                 continue;
             }
             let hits = driver.trace(kind, &rays, &surfaces)?;
-            next.push(driver.timed("shading", |d| {
-                d.stages
-                    .shader
-                    .resolve(d.backend, &rays, &hits, &mut d.stats)
+            next.push(driver.timed("shading", |s| {
+                stages.shader.resolve(backend, &rays, &hits, s)
             })?);
         }
         surfaces = backend.concat(next)?;
@@ -233,20 +222,9 @@ impl<B: Backend> Driver<'_, B> {
         self.step += 1;
     }
 
-    /// Runs `f` and adds its wall time (after a backend sync) to stage `key`, less whatever
-    /// sub-stage times `f` recorded itself (the compress sorter's `compression` /
-    /// `decompression`, ray generation's `trimming`): stage keys never overlap, so they add
-    /// up to the frame time.
-    fn timed<T>(&mut self, key: &str, f: impl FnOnce(&mut Self) -> Result<T>) -> Result<T> {
-        let recorded = |s: &Stats| s.timings_ms.values().sum::<f64>();
-        let before = recorded(&self.stats);
-        let t0 = Instant::now();
-        let out = f(self)?;
-        self.backend.sync()?;
-        let nested = (recorded(&self.stats) - before).max(0.0);
-        let own = (t0.elapsed().as_secs_f64() * 1e3 - nested).max(0.0);
-        *self.stats.timings_ms.entry(key.to_string()).or_insert(0.0) += own;
-        Ok(out)
+    /// [`timed`] on the frame's stats.
+    fn timed<T>(&mut self, key: &str, f: impl FnOnce(&mut Stats) -> Result<T>) -> Result<T> {
+        timed(self.backend, &mut self.stats, key, f)
     }
 
     /// Traces one batch of `kind` through the optional hierarchy stages and the intersector.
@@ -335,43 +313,19 @@ pub fn trace_batch<B: Backend>(
     if n == 0 {
         return Ok(hits);
     }
-    let timed = |stats: &mut Stats, key: &str, f: &mut dyn FnMut(&mut Stats) -> Result<()>| {
-        let recorded = |s: &Stats| s.timings_ms.values().sum::<f64>();
-        let before = recorded(stats);
-        let t0 = Instant::now();
-        f(stats)?;
-        backend.sync()?;
-        let nested = (recorded(stats) - before).max(0.0);
-        let own = (t0.elapsed().as_secs_f64() * 1e3 - nested).max(0.0);
-        *stats.timings_ms.entry(key.to_string()).or_insert(0.0) += own;
-        Ok::<(), CoreError>(())
-    };
     if let (Some(builder), Some(traverser)) = (&stages.hierarchy, &stages.traverser) {
         let order = match (&stages.hasher, &stages.sorter) {
             (Some(hasher), Some(sorter)) => {
-                let mut keys = None;
-                timed(stats, "hashing", &mut |s| {
-                    keys = Some(hasher.hash(backend, rays, s)?);
-                    Ok(())
-                })?;
-                let keys = keys.expect("set by the hashing stage");
-                let mut order = None;
-                timed(stats, "sorting", &mut |s| {
-                    order = Some(sorter.sort(backend, &keys, hasher.key_bits(), s)?);
-                    Ok(())
-                })?;
-                order.expect("set by the sorting stage")
+                let keys = timed(backend, stats, "hashing", |s| hasher.hash(backend, rays, s))?;
+                timed(backend, stats, "sorting", |s| {
+                    sorter.sort(backend, &keys, hasher.key_bits(), s)
+                })?
             }
             _ => backend.upload(&(0..n as u32).collect::<Vec<u32>>())?,
         };
-        let mut hierarchy = None;
-        let mut order = Some(order);
-        timed(stats, "hierarchy_creation", &mut |s| {
-            let order = order.take().expect("the hierarchy is built once");
-            hierarchy = Some(builder.build(backend, rays, order, s)?);
-            Ok(())
+        let hierarchy = timed(backend, stats, "hierarchy_creation", |s| {
+            builder.build(backend, rays, order, s)
         })?;
-        let hierarchy = hierarchy.expect("set by the hierarchy stage");
         let intersector = &stages.intersector;
         let mut final_tests = std::time::Duration::ZERO;
         let t_trav = Instant::now();
@@ -397,13 +351,34 @@ pub fn trace_batch<B: Backend>(
         stats.add_time("traversal", t_trav.elapsed().saturating_sub(final_tests));
         stats.add_time("final_tests", final_tests);
     } else {
-        timed(stats, "intersection", &mut |s| {
+        timed(backend, stats, "intersection", |s| {
             stages
                 .intersector
                 .intersect(backend, rays, Query::Scene, mode, &mut hits, s)
         })?;
     }
     Ok(hits)
+}
+
+/// Runs `f` and adds its wall time (after a backend sync) to stage `key` of `stats`, less
+/// whatever sub-stage times `f` recorded in `stats` itself (the compress sorter's
+/// `compression` / `decompression`, ray generation's `trimming`): stage keys never overlap, so
+/// they add up to the frame time.
+fn timed<B: Backend, T>(
+    backend: &B,
+    stats: &mut Stats,
+    key: &str,
+    f: impl FnOnce(&mut Stats) -> Result<T>,
+) -> Result<T> {
+    let recorded = |s: &Stats| s.timings_ms.values().sum::<f64>();
+    let before = recorded(stats);
+    let t0 = Instant::now();
+    let out = f(stats)?;
+    backend.sync()?;
+    let nested = (recorded(stats) - before).max(0.0);
+    let own = (t0.elapsed().as_secs_f64() * 1e3 - nested).max(0.0);
+    *stats.timings_ms.entry(key.to_string()).or_insert(0.0) += own;
+    Ok(out)
 }
 
 /// Secondary rays whose reported hit is the very triangle of the surface they were spawned
@@ -430,11 +405,7 @@ pub fn compare_hits(got: &[Hit], want: &[Hit], mode: HitMode, acc: &mut Accuracy
         acc.rays += 1;
         if a.is_hit() != b.is_hit() {
             acc.hit_miss_mismatches += 1;
-        } else if mode == HitMode::Closest
-            && a.is_hit()
-            && a.tri != b.tri
-            && (a.t - b.t).abs() > 1e-6 * a.t.abs().max(b.t.abs())
-        {
+        } else if mode == HitMode::Closest && a.is_hit() && a.nearest_differs(b) {
             acc.nearest_mismatches += 1;
         } else {
             acc.agreeing += 1;

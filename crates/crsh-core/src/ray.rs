@@ -162,6 +162,14 @@ impl Hit {
     pub fn closer_than(&self, best: &Hit) -> bool {
         self.t < best.t || (self.t == best.t && self.tri < best.tri)
     }
+
+    /// Whether `self` and `other` (both hits of one closest-hit ray) name a different nearest
+    /// hit: different triangles whose `t` differ by more than 1e-6 relative. A different
+    /// triangle at (almost) the same `t` is a tie, not a mismatch. The one rule accuracy
+    /// comparisons use ([`crate::pipeline::compare_hits`], the stability suite).
+    pub fn nearest_differs(&self, other: &Hit) -> bool {
+        self.tri != other.tri && (self.t - other.t).abs() > 1e-6 * self.t.abs().max(other.t.abs())
+    }
 }
 
 /// A shaded point: one G-buffer texel after the primary pass, or one path vertex found by a

@@ -18,7 +18,8 @@
 //!   report in a [`FrameTruth::Reference`] frame);
 //! - **false hit**: the truth misses (or the ray is invalid), the pipeline hit;
 //! - **wrong nearest**: both hit, on different triangles at `t` more than 1e-6 relative apart
-//!   (the rule of `crsh_core::pipeline::compare_hits`; closest-hit queries only).
+//!   ([`Hit::nearest_differs`], the rule of `crsh_core::pipeline::compare_hits`; closest-hit
+//!   queries only).
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::Arc;
@@ -175,11 +176,7 @@ pub fn run_case(case: &StressCase, cfg: &PipelineConfig) -> StressOutcome {
             ..StressOutcome::default()
         },
         Err(payload) => {
-            let msg = payload
-                .downcast_ref::<&str>()
-                .map(|s| s.to_string())
-                .or_else(|| payload.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "non-string panic payload".into());
+            let msg = crsh_core::panic_message(payload.as_ref());
             StressOutcome {
                 error: Some(format!("panic: {msg}")),
                 panicked: true,
@@ -193,7 +190,24 @@ type ProbeResult = std::result::Result<StressOutcome, (CoreError, u64)>;
 
 fn run_probe(scene: &Arc<Scene>, probe: &Probe, cfg: &PipelineConfig) -> ProbeResult {
     let stages = build_stages(cfg, scene).map_err(|e| (e, 0))?;
-    let reference = build_intersector(&StageSpec::new("brute64"), scene).map_err(|e| (e, 0))?;
+    // The f64 reference, prepared only for the probes whose truth it is (once per probe).
+    let mut reference: Option<Box<dyn Intersector<Cpu>>> = None;
+    let mut reference_hits = |rays: &[Ray], kind: RayKind| -> Result<Vec<Hit>> {
+        let reference = match &mut reference {
+            Some(r) => r,
+            none => none.insert(build_intersector(&StageSpec::new("brute64"), scene)?),
+        };
+        let mut hits = vec![Hit::MISS; rays.len()];
+        reference.intersect(
+            &Cpu,
+            &rays.to_vec(),
+            Query::Scene,
+            kind.hit_mode(),
+            &mut hits,
+            &mut Stats::default(),
+        )?;
+        Ok(hits)
+    };
     let mut out = StressOutcome::default();
     let mut stats = Stats::default();
     let mut traced = Duration::ZERO;
@@ -205,7 +219,7 @@ fn run_probe(scene: &Arc<Scene>, probe: &Probe, cfg: &PipelineConfig) -> ProbeRe
                 .map_err(|e| (e, rays.len() as u64))?;
             traced += t0.elapsed();
             let truth = if expect.contains(&Expect::Reference) {
-                reference_hits(reference.as_ref(), rays, *kind).map_err(|e| (e, out.rays))?
+                reference_hits(rays, *kind).map_err(|e| (e, out.rays))?
             } else {
                 vec![Hit::MISS; rays.len()]
             };
@@ -240,8 +254,7 @@ fn run_probe(scene: &Arc<Scene>, probe: &Probe, cfg: &PipelineConfig) -> ProbeRe
                         out.self_intersections += hits.iter().filter(|h| h.is_hit()).count() as u64
                     }
                     FrameTruth::Reference => {
-                        let want = reference_hits(reference.as_ref(), &rays, kind)
-                            .map_err(|e| (e, out.rays))?;
+                        let want = reference_hits(&rays, kind).map_err(|e| (e, out.rays))?;
                         for ((ray, hit), want) in rays.iter().zip(&hits).zip(&want) {
                             score_frame(&mut out, ray, hit, want, &surfaces, kind.hit_mode());
                         }
@@ -252,28 +265,6 @@ fn run_probe(scene: &Arc<Scene>, probe: &Probe, cfg: &PipelineConfig) -> ProbeRe
     }
     out.time_ms = traced.as_secs_f64() * 1e3;
     Ok(out)
-}
-
-fn reference_hits(
-    reference: &dyn Intersector<Cpu>,
-    rays: &[Ray],
-    kind: RayKind,
-) -> Result<Vec<Hit>> {
-    let mut hits = vec![Hit::MISS; rays.len()];
-    reference.intersect(
-        &Cpu,
-        &rays.to_vec(),
-        Query::Scene,
-        kind.hit_mode(),
-        &mut hits,
-        &mut Stats::default(),
-    )?;
-    Ok(hits)
-}
-
-/// Whether two hits on different triangles disagree on the nearest hit (1e-6 relative on `t`).
-fn nearest_differs(got: &Hit, want_tri: u32, want_t: f32) -> bool {
-    got.tri != want_tri && (got.t - want_t).abs() > 1e-6 * got.t.abs().max(want_t.abs())
 }
 
 fn score_expect(
@@ -289,16 +280,21 @@ fn score_expect(
         Expect::Nearest { tri, t } => {
             if !got.is_hit() {
                 out.false_misses += 1;
-            } else if mode == HitMode::Closest && nearest_differs(got, tri, t) {
+            } else if mode == HitMode::Closest
+                && got.nearest_differs(&Hit {
+                    t,
+                    tri,
+                    u: 0.0,
+                    v: 0.0,
+                })
+            {
                 out.wrong_nearest += 1;
             }
         }
         Expect::Reference => match (got.is_hit(), reference.is_hit()) {
             (false, true) => out.false_misses += 1,
             (true, false) => out.false_hits += 1,
-            (true, true)
-                if mode == HitMode::Closest && nearest_differs(got, reference.tri, reference.t) =>
-            {
+            (true, true) if mode == HitMode::Closest && got.nearest_differs(reference) => {
                 out.wrong_nearest += 1
             }
             _ => {}
@@ -325,7 +321,7 @@ fn score_frame(
     match (got.is_hit(), want.is_hit()) {
         (false, true) => out.false_misses += 1,
         (true, false) => out.false_hits += 1,
-        (true, true) if mode == HitMode::Closest && nearest_differs(got, want.tri, want.t) => {
+        (true, true) if mode == HitMode::Closest && got.nearest_differs(want) => {
             out.wrong_nearest += 1
         }
         _ => {}

@@ -76,16 +76,9 @@ fn load_scene(cell: &Cell) -> LoadedScene {
         Err(p) => Err(format!(
             "loading scene {} panicked: {}",
             cell.scene_spec,
-            panic_message(&p)
+            crsh_core::panic_message(p.as_ref())
         )),
     }
-}
-
-fn panic_message(p: &Box<dyn std::any::Any + Send>) -> String {
-    p.downcast_ref::<&str>()
-        .map(|s| s.to_string())
-        .or_else(|| p.downcast_ref::<String>().cloned())
-        .unwrap_or_else(|| "unknown panic".to_string())
 }
 
 fn failed(
@@ -152,7 +145,7 @@ fn run_cell(
             scene,
             threads,
             plan,
-            format!("panicked: {}", panic_message(&p)),
+            format!("panicked: {}", crsh_core::panic_message(p.as_ref())),
         ),
     }
 }
