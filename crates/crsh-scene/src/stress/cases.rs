@@ -183,6 +183,28 @@ fn scene(
     b.build(name).map(Arc::new).map_err(|e| e.to_string())
 }
 
+/// An explicit-ray case: closest-hit (reflection-kind) rays traced as given, each with its
+/// expectation.
+fn ray_case(
+    name: &str,
+    about: String,
+    scene: Result<Arc<Scene>, String>,
+    rays: Vec<Ray>,
+    expect: Vec<Expect>,
+) -> StressCase {
+    StressCase {
+        name: name.into(),
+        family: family(name),
+        about,
+        scene,
+        probe: Probe::Rays {
+            kind: RayKind::Reflection,
+            rays,
+            expect,
+        },
+    }
+}
+
 /// A camera looking at `centre` from `offset` away (used only by frame probes; ray probes set
 /// one because every scene needs one).
 fn look_at(centre: DVec3, offset: DVec3) -> Camera {
@@ -266,27 +288,23 @@ fn closed(name: &str, mesh: TriMesh, origins: &[DVec3], s: f64, shift: DVec3) ->
     let origins: Vec<DVec3> = origins.iter().map(|&o| o * s + shift).collect();
     let (rays, expect) = interior_rays(&mesh, &origins, 1500, 0x5eed_c105);
     let tris = mesh.indices.len();
-    StressCase {
-        name: name.into(),
-        family: family(name),
-        about: format!(
+    ray_case(
+        name,
+        format!(
             "{} rays from inside a closed mesh of {tris} shared-vertex triangles (scale {s:e}, \
              moved by {:e}) at its vertices, edge midpoints and random directions: all must hit",
             rays.len(),
             shift.max_element()
         ),
-        scene: scene(
+        scene(
             name,
             &[("closed", &mesh, Material::default())],
             &[light((shift + DVec3::splat(3.0 * s)).as_vec3())],
             look_at(shift, DVec3::new(0.0, 0.0, 4.0 * s)),
         ),
-        probe: Probe::Rays {
-            kind: RayKind::Reflection,
-            rays,
-            expect,
-        },
-    }
+        rays,
+        expect,
+    )
 }
 
 fn closed_torus() -> StressCase {
@@ -331,27 +349,23 @@ fn closed_torus() -> StressCase {
         }
     }
     let expect = vec![Expect::MustHit; rays.len()];
-    StressCase {
-        name: name.into(),
-        family: family(name),
-        about: format!(
+    ray_case(
+        name,
+        format!(
             "{} rays from inside the tube of a torus ({} shared-vertex triangles) at nearby \
              vertices, edge midpoints and random directions: all must hit",
             rays.len(),
             mesh.indices.len()
         ),
-        scene: scene(
+        scene(
             name,
             &[("torus", &mesh, Material::default())],
             &[light(Vec3::new(2.0, 2.0, 3.0))],
             look_at(DVec3::ZERO, DVec3::new(0.0, 0.0, 4.0)),
         ),
-        probe: Probe::Rays {
-            kind: RayKind::Reflection,
-            rays,
-            expect,
-        },
-    }
+        rays,
+        expect,
+    )
 }
 
 fn fan_edges() -> StressCase {
@@ -387,26 +401,22 @@ fn fan_edges() -> StressCase {
         }
     }
     let expect = vec![Expect::MustHit; rays.len()];
-    StressCase {
-        name: name.into(),
-        family: family(name),
-        about: format!(
+    ray_case(
+        name,
+        format!(
             "{} rays from both sides aimed exactly at the centre vertex and the shared edges of \
              an 8-triangle fan: all must hit",
             rays.len()
         ),
-        scene: scene(
+        scene(
             name,
             &[("fan", &mesh, Material::default())],
             &[light(Vec3::new(0.0, 0.0, 3.0))],
             look_at(DVec3::ZERO, DVec3::new(0.0, -2.0, 3.0)),
         ),
-        probe: Probe::Rays {
-            kind: RayKind::Reflection,
-            rays,
-            expect,
-        },
-    }
+        rays,
+        expect,
+    )
 }
 
 fn grazing() -> StressCase {
@@ -444,15 +454,14 @@ fn grazing() -> StressCase {
         }
     }
     let expect = vec![Expect::Reference; rays.len()];
-    StressCase {
-        name: name.into(),
-        family: family(name),
-        about: format!(
+    ray_case(
+        name,
+        format!(
             "{} grazing rays at slopes 1e-1..1e-7 and 0 onto a two-triangle square above another: \
              the f64 reference decides",
             rays.len()
         ),
-        scene: scene(
+        scene(
             name,
             &[
                 ("top", &top, Material::default()),
@@ -461,12 +470,9 @@ fn grazing() -> StressCase {
             &[light(Vec3::new(0.0, 0.0, 3.0))],
             look_at(DVec3::ZERO, DVec3::new(0.0, -2.0, 3.0)),
         ),
-        probe: Probe::Rays {
-            kind: RayKind::Reflection,
-            rays,
-            expect,
-        },
-    }
+        rays,
+        expect,
+    )
 }
 
 /// The fixed tilt of the acne planes, so that their vertices are not axis-aligned.
@@ -553,27 +559,23 @@ fn slivers() -> StressCase {
         }
     }
     let (rays, expect) = down_rays(pts);
-    StressCase {
-        name: name.into(),
-        family: family(name),
-        about: format!(
+    ray_case(
+        name,
+        format!(
             "{} rays straight down onto a unit square made of {} slivers (aspect {n}:1), many \
              exactly on shared edges: all must hit",
             rays.len(),
             2 * n
         ),
-        scene: scene(
+        scene(
             name,
             &[("slivers", &mesh, Material::default())],
             &[light(Vec3::new(0.5, 0.5, 3.0))],
             look_at(DVec3::new(0.5, 0.5, 0.0), DVec3::new(0.0, -1.0, 2.0)),
         ),
-        probe: Probe::Rays {
-            kind: RayKind::Reflection,
-            rays,
-            expect,
-        },
-    }
+        rays,
+        expect,
+    )
 }
 
 fn needles() -> StressCase {
@@ -593,26 +595,22 @@ fn needles() -> StressCase {
         );
     }
     let (rays, expect) = down_rays(pts);
-    StressCase {
-        name: name.into(),
-        family: family(name),
-        about: format!(
+    ray_case(
+        name,
+        format!(
             "{} rays straight down onto shared edges of {n} needles ({length} long, the fan \
              {width} wide): all must hit",
             rays.len()
         ),
-        scene: scene(
+        scene(
             name,
             &[("needles", &mesh, Material::default())],
             &[light(Vec3::new(500.0, 0.0, 100.0))],
             look_at(DVec3::new(500.0, 0.0, 0.0), DVec3::new(0.0, -300.0, 800.0)),
         ),
-        probe: Probe::Rays {
-            kind: RayKind::Reflection,
-            rays,
-            expect,
-        },
-    }
+        rays,
+        expect,
+    )
 }
 
 fn zero_area() -> StressCase {
@@ -682,15 +680,14 @@ fn zero_area() -> StressCase {
         };
         rays.len()
     ];
-    StressCase {
-        name: name.into(),
-        family: family(name),
-        about: format!(
+    ray_case(
+        name,
+        format!(
             "{} rays straight down through 6 zero-area triangles (collinear, repeated vertices, a \
              point, a segment) onto a ground triangle at t = 2: degenerate triangles are never hit",
             rays.len()
         ),
-        scene: scene(
+        scene(
             name,
             &[
                 ("degenerate", &degenerate, Material::default()),
@@ -699,12 +696,9 @@ fn zero_area() -> StressCase {
             &[light(Vec3::new(0.0, 0.0, 3.0))],
             look_at(DVec3::ZERO, DVec3::new(0.0, -2.0, 3.0)),
         ),
-        probe: Probe::Rays {
-            kind: RayKind::Reflection,
-            rays,
-            expect,
-        },
-    }
+        rays,
+        expect,
+    )
 }
 
 fn coplanar() -> StressCase {
@@ -757,26 +751,22 @@ fn coplanar() -> StressCase {
         ));
     }
     let expect = vec![Expect::Reference; rays.len()];
-    StressCase {
-        name: name.into(),
-        family: family(name),
-        about: format!(
+    ray_case(
+        name,
+        format!(
             "{} rays from both sides onto coincident (same and opposite winding), overlapping \
              coplanar and 1e-7-apart triangles: the f64 reference decides",
             rays.len()
         ),
-        scene: scene(
+        scene(
             name,
             &[("coplanar", &mesh, Material::default())],
             &[light(Vec3::new(0.0, 0.0, 3.0))],
             look_at(DVec3::new(0.5, 0.5, 0.0), DVec3::new(0.0, -2.0, 3.0)),
         ),
-        probe: Probe::Rays {
-            kind: RayKind::Reflection,
-            rays,
-            expect,
-        },
-    }
+        rays,
+        expect,
+    )
 }
 
 fn curved_mirror() -> StressCase {
@@ -830,26 +820,22 @@ fn opposite_bundles() -> StressCase {
         }
     }
     let expect = vec![Expect::Reference; rays.len()];
-    StressCase {
-        name: name.into(),
-        family: family(name),
-        about: format!(
+    ray_case(
+        name,
+        format!(
             "{} rays in opposite pairs from 16 points inside a closed box (cone unions \
              degenerate): the f64 reference decides",
             rays.len()
         ),
-        scene: scene(
+        scene(
             name,
             &[("box", &room, Material::default())],
             &[light(Vec3::new(0.0, 1.5, 0.0))],
             look_at(DVec3::ZERO, DVec3::new(0.0, 0.0, 1.0)),
         ),
-        probe: Probe::Rays {
-            kind: RayKind::Reflection,
-            rays,
-            expect,
-        },
-    }
+        rays,
+        expect,
+    )
 }
 
 fn stadium() -> StressCase {
@@ -923,26 +909,22 @@ fn invalid_rays() -> StressCase {
         .map(|(i, &(o, d, a, b))| probe_ray(RayKind::Reflection, o, d, a, b, i as u32))
         .collect();
     let expect = vec![Expect::Invalid; rays.len()];
-    StressCase {
-        name: name.into(),
-        family: family(name),
-        about: format!(
+    ray_case(
+        name,
+        format!(
             "{} rays aimed at one triangle with a NaN or infinite origin, direction or interval, \
              or a zero direction: misses or an error, never a hit or a panic",
             rays.len()
         ),
-        scene: scene(
+        scene(
             name,
             &[("triangle", &single_triangle(), Material::default())],
             &[light(Vec3::new(0.0, 0.0, 3.0))],
             look_at(DVec3::ZERO, DVec3::new(0.0, -2.0, 3.0)),
         ),
-        probe: Probe::Rays {
-            kind: RayKind::Reflection,
-            rays,
-            expect,
-        },
-    }
+        rays,
+        expect,
+    )
 }
 
 fn one_triangle() -> StressCase {
@@ -1006,26 +988,22 @@ fn one_triangle() -> StressCase {
             }
         }
     }
-    StressCase {
-        name: name.into(),
-        family: family(name),
-        about: format!(
+    ray_case(
+        name,
+        format!(
             "{} rays onto a one-triangle scene: half hit it at t = 1, the others point away, stop \
              short or pass beside it",
             rays.len()
         ),
-        scene: scene(
+        scene(
             name,
             &[("triangle", &single_triangle(), Material::default())],
             &[light(Vec3::new(0.0, 0.0, 3.0))],
             look_at(DVec3::ZERO, DVec3::new(0.0, -2.0, 3.0)),
         ),
-        probe: Probe::Rays {
-            kind: RayKind::Reflection,
-            rays,
-            expect,
-        },
-    }
+        rays,
+        expect,
+    )
 }
 
 fn all_miss() -> StressCase {
@@ -1053,25 +1031,21 @@ fn all_miss() -> StressCase {
         ));
     }
     let expect = vec![Expect::Miss; rays.len()];
-    StressCase {
-        name: name.into(),
-        family: family(name),
-        about: format!(
+    ray_case(
+        name,
+        format!(
             "{} rays leaving an icosphere's surroundings: every one misses",
             rays.len()
         ),
-        scene: scene(
+        scene(
             name,
             &[("sphere", &mesh, Material::default())],
             &[light(Vec3::new(0.0, 0.0, 3.0))],
             look_at(DVec3::ZERO, DVec3::new(0.0, 0.0, 4.0)),
         ),
-        probe: Probe::Rays {
-            kind: RayKind::Reflection,
-            rays,
-            expect,
-        },
-    }
+        rays,
+        expect,
+    )
 }
 
 /// A case whose scene [`SceneBuilder`] must reject (`fill` adds the offending mesh).
@@ -1081,17 +1055,13 @@ fn rejected(name: &str, about: &str, fill: impl FnOnce(&mut SceneBuilder)) -> St
     b.light(light(Vec3::new(0.0, 0.0, 3.0)));
     b.camera(look_at(DVec3::ZERO, DVec3::new(0.0, 0.0, 4.0)));
     fill(&mut b);
-    StressCase {
-        name: name.into(),
-        family: family(name),
-        about: about.into(),
-        scene: b.build(name).map(Arc::new).map_err(|e| e.to_string()),
-        probe: Probe::Rays {
-            kind: RayKind::Reflection,
-            rays: Vec::new(),
-            expect: Vec::new(),
-        },
-    }
+    ray_case(
+        name,
+        about.into(),
+        b.build(name).map(Arc::new).map_err(|e| e.to_string()),
+        Vec::new(),
+        Vec::new(),
+    )
 }
 
 #[cfg(test)]
