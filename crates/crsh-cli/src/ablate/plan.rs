@@ -428,8 +428,17 @@ fn applies(key: &str, base: &PipelineConfig, own: &[&String]) -> bool {
     base.slot(slot).is_some() || own.iter().any(|k| *k == &format!("{stage}.kind"))
 }
 
+/// Orders `KEY=VALUE` assignments so that variant choices (`STAGE.kind=...`, `STAGE=off`)
+/// come first (stably), and parameters land on the variant the assignments pick.
+fn variant_choices_first(sets: &mut [String]) {
+    sets.sort_by_key(|s| {
+        let key = s.split('=').next().unwrap_or("");
+        !key.ends_with(".kind") && key.contains('.')
+    });
+}
+
 /// The reference pipeline `r` with the plan's `reference_params` (`KEY=VALUE` assignments,
-/// `kind` assignments first) applied and checked; a bad key or value is a usage error.
+/// variant choices first) applied and checked; a bad key or value is a usage error.
 fn with_reference_params(
     mut r: PipelineConfig,
     sets: &[String],
@@ -438,9 +447,9 @@ fn with_reference_params(
     if sets.is_empty() {
         return Ok(r);
     }
-    let mut ordered: Vec<&String> = sets.iter().collect();
-    ordered.sort_by_key(|s| !s.split('=').next().unwrap_or("").ends_with(".kind"));
-    for s in ordered {
+    let mut ordered = sets.to_vec();
+    variant_choices_first(&mut ordered);
+    for s in &ordered {
         r.set(s)
             .map_err(|e| CliError::usage(format!("reference_params {s}: {e}")))?;
     }
@@ -622,14 +631,9 @@ pub fn expand(
             for &depth in &depths {
                 for e in &entries {
                     for combo in combinations(&e.grid) {
-                        // `kind` and `off` assignments first, so parameters land on the
-                        // variant the cell picks.
                         let mut sets: Vec<String> =
                             combo.iter().map(|(k, v)| format!("{k}={v}")).collect();
-                        sets.sort_by_key(|s| {
-                            let key = s.split('=').next().unwrap_or("");
-                            !key.ends_with(".kind") && key.contains('.')
-                        });
+                        variant_choices_first(&mut sets);
                         let params: BTreeMap<String, String> = combo.into_iter().collect();
                         let describe = || {
                             let p: Vec<String> =
