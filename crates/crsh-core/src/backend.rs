@@ -38,4 +38,17 @@ pub trait Backend: Send + Sync + 'static {
     fn sync(&self) -> Result<()> {
         Ok(())
     }
+
+    /// Opens stage `key` (a [`crate::STAGE_TIMINGS`] name) for device-side timers: work the
+    /// backend records until the matching [`Backend::end_stage`] is attributed to the innermost
+    /// open stage. Stages nest (`compression` inside `sorting`). The CPU backend keeps no device
+    /// timers and ignores it; [`crate::timed`] calls both.
+    fn begin_stage(&self, _key: &str) {}
+
+    /// Closes the innermost stage opened by [`Backend::begin_stage`] (after a [`Backend::sync`])
+    /// and returns the device time, in milliseconds per stage key, of the work that completed
+    /// since the last call: GPU timestamp queries on the wgpu backend, nothing on the CPU.
+    fn end_stage(&self) -> Result<Vec<(String, f64)>> {
+        Ok(Vec::new())
+    }
 }

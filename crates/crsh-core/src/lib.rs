@@ -28,7 +28,7 @@ pub use bounds::{Aabb, Cone, Sphere, SphereCone};
 pub use config::{ParamInfo, ParamValue, PipelineConfig, StageKind, StageSpec, StageVariantInfo};
 pub use error::{panic_message, CoreError, Result};
 pub use pipeline::{
-    count_self_hits, render_frame, trace_batch, Frame, FrameOptions, Progress, Stages,
+    count_self_hits, render_frame, timed, trace_batch, Frame, FrameOptions, Progress, Stages,
 };
 pub use ray::{Hit, HitMode, Ray, RayKind, Surface, NO_HIT};
 pub use stage::{

@@ -329,25 +329,35 @@ pub fn trace_batch<B: Backend>(
         let intersector = &stages.intersector;
         let mut final_tests = std::time::Duration::ZERO;
         let t_trav = Instant::now();
-        traverser.traverse(
-            backend,
-            rays,
-            kind,
-            &hierarchy,
-            &mut |batch, stats| {
-                let t = Instant::now();
-                let q = Query::Candidates {
-                    hierarchy: &hierarchy,
-                    batch: &batch,
-                };
-                intersector.intersect(backend, rays, q, mode, &mut hits, stats)?;
-                backend.sync()?;
-                final_tests += t.elapsed();
-                Ok(())
-            },
-            stats,
-        )?;
-        backend.sync()?;
+        backend.begin_stage("traversal");
+        let traversed = traverser
+            .traverse(
+                backend,
+                rays,
+                kind,
+                &hierarchy,
+                &mut |batch, stats| {
+                    let t = Instant::now();
+                    backend.begin_stage("final_tests");
+                    let q = Query::Candidates {
+                        hierarchy: &hierarchy,
+                        batch: &batch,
+                    };
+                    let done = intersector
+                        .intersect(backend, rays, q, mode, &mut hits, stats)
+                        .and_then(|_| backend.sync());
+                    let device = backend.end_stage();
+                    done?;
+                    add_device_times(stats, device?);
+                    final_tests += t.elapsed();
+                    Ok(())
+                },
+                stats,
+            )
+            .and_then(|_| backend.sync());
+        let device = backend.end_stage();
+        traversed?;
+        add_device_times(stats, device?);
         stats.add_time("traversal", t_trav.elapsed().saturating_sub(final_tests));
         stats.add_time("final_tests", final_tests);
     } else {
@@ -360,11 +370,13 @@ pub fn trace_batch<B: Backend>(
     Ok(hits)
 }
 
-/// Runs `f` and adds its wall time (after a backend sync) to stage `key` of `stats`, less
-/// whatever sub-stage times `f` recorded in `stats` itself (the compress sorter's
-/// `compression` / `decompression`, ray generation's `trimming`): stage keys never overlap, so
-/// they add up to the frame time.
-fn timed<B: Backend, T>(
+/// Runs `f` as stage `key`: adds its wall time (after a backend sync) to `stats.timings_ms[key]`,
+/// less whatever sub-stage times `f` recorded in `stats` itself (the compress sorter's
+/// `compression` / `decompression`, ray generation's `trimming`), so stage keys never overlap
+/// and add up to the frame time; and brackets it with [`Backend::begin_stage`] /
+/// [`Backend::end_stage`], adding the device times the backend measured to
+/// `stats.device_timings_ms`. Stages call it themselves for their sub-stages.
+pub fn timed<B: Backend, T>(
     backend: &B,
     stats: &mut Stats,
     key: &str,
@@ -373,12 +385,21 @@ fn timed<B: Backend, T>(
     let recorded = |s: &Stats| s.timings_ms.values().sum::<f64>();
     let before = recorded(stats);
     let t0 = Instant::now();
-    let out = f(stats)?;
-    backend.sync()?;
+    backend.begin_stage(key);
+    let out = f(stats).and_then(|out| backend.sync().map(|_| out));
+    let device = backend.end_stage();
+    let out = out?;
+    add_device_times(stats, device?);
     let nested = (recorded(stats) - before).max(0.0);
     let own = (t0.elapsed().as_secs_f64() * 1e3 - nested).max(0.0);
     *stats.timings_ms.entry(key.to_string()).or_insert(0.0) += own;
     Ok(out)
+}
+
+fn add_device_times(stats: &mut Stats, times: Vec<(String, f64)>) {
+    for (key, ms) in times {
+        *stats.device_timings_ms.entry(key).or_insert(0.0) += ms;
+    }
 }
 
 /// Secondary rays whose reported hit is the very triangle of the surface they were spawned

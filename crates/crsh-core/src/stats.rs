@@ -204,6 +204,13 @@ pub struct Stats {
     /// the thesis's table 4.25 rows. `reference` is the untimed reference tracing, not part
     /// of `total`.
     pub timings_ms: BTreeMap<String, f64>,
+    /// Device-side time per stage key in milliseconds, from GPU timestamp queries around the
+    /// backend's compute and render passes (the wgpu backend on adapters with timestamp
+    /// queries; empty on the CPU). Unlike `timings_ms` it excludes host work (encoding,
+    /// submission, readbacks of counters), so the two differ most where a stage launches many
+    /// small dispatches.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub device_timings_ms: BTreeMap<String, f64>,
     /// Agreement with a reference, when one was given.
     pub accuracy: Option<AccuracyCounts>,
     /// The most bytes the traversal's candidate arrays held at once (0 without a

@@ -98,6 +98,57 @@ pub fn enumerate_adapters() -> Vec<AdapterInfo> {
 pub const OPTIONAL_FEATURES: wgpu::Features =
     wgpu::Features::TIMESTAMP_QUERY.union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS);
 
+/// Passes the profiler can time between two reads (each takes two timestamp queries).
+pub const MAX_TIMED_PASSES: u32 = 2048;
+
+#[derive(Default)]
+struct ProfilerState {
+    /// Open stages, innermost last.
+    stack: Vec<String>,
+    /// The stage of each timed pass since the last read; pass `i` owns queries `2i`, `2i + 1`.
+    labels: Vec<String>,
+}
+
+/// GPU timestamp queries around passes, attributed to the stage open when the pass began.
+struct Profiler {
+    queries: Option<wgpu::QuerySet>,
+    resolve: wgpu::Buffer,
+    state: Mutex<ProfilerState>,
+}
+
+impl Profiler {
+    fn new(device: &wgpu::Device) -> Self {
+        let timed = device.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+        let queries = timed.then(|| {
+            device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("crsh stage timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2 * MAX_TIMED_PASSES,
+            })
+        });
+        let resolve = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("crsh timestamp resolve"),
+            size: if timed {
+                u64::from(2 * MAX_TIMED_PASSES) * 8
+            } else {
+                8
+            },
+            usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        Profiler {
+            queries,
+            resolve,
+            state: Mutex::new(ProfilerState::default()),
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, ProfilerState> {
+        // The state is a plain stack and list; a panic cannot leave it half-updated.
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
 type KernelCache = Mutex<HashMap<TypeId, Arc<dyn Any + Send + Sync>>>;
 
 /// An open device: instance, adapter, device and queue, plus the limits and features that
@@ -111,6 +162,7 @@ pub struct GpuContext {
     queue: wgpu::Queue,
     info: AdapterInfo,
     kernels: KernelCache,
+    profiler: Profiler,
 }
 
 impl fmt::Debug for GpuContext {
@@ -189,6 +241,7 @@ impl GpuContext {
                 reason: e.to_string(),
             }
         })?;
+        let profiler = Profiler::new(&device);
         Ok(GpuContext {
             instance,
             adapter,
@@ -196,6 +249,7 @@ impl GpuContext {
             queue,
             info,
             kernels: Mutex::new(HashMap::new()),
+            profiler,
         })
     }
 
@@ -321,6 +375,107 @@ impl GpuContext {
             op: "kernel cache".into(),
             reason: "type mismatch in kernel cache".into(),
         })
+    }
+
+    /// Opens stage `key` for the timestamp profiler: compute and render passes begun with
+    /// [`GpuContext::compute_pass`] / [`GpuContext::render_timestamps`] until the matching
+    /// [`GpuContext::end_stage`] are timed and attributed to the innermost open stage.
+    pub fn begin_stage(&self, key: &str) {
+        self.profiler.lock().stack.push(key.to_string());
+    }
+
+    /// Closes the innermost stage and reads back every timestamp pair written since the last
+    /// read: milliseconds per stage key. Call it after waiting for the device, and submit a
+    /// stage's encoders before opening a nested stage (a pass still in an unsubmitted encoder
+    /// has no timestamps yet). Without timestamp queries it returns nothing.
+    pub fn end_stage(&self) -> GpuResult<Vec<(String, f64)>> {
+        let mut state = self.profiler.lock();
+        state.stack.pop();
+        if state.labels.is_empty() {
+            return Ok(Vec::new());
+        }
+        let labels = std::mem::take(&mut state.labels);
+        drop(state);
+        self.read_timestamps(labels)
+    }
+
+    fn read_timestamps(&self, labels: Vec<String>) -> GpuResult<Vec<(String, f64)>> {
+        let Some(queries) = &self.profiler.queries else {
+            return Ok(Vec::new());
+        };
+        let count = 2 * labels.len() as u32;
+        let bytes = u64::from(count) * 8;
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("crsh timestamps"),
+            });
+        encoder.resolve_query_set(queries, 0..count, &self.profiler.resolve, 0);
+        let staging = crate::backend::create_raw_buffer(
+            self,
+            "crsh timestamps readback",
+            bytes,
+            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            false,
+        )?;
+        encoder.copy_buffer_to_buffer(&self.profiler.resolve, 0, &staging, 0, bytes);
+        self.capture("resolve timestamps", || {
+            self.queue.submit([encoder.finish()]);
+        })?;
+        let raw = crate::backend::map_read_bytes(self, &staging, bytes)?;
+        let ticks: Vec<u64> = bytemuck::pod_collect_to_vec(&raw);
+        let period_ms = f64::from(self.timestamp_period_ns()) * 1e-6;
+        Ok(labels
+            .into_iter()
+            .zip(ticks.chunks_exact(2))
+            .map(|(label, t)| (label, t[1].saturating_sub(t[0]) as f64 * period_ms))
+            .collect())
+    }
+
+    /// Timestamp writes for the next pass of the innermost open stage: `None` when no stage is
+    /// open, the adapter has no timestamp queries, or this stage's query pool is full (the
+    /// pass then runs untimed; the pool holds [`MAX_TIMED_PASSES`] passes between reads).
+    fn next_timestamps(&self) -> Option<(&wgpu::QuerySet, u32)> {
+        let queries = self.profiler.queries.as_ref()?;
+        let mut state = self.profiler.lock();
+        let stage = state.stack.last()?.clone();
+        if state.labels.len() >= MAX_TIMED_PASSES as usize {
+            return None;
+        }
+        let first = 2 * state.labels.len() as u32;
+        state.labels.push(stage);
+        Some((queries, first))
+    }
+
+    /// Begins a compute pass on `encoder`, timed for the innermost open stage (see
+    /// [`GpuContext::begin_stage`]). Every kernel of the backend begins its passes here.
+    pub fn compute_pass<'e>(
+        &self,
+        encoder: &'e mut wgpu::CommandEncoder,
+        label: &str,
+    ) -> wgpu::ComputePass<'e> {
+        let timestamp_writes =
+            self.next_timestamps()
+                .map(|(query_set, first)| wgpu::ComputePassTimestampWrites {
+                    query_set,
+                    beginning_of_pass_write_index: Some(first),
+                    end_of_pass_write_index: Some(first + 1),
+                });
+        encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some(label),
+            timestamp_writes,
+        })
+    }
+
+    /// Timestamp writes for a render pass, timed for the innermost open stage like
+    /// [`GpuContext::compute_pass`].
+    pub fn render_timestamps(&self) -> Option<wgpu::RenderPassTimestampWrites<'_>> {
+        self.next_timestamps()
+            .map(|(query_set, first)| wgpu::RenderPassTimestampWrites {
+                query_set,
+                beginning_of_pass_write_index: Some(first),
+                end_of_pass_write_index: Some(first + 1),
+            })
     }
 
     fn lock_kernels(

@@ -370,4 +370,12 @@ impl Backend for Wgpu {
     fn sync(&self) -> Result<()> {
         Ok(self.ctx.wait()?)
     }
+
+    fn begin_stage(&self, key: &str) {
+        self.ctx.begin_stage(key);
+    }
+
+    fn end_stage(&self) -> Result<Vec<(String, f64)>> {
+        Ok(self.ctx.end_stage()?)
+    }
 }

@@ -25,9 +25,14 @@
 pub mod adapter;
 pub mod backend;
 pub mod error;
+pub mod kernel;
 pub mod kernels;
+pub mod scene;
+pub mod testing;
 
 pub use adapter::{enumerate_adapters, AdapterInfo, GpuContext};
 pub use backend::{GpuBuffer, Wgpu};
 pub use error::{GpuError, GpuResult};
+pub use kernel::{Kernel, Slot};
 pub use kernels::scan::{exclusive_scan, exclusive_scan_cpu, exclusive_scan_in_place, ScanKernel};
+pub use scene::GpuScene;

@@ -397,3 +397,101 @@ fn scan_rejects_inputs_beyond_the_storage_binding_limit() {
         other => panic!("expected TooLarge, got {:?}", other.map(|(_, t)| t)),
     }
 }
+
+// ---------------------------------------------------------------- kernel plumbing, profiler
+
+/// A kernel built on `common.wgsl`: moves every ray's origin along its direction by `t`, over a
+/// buffer bound in chunks, inside an open stage; the device timings name that stage.
+#[test]
+fn common_records_chunked_dispatch_and_stage_timestamps() {
+    use crsh_core::Ray;
+    use crsh_wgpu::kernel::{chunks, encoder, submit, uniform, Kernel, Slot};
+    let Some(b) = backend("common_records_chunked_dispatch_and_stage_timestamps") else {
+        return;
+    };
+    let ctx = b.context();
+    const SRC: &str = "
+        struct P { n: u32, t: f32, _a: u32, _b: u32 }
+        @group(0) @binding(0) var<uniform> p: P;
+        @group(0) @binding(1) var<storage, read_write> rays: array<Ray>;
+        @compute @workgroup_size(WG)
+        fn advance(@builtin(global_invocation_id) gid: vec3<u32>,
+                   @builtin(num_workgroups) nwg: vec3<u32>) {
+            let i = linear_id(gid, nwg);
+            if (i >= p.n) { return; }
+            var r = rays[i];
+            let o = ray_origin(r) + ray_dir(r) * p.t;
+            r.ox = o.x; r.oy = o.y; r.oz = o.z;
+            r.source = i;
+            rays[i] = r;
+        }";
+    let kernel = Kernel::new(
+        ctx,
+        "test advance",
+        SRC,
+        &["advance"],
+        &[Slot::Uniform, Slot::ReadWrite],
+    )
+    .expect("kernel compiles");
+    let mut lcg = Lcg(7);
+    let rays: Vec<Ray> = (0..1000)
+        .map(|i| Ray {
+            origin: glam::Vec3::new(i as f32, 1.0, 2.0),
+            dir: glam::Vec3::new((lcg.next() % 7) as f32, 1.0, -1.0),
+            t_max: f32::INFINITY,
+            ..bytemuck::Zeroable::zeroed()
+        })
+        .collect();
+    let buf = b.upload(&rays).unwrap();
+    b.begin_stage("hashing");
+    for range in chunks::<Ray>(ctx, buf.len()) {
+        #[repr(C)]
+        #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+        struct P {
+            n: u32,
+            t: f32,
+            a: u32,
+            b: u32,
+        }
+        let params = uniform(
+            ctx,
+            "p",
+            &P {
+                n: range.len() as u32,
+                t: 0.5,
+                a: 0,
+                b: 0,
+            },
+        );
+        let bg = kernel.bind_group(
+            ctx,
+            &[params.as_entire_binding(), buf.slice_binding(range.clone())],
+        );
+        let mut enc = encoder(ctx, "advance");
+        {
+            let mut pass = ctx.compute_pass(&mut enc, "advance");
+            kernel
+                .dispatch(ctx, &mut pass, "advance", &bg, range.len() as u32)
+                .unwrap();
+        }
+        submit(ctx, "advance", enc).unwrap();
+    }
+    b.sync().unwrap();
+    let times = b.end_stage().unwrap();
+    let got = b.download(&buf).unwrap();
+    for (i, (g, r)) in got.iter().zip(&rays).enumerate() {
+        assert_eq!(g.origin, r.origin + r.dir * 0.5, "ray {i}");
+        assert_eq!(g.source, i as u32);
+    }
+    if ctx.has_timestamp_query() {
+        assert!(!times.is_empty(), "timestamps granted but none read");
+        assert!(
+            times.iter().all(|(k, ms)| k == "hashing" && *ms >= 0.0),
+            "{times:?}"
+        );
+    } else {
+        assert!(times.is_empty());
+    }
+    // Passes outside any stage are not timed.
+    assert!(b.end_stage().unwrap().is_empty());
+}

@@ -218,10 +218,7 @@ impl ScanKernel {
             grids.push((groups_x, groups_y));
         }
         {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("crsh scan"),
-                timestamp_writes: None,
-            });
+            let mut pass = ctx.compute_pass(encoder, "crsh scan");
             pass.set_pipeline(&self.scan);
             for (bind_group, &(x, y)) in bind_groups.iter().zip(&grids) {
                 pass.set_bind_group(0, bind_group, &[]);

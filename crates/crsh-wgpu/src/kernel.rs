@@ -1,0 +1,278 @@
+//! The plumbing every compute kernel of the backend shares: compiling a WGSL module with the
+//! shared records of `kernels/common.wgsl` prepended, one bind group layout per kernel, 1D
+//! dispatches folded into a 2D grid when they exceed the adapter's per-dimension limit, uniform
+//! parameter blocks, and chunking of buffers larger than one storage binding.
+//!
+//! A kernel module (say `hash/thesis.rs` with `hash/thesis.wgsl`) declares its bindings as
+//! [`Slot`]s, compiles once per device through [`crate::GpuContext::kernel`], and records its
+//! dispatches into a pass begun with [`crate::GpuContext::compute_pass`] (which times it for the
+//! open stage).
+
+use std::ops::Range;
+
+use wgpu::util::DeviceExt;
+
+use crate::adapter::GpuContext;
+use crate::backend::GpuBuffer;
+use crate::error::{GpuError, GpuResult};
+
+/// WGSL source shared by every kernel (records and helpers); [`Kernel::new`] prepends it.
+pub const COMMON_WGSL: &str = include_str!("kernels/common.wgsl");
+
+/// Invocations per workgroup of 1D kernels (`WG` in `common.wgsl`).
+pub const WG: u32 = 256;
+
+/// What one binding of a kernel's group 0 is, in binding order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Slot {
+    /// `var<uniform>`: a parameter block.
+    Uniform,
+    /// `var<storage, read>`.
+    Read,
+    /// `var<storage, read_write>`.
+    ReadWrite,
+}
+
+/// A compiled WGSL module: one compute pipeline per entry point, all sharing one bind group
+/// layout (group 0, bindings `0..slots.len()`).
+#[derive(Debug)]
+pub struct Kernel {
+    label: &'static str,
+    layout: wgpu::BindGroupLayout,
+    pipelines: Vec<(&'static str, wgpu::ComputePipeline)>,
+}
+
+impl Kernel {
+    /// Compiles `source` (with [`COMMON_WGSL`] prepended) and creates a pipeline for each of
+    /// `entries`. Compilation errors come back as [`GpuError::Device`].
+    pub fn new(
+        ctx: &GpuContext,
+        label: &'static str,
+        source: &str,
+        entries: &[&'static str],
+        slots: &[Slot],
+    ) -> GpuResult<Kernel> {
+        let device = ctx.device();
+        let full = format!("{COMMON_WGSL}\n{source}");
+        ctx.capture(label, || {
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(full.into()),
+            });
+            let layout_entries: Vec<wgpu::BindGroupLayoutEntry> = slots
+                .iter()
+                .enumerate()
+                .map(|(i, slot)| wgpu::BindGroupLayoutEntry {
+                    binding: i as u32,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: match slot {
+                            Slot::Uniform => wgpu::BufferBindingType::Uniform,
+                            Slot::Read => wgpu::BufferBindingType::Storage { read_only: true },
+                            Slot::ReadWrite => {
+                                wgpu::BufferBindingType::Storage { read_only: false }
+                            }
+                        },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                })
+                .collect();
+            let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some(label),
+                entries: &layout_entries,
+            });
+            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(label),
+                bind_group_layouts: &[Some(&layout)],
+                immediate_size: 0,
+            });
+            let pipelines = entries
+                .iter()
+                .map(|&entry| {
+                    let p = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                        label: Some(entry),
+                        layout: Some(&pipeline_layout),
+                        module: &module,
+                        entry_point: Some(entry),
+                        compilation_options: Default::default(),
+                        cache: None,
+                    });
+                    (entry, p)
+                })
+                .collect();
+            Kernel {
+                label,
+                layout,
+                pipelines,
+            }
+        })
+    }
+
+    /// The pipeline of entry point `entry` (one of those given to [`Kernel::new`]).
+    pub fn pipeline(&self, entry: &str) -> GpuResult<&wgpu::ComputePipeline> {
+        self.pipelines
+            .iter()
+            .find(|(name, _)| *name == entry)
+            .map(|(_, p)| p)
+            .ok_or_else(|| GpuError::Device {
+                op: format!("kernel `{}`", self.label),
+                reason: format!("no entry point `{entry}` was compiled"),
+            })
+    }
+
+    /// A bind group of `resources` in slot order.
+    pub fn bind_group(
+        &self,
+        ctx: &GpuContext,
+        resources: &[wgpu::BindingResource<'_>],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry<'_>> = resources
+            .iter()
+            .enumerate()
+            .map(|(i, r)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: r.clone(),
+            })
+            .collect();
+        ctx.device().create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(self.label),
+            layout: &self.layout,
+            entries: &entries,
+        })
+    }
+
+    /// Records a dispatch of `entry` over `invocations` invocations of [`WG`]-wide workgroups
+    /// (2D when wider than the adapter allows; the shader uses `linear_id` and must bound-check
+    /// against its own element count). Nothing is recorded for 0 invocations.
+    pub fn dispatch(
+        &self,
+        ctx: &GpuContext,
+        pass: &mut wgpu::ComputePass<'_>,
+        entry: &str,
+        bind_group: &wgpu::BindGroup,
+        invocations: u32,
+    ) -> GpuResult<()> {
+        if invocations == 0 {
+            return Ok(());
+        }
+        let (x, y) = grid(ctx, invocations.div_ceil(WG))?;
+        pass.set_pipeline(self.pipeline(entry)?);
+        pass.set_bind_group(0, bind_group, &[]);
+        pass.dispatch_workgroups(x, y, 1);
+        Ok(())
+    }
+}
+
+/// `groups` workgroups as an `(x, y)` grid within the adapter's per-dimension limit.
+pub fn grid(ctx: &GpuContext, groups: u32) -> GpuResult<(u32, u32)> {
+    let max = ctx.max_workgroups_per_dimension().max(1);
+    let x = groups.clamp(1, max);
+    let y = groups.div_ceil(x);
+    if y > max {
+        return Err(GpuError::TooLarge {
+            what: format!("dispatch of {groups} workgroups"),
+            bytes: u64::from(groups),
+            limit_name: "max_compute_workgroups_per_dimension squared",
+            limit: u64::from(max) * u64::from(max),
+        });
+    }
+    Ok((x, y))
+}
+
+/// A uniform buffer holding `value` (a `#[repr(C)]` block padded to 16 bytes by the caller).
+pub fn uniform<T: bytemuck::Pod>(ctx: &GpuContext, label: &str, value: &T) -> wgpu::Buffer {
+    ctx.device()
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(label),
+            contents: bytemuck::bytes_of(value),
+            usage: wgpu::BufferUsages::UNIFORM,
+        })
+}
+
+/// Submits `encoder` (device errors become [`GpuError::Device`] naming `op`).
+pub fn submit(ctx: &GpuContext, op: &str, encoder: wgpu::CommandEncoder) -> GpuResult<()> {
+    ctx.capture(op, || {
+        ctx.queue().submit([encoder.finish()]);
+    })
+}
+
+/// A new command encoder labelled `label`.
+pub fn encoder(ctx: &GpuContext, label: &str) -> wgpu::CommandEncoder {
+    ctx.device()
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
+}
+
+/// The most elements of `T` one storage binding may hold on this device, rounded down so that
+/// consecutive chunks start at offsets aligned to `min_storage_buffer_offset_alignment`.
+pub fn chunk_elems<T>(ctx: &GpuContext) -> usize {
+    let elem = std::mem::size_of::<T>().max(1) as u64;
+    let align = u64::from(ctx.limits().min_storage_buffer_offset_alignment).max(1);
+    // Elements per alignment unit: chunks must be a whole number of `lcm(elem, align)` bytes.
+    let unit = lcm(elem, align);
+    let max = ctx.max_storage_binding_bytes();
+    let bytes = (max / unit) * unit;
+    (bytes / elem).max(1) as usize
+}
+
+fn lcm(a: u64, b: u64) -> u64 {
+    fn gcd(a: u64, b: u64) -> u64 {
+        if b == 0 {
+            a
+        } else {
+            gcd(b, a % b)
+        }
+    }
+    a / gcd(a, b) * b
+}
+
+/// `0..len` cut into consecutive ranges of at most [`chunk_elems::<T>`] elements: the pieces a
+/// kernel binds one at a time (with [`GpuBuffer::slice_binding`]) when a buffer is larger than
+/// one storage binding. One empty range for `len == 0`.
+pub fn chunks<T>(ctx: &GpuContext, len: usize) -> Vec<Range<usize>> {
+    let step = chunk_elems::<T>(ctx);
+    if len == 0 {
+        return vec![0..0];
+    }
+    (0..len)
+        .step_by(step)
+        .map(|start| start..(start + step).min(len))
+        .collect()
+}
+
+impl<T: bytemuck::Pod> GpuBuffer<T> {
+    /// Elements `range` as a storage binding. `range.start` must be a multiple of
+    /// [`chunk_elems::<T>`] (or 0), as the ranges of [`chunks`] are; an empty range binds the
+    /// buffer's first 16 bytes (wgpu forbids empty bindings; kernels take counts from their
+    /// parameters).
+    pub fn slice_binding(&self, range: Range<usize>) -> wgpu::BindingResource<'_> {
+        let elem = std::mem::size_of::<T>() as u64;
+        let offset = range.start as u64 * elem;
+        let size = (range.len() as u64 * elem).max(crate::backend::MIN_BUFFER_BYTES);
+        let size = crate::backend::padded_size(size).min(self.buffer().size() - offset);
+        wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+            buffer: self.buffer(),
+            offset,
+            size: wgpu::BufferSize::new(size),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn common_wgsl_declares_the_workgroup_size() {
+        assert!(COMMON_WGSL.contains(&format!("const WG: u32 = {WG}u;")));
+    }
+
+    #[test]
+    fn lcm_of_record_sizes_and_alignments() {
+        assert_eq!(lcm(64, 256), 256);
+        assert_eq!(lcm(80, 256), 1280);
+        assert_eq!(lcm(48, 256), 768);
+        assert_eq!(lcm(8, 256), 256);
+    }
+}
