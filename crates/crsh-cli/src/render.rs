@@ -9,32 +9,42 @@ use std::time::{Duration, Instant};
 use crsh_core::metrics::{psnr_rgba8, to_rgba8};
 use crsh_core::pipeline::MAX_IMAGE_SIDE;
 use crsh_core::{
-    render_frame, CoreError, FrameOptions, PipelineConfig, Progress, StageVariantInfo,
+    render_frame, Backend, CoreError, FrameOptions, Intersector, PipelineConfig, Progress,
+    StageVariantInfo,
 };
 use crsh_cpu::Cpu;
+use crsh_wgpu::{GpuScene, HostIntersector, Wgpu};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::args::{BackendChoice, RenderArgs};
 use crate::error::{CliError, CliResult};
 use crate::output;
-use crate::report::{AccuracyReport, RunInfo, SceneInfo, SetupTimes, StatsReport};
+use crate::report::{AccuracyReport, AdapterReport, RunInfo, SceneInfo, SetupTimes, StatsReport};
 
 /// Runs `crsh render`.
 pub fn run(args: &RenderArgs) -> CliResult<()> {
-    if args.backend == BackendChoice::Wgpu {
-        return Err(wgpu_unavailable());
-    }
     output::check_png_path(&args.out)?;
     if let Some(stats) = &args.stats {
         output::check_writable(stats, "--stats")?;
     }
     let catalogue = crsh_cpu::catalogue();
     let cfg = pipeline_config(&args.pipeline, &args.set, &catalogue)?;
+    if args.backend == BackendChoice::Wgpu {
+        crsh_wgpu::check_supported(&cfg)
+            .map_err(|e| stage_error(e, &format!("pipeline `{}`", cfg.name)))?;
+    }
+    // The reference always runs on the CPU (on the wgpu backend through the host), so it may
+    // name any CPU intersector, brute64 included.
     let reference = args
         .reference
         .as_deref()
         .map(|name| reference_config(&cfg, name, &catalogue))
         .transpose()?;
+    // Open the device before loading the scene: without an adapter, fail fast and clearly.
+    let gpu = match args.backend {
+        BackendChoice::Cpu => None,
+        BackendChoice::Wgpu => Some(Wgpu::new().map_err(|e| wgpu_unavailable(&e))?),
+    };
     let threads = configure_threads(args.threads)?;
 
     let t_load = Instant::now();
@@ -72,24 +82,62 @@ pub fn run(args: &RenderArgs) -> CliResult<()> {
     let bar = progress_bar();
     bar.set_prefix(cfg.name.clone());
     bar.set_message("building stages");
-    let t_build = Instant::now();
-    let stages = crsh_cpu::build_stages(&cfg, &scene)
-        .map_err(|e| stage_error(e, &format!("building pipeline `{}`", cfg.name)))?;
-    let build_stages_ms = ms_since(t_build);
-    let reference_intersector = reference
-        .as_ref()
-        .map(|r| crsh_cpu::build_intersector(&r.intersect, &scene))
-        .transpose()
-        .map_err(|e| stage_error(e, "building the reference intersector"))?;
-    let frame = render_frame(
-        &Cpu,
-        &stages,
-        &opts,
-        reference_intersector.as_deref(),
-        &mut |p| advance(&bar, &p),
-    )
-    .map_err(|e| CliError::runtime(format!("render failed: {e}")))?;
-    drop(stages);
+    let mut on_progress = |p: Progress| advance(&bar, &p);
+    let rendered = match &gpu {
+        None => {
+            let t_build = Instant::now();
+            let stages = crsh_cpu::build_stages(&cfg, &scene)
+                .map_err(|e| stage_error(e, &format!("building pipeline `{}`", cfg.name)))?;
+            let build_stages_ms = ms_since(t_build);
+            let reference = reference
+                .as_ref()
+                .map(|r| crsh_cpu::build_intersector(&r.intersect, &scene))
+                .transpose()
+                .map_err(|e| stage_error(e, "building the reference intersector"))?;
+            let frame = render_frame(&Cpu, &stages, &opts, reference.as_deref(), &mut on_progress)
+                .map_err(|e| CliError::runtime(format!("render failed: {e}")))?;
+            Rendered {
+                image: frame.image,
+                stats: frame.stats,
+                build_stages_ms,
+                adapter: None,
+            }
+        }
+        Some(backend) => {
+            let t_build = Instant::now();
+            let gscene = GpuScene::new(backend, &scene).map_err(|e| {
+                CliError::runtime(format!("uploading the scene to the device: {e}"))
+            })?;
+            let stages = crsh_wgpu::build_stages(&cfg, &gscene).map_err(|e| {
+                stage_error(e, &format!("building pipeline `{}` on wgpu", cfg.name))
+            })?;
+            let build_stages_ms = ms_since(t_build);
+            let reference = reference
+                .as_ref()
+                .map(|r| HostIntersector::build(&r.intersect, &gscene))
+                .transpose()
+                .map_err(|e| stage_error(e, "building the reference intersector"))?;
+            let frame = render_frame(
+                backend,
+                &stages,
+                &opts,
+                reference.as_ref().map(|r| r as &dyn Intersector<Wgpu>),
+                &mut on_progress,
+            )
+            .map_err(|e| CliError::runtime(format!("render failed: {e}")))?;
+            let image = backend
+                .download(&frame.image)
+                .map_err(|e| CliError::runtime(format!("reading the image back: {e}")))?;
+            Rendered {
+                image,
+                stats: frame.stats,
+                build_stages_ms,
+                adapter: Some(AdapterReport::of(backend.context().info())),
+            }
+        }
+    };
+    let frame = rendered;
+    let build_stages_ms = frame.build_stages_ms;
     let rgba = to_rgba8(&frame.image);
 
     let accuracy = match &reference {
@@ -120,6 +168,7 @@ pub fn run(args: &RenderArgs) -> CliResult<()> {
             scene: SceneInfo::of(&scene, &args.scene),
             config: &cfg,
             backend: args.backend.name(),
+            adapter: frame.adapter.clone(),
             threads,
             width: args.width,
             height,
@@ -141,6 +190,15 @@ pub fn run(args: &RenderArgs) -> CliResult<()> {
         None => format!("wrote     {}\n", args.out.display()),
     };
     output::print_stdout(&(report.summary() + &wrote))
+}
+
+/// What a render produced, whichever backend ran it.
+struct Rendered {
+    /// Linear RGBA on the host.
+    image: Vec<[f32; 4]>,
+    stats: crsh_core::Stats,
+    build_stages_ms: f64,
+    adapter: Option<AdapterReport>,
 }
 
 /// The resolved pipeline: a preset name or a pipeline TOML file, `--set` overrides applied in
@@ -253,8 +311,8 @@ pub(crate) fn accuracy_report(
     }
 }
 
-/// The error for `--backend wgpu`, naming the adapters that were found.
-fn wgpu_unavailable() -> CliError {
+/// The error for `--backend wgpu` without a usable device, naming the adapters that were found.
+fn wgpu_unavailable(e: &crsh_wgpu::GpuError) -> CliError {
     let adapters = crsh_wgpu::enumerate_adapters();
     let found = if adapters.is_empty() {
         "no wgpu adapter was found on this machine".to_string()
@@ -268,8 +326,8 @@ fn wgpu_unavailable() -> CliError {
                 .join("; ")
         )
     };
-    CliError::usage(format!(
-        "--backend wgpu: the GPU pipeline is not implemented yet (a later issue); use --backend cpu ({found})"
+    CliError::runtime(format!(
+        "--backend wgpu: cannot open a device: {e} ({found}); use --backend cpu"
     ))
 }
 

@@ -147,8 +147,11 @@ pub struct StatsReport {
     pub pipeline: String,
     /// The full resolved pipeline (every stage, every parameter), as `--pipeline FILE.toml` reads it.
     pub config: PipelineConfig,
-    /// Backend that ran it (`cpu`).
+    /// Backend that ran it (`cpu`, `wgpu`).
     pub backend: String,
+    /// The wgpu adapter that ran it (absent on the CPU).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub adapter: Option<AdapterReport>,
     /// Worker threads in the rayon pool.
     pub threads: usize,
     /// Image width, pixels.
@@ -173,6 +176,9 @@ pub struct StatsReport {
     pub peak_candidate_bytes: u64,
     /// Wall time per stage, ms, plus `total` (the frame, excluding `reference`).
     pub timings_ms: BTreeMap<String, f64>,
+    /// Device time per stage from GPU timestamp queries, ms (wgpu on adapters that have them).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub device_timings_ms: BTreeMap<String, f64>,
     /// Wall time before the frame: scene load and stage construction, ms.
     pub setup: SetupTimes,
     /// Millions of rays per second: per traced ray kind (rays / that kind's trace time),
@@ -183,6 +189,28 @@ pub struct StatsReport {
     pub accuracy: Option<AccuracyReport>,
 }
 
+/// The adapter of a wgpu run.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct AdapterReport {
+    /// Adapter name (e.g. `llvmpipe (LLVM 19.1.7, 256 bits)` for lavapipe).
+    pub name: String,
+    /// Graphics API backend (`vulkan`, `metal`, ...).
+    pub backend: String,
+    /// Device type (`DiscreteGpu`, `Cpu`, ...).
+    pub device_type: String,
+}
+
+impl AdapterReport {
+    /// The report of `info`.
+    pub fn of(info: &crsh_wgpu::AdapterInfo) -> AdapterReport {
+        AdapterReport {
+            name: info.name.clone(),
+            backend: info.backend.clone(),
+            device_type: info.device_type.clone(),
+        }
+    }
+}
+
 /// The inputs of a report besides the stats.
 pub struct RunInfo<'a> {
     /// Scene counts.
@@ -191,6 +219,8 @@ pub struct RunInfo<'a> {
     pub config: &'a PipelineConfig,
     /// Backend name.
     pub backend: &'a str,
+    /// The adapter of a wgpu run.
+    pub adapter: Option<AdapterReport>,
     /// Rayon pool size.
     pub threads: usize,
     /// Image width.
@@ -245,6 +275,7 @@ impl StatsReport {
             pipeline: run.config.name.clone(),
             config: run.config.clone(),
             backend: run.backend.to_string(),
+            adapter: run.adapter,
             threads: run.threads,
             width: run.width,
             height: run.height,
@@ -264,6 +295,7 @@ impl StatsReport {
             mesh_culling: stats.mesh_culling.clone(),
             peak_candidate_bytes: stats.peak_candidate_bytes,
             timings_ms: stats.timings_ms.clone(),
+            device_timings_ms: stats.device_timings_ms.clone(),
             setup: run.setup,
             mrays_per_s: mrays_per_s(stats),
             accuracy,
@@ -328,7 +360,13 @@ impl StatsReport {
             "setup ms  scene load {:.1} | build stages {:.1}",
             self.setup.scene_load_ms, self.setup.build_stages_ms
         );
+        if let Some(a) = &self.adapter {
+            let _ = writeln!(s, "adapter   {} ({}, {})", a.name, a.backend, a.device_type);
+        }
         let _ = writeln!(s, "time ms   {}", timing_line(&self.timings_ms));
+        if !self.device_timings_ms.is_empty() {
+            let _ = writeln!(s, "device ms {}", timing_line(&self.device_timings_ms));
+        }
         let mut mr: Vec<String> = RayKind::ALL
             .iter()
             .filter_map(|k| {
@@ -495,6 +533,7 @@ mod tests {
                 scene: scene_info,
                 config: &cfg,
                 backend: "cpu",
+                adapter: None,
                 threads: 2,
                 width: 4,
                 height: 4,

@@ -423,7 +423,17 @@ fn bad_input_gives_clear_errors() {
             2,
             "does not exist",
         ),
-        (&["render", "--backend", "wgpu"], 2, "not implemented"),
+        (
+            &[
+                "render",
+                "--backend",
+                "wgpu",
+                "--set",
+                "intersect.kind=brute64",
+            ],
+            2,
+            "wgpu backend",
+        ),
         (&["render", "--backend", "vulkan"], 2, "--backend"),
         (&["frobnicate"], 2, "frobnicate"),
     ];

@@ -24,6 +24,7 @@
 
 pub mod adapter;
 pub mod backend;
+pub mod catalogue;
 pub mod error;
 pub mod kernel;
 pub mod kernels;
@@ -32,6 +33,9 @@ pub mod testing;
 
 pub use adapter::{enumerate_adapters, AdapterInfo, GpuContext};
 pub use backend::{GpuBuffer, Wgpu};
+pub use catalogue::{
+    build_stages, catalogue, check_supported, render, HostIntersector, GPU_VARIANTS,
+};
 pub use error::{GpuError, GpuResult};
 pub use kernel::{Kernel, Slot};
 pub use kernels::scan::{exclusive_scan, exclusive_scan_cpu, exclusive_scan_in_place, ScanKernel};

@@ -495,3 +495,70 @@ fn common_records_chunked_dispatch_and_stage_timestamps() {
     // Passes outside any stage are not timed.
     assert!(b.end_stage().unwrap().is_empty());
 }
+
+// ---------------------------------------------------------------- host reference
+
+/// The host-side reference gives, through device buffers, exactly the CPU intersector's hits,
+/// merged into the hits already there; candidate queries are refused.
+#[test]
+fn host_intersector_matches_the_cpu_intersector() {
+    use crsh_core::{HitMode, Intersector, Query, Ray, StageSpec, Stats};
+    use crsh_wgpu::{GpuScene, HostIntersector};
+    let Some(b) = backend("host_intersector_matches_the_cpu_intersector") else {
+        return;
+    };
+    let scene = Arc::new(crsh_scene::builtin::build("cornell-mirrors").unwrap());
+    let gscene = GpuScene::new(&b, &scene).unwrap();
+    let centre = (scene.bounds.min + scene.bounds.max) * 0.5;
+    let mut lcg = Lcg(11);
+    let mut unit = || lcg.next() as f32 / u32::MAX as f32 * 2.0 - 1.0;
+    let rays: Vec<Ray> = (0..500)
+        .map(|i| Ray {
+            origin: centre,
+            dir: glam::Vec3::new(unit(), unit(), unit()),
+            t_min: 0.0,
+            t_max: if i % 3 == 0 { 0.5 } else { f32::INFINITY },
+            source: i,
+            ..bytemuck::Zeroable::zeroed()
+        })
+        .collect();
+    // Half the rays start with a hit closer than anything in the scene: merging keeps it.
+    let start: Vec<Hit> = (0..rays.len())
+        .map(|i| {
+            if i % 2 == 0 {
+                Hit {
+                    t: 1e-4,
+                    tri: 0,
+                    u: 0.0,
+                    v: 0.0,
+                }
+            } else {
+                Hit::MISS
+            }
+        })
+        .collect();
+    for mode in [HitMode::Closest, HitMode::Any] {
+        let spec = StageSpec::new("brute");
+        let cpu = crsh_cpu::build_intersector(&spec, &scene).unwrap();
+        let mut want = start.clone();
+        cpu.intersect(
+            &crsh_cpu::Cpu,
+            &rays,
+            Query::Scene,
+            mode,
+            &mut want,
+            &mut Stats::default(),
+        )
+        .unwrap();
+        let host = HostIntersector::build(&spec, &gscene).unwrap();
+        assert!(!host.supports_candidates());
+        let gpu_rays = b.upload(&rays).unwrap();
+        let mut hits = b.upload(&start).unwrap();
+        let mut stats = Stats::default();
+        host.intersect(&b, &gpu_rays, Query::Scene, mode, &mut hits, &mut stats)
+            .unwrap();
+        assert_eq!(b.download(&hits).unwrap(), want, "{mode:?}");
+        assert!(stats.tests.ray_triangle > 0);
+        assert!(want.iter().skip(1).step_by(2).any(|h| h.is_hit()));
+    }
+}

@@ -138,7 +138,8 @@ pub struct Plan {
     /// [`ACCURACY_AXES`]).
     #[serde(default = "default_accuracy_axes")]
     pub accuracy_axes: Vec<String>,
-    /// Backends (`cpu`; `wgpu` cells are recorded as failed until the GPU pipeline exists).
+    /// Backends (`cpu`, `wgpu`); a wgpu cell runs the same configuration on the wgpu backend
+    /// and fails with its reason when the machine has no adapter or the GPU lacks a variant.
     #[serde(default = "default_backends")]
     pub backends: Vec<String>,
     /// Worker threads (default: rayon's choice).

@@ -123,6 +123,10 @@ pub struct Measures {
     pub counters_equal_across_repeats: bool,
     /// Per stage key and `total`: median, min and max over the timed runs, ms.
     pub timings_ms: BTreeMap<String, TimeSummary>,
+    /// Per stage key: device time from GPU timestamp queries (wgpu cells on adapters that
+    /// have them), median, min and max over the timed runs, ms. Empty on the CPU.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub device_timings_ms: BTreeMap<String, TimeSummary>,
     /// Mrays/s per traced kind, `overall` and `frame`, from the median times.
     pub mrays_per_s: BTreeMap<String, f64>,
     /// Building the stages (e.g. an object BVH), ms, once per cell.

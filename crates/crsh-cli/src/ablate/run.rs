@@ -3,7 +3,12 @@
 //! the reference intersector and compares its image with the reference pipeline's image
 //! (rendered once per scene, size, depth and primary / raygen / shade configuration).
 //!
-//! A cell that fails (scene missing, stage construction or render error, a wgpu backend, a
+//! `wgpu` cells run the same pipeline configuration on the wgpu backend (one device per run,
+//! the scene uploaded once per scene); their reference intersector runs on the host, so
+//! agreement is measured against the CPU's answer, and their image is compared with the CPU
+//! reference pipeline's image.
+//!
+//! A cell that fails (scene missing, stage construction or render error, no wgpu adapter, a
 //! panic) is recorded with its reason and the run goes on.
 
 use std::collections::{BTreeMap, HashMap};
@@ -13,21 +18,48 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crsh_core::metrics::to_rgba8;
-use crsh_core::{render_frame, FrameOptions, KindStats, Stats};
+use crsh_core::{render_frame, Backend, FrameOptions, Intersector, KindStats, Stages, Stats};
 use crsh_cpu::Cpu;
 use crsh_scene::Scene;
+use crsh_wgpu::{GpuScene, HostIntersector, Wgpu};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::plan::{Cell, Plan};
 use super::results::{CellAccuracy, CellRays, CellResult, CellTests, Measures, TimeSummary};
 use crate::report::mrays_per_s;
 
-/// Why a wgpu cell cannot run in this version.
-pub const WGPU_UNAVAILABLE: &str =
-    "backend wgpu: the GPU pipeline is not implemented yet (issue 6); only cpu cells run";
-
 /// A loaded scene (or why it did not load).
 type LoadedScene = Result<Arc<Scene>, String>;
+
+/// The wgpu device of a run (opened by the first wgpu cell, or why it could not be) and the
+/// current scene on it.
+#[derive(Default)]
+struct GpuState {
+    device: Option<Result<Wgpu, String>>,
+    scene: Option<(String, Arc<GpuScene>)>,
+}
+
+impl GpuState {
+    /// The scene `spec` on the device, uploading it on first use.
+    fn scene(&mut self, spec: &str, scene: &Arc<Scene>) -> Result<Arc<GpuScene>, String> {
+        let device = self
+            .device
+            .get_or_insert_with(|| {
+                Wgpu::new().map_err(|e| format!("backend wgpu: cannot open a device: {e}"))
+            })
+            .clone()?;
+        match &self.scene {
+            Some((s, g)) if s == spec => Ok(Arc::clone(g)),
+            _ => {
+                self.scene = None;
+                let g = GpuScene::new(&device, scene)
+                    .map_err(|e| format!("uploading the scene to the device: {e}"))?;
+                self.scene = Some((spec.to_string(), Arc::clone(&g)));
+                Ok(g)
+            }
+        }
+    }
+}
 
 /// Runs every cell in order. `on_done` receives each result as it completes (for the
 /// per-cell summary line); `quiet` hides the progress bar.
@@ -41,6 +73,7 @@ pub fn run_cells(
     let threads = plan.threads.unwrap_or_else(rayon::current_num_threads);
     let mut scenes: HashMap<String, LoadedScene> = HashMap::new();
     let mut ref_images: HashMap<String, Result<Arc<Vec<u8>>, String>> = HashMap::new();
+    let mut gpu = GpuState::default();
     let mut out = Vec::with_capacity(cells.len());
     for (i, cell) in cells.iter().enumerate() {
         bar.set_message(format!("{} | {}", cell.scene_spec, cell.label()));
@@ -48,17 +81,18 @@ pub fn run_cells(
         if i > 0 && cells[i - 1].scene_spec != cell.scene_spec {
             scenes.clear();
             ref_images.clear();
+            gpu.scene = None;
         }
         let scene = scenes
             .entry(cell.scene_spec.clone())
             .or_insert_with(|| load_scene(cell))
             .clone();
         let result = match plan.threads {
-            Some(n) => {
-                crsh_cpu::with_threads(n, || run_cell(plan, cell, &scene, threads, &mut ref_images))
-                    .unwrap_or_else(|e| failed(cell, &scene, threads, plan, e.to_string()))
-            }
-            None => run_cell(plan, cell, &scene, threads, &mut ref_images),
+            Some(n) => crsh_cpu::with_threads(n, || {
+                run_cell(plan, cell, &scene, threads, &mut ref_images, &mut gpu)
+            })
+            .unwrap_or_else(|e| failed(cell, &scene, threads, plan, e.to_string())),
+            None => run_cell(plan, cell, &scene, threads, &mut ref_images, &mut gpu),
         };
         on_done(&result, &bar);
         out.push(result);
@@ -125,15 +159,13 @@ fn run_cell(
     scene: &LoadedScene,
     threads: usize,
     ref_images: &mut HashMap<String, Result<Arc<Vec<u8>>, String>>,
+    gpu: &mut GpuState,
 ) -> CellResult {
     let s = match scene {
         Ok(s) => s,
         Err(reason) => return failed(cell, scene, threads, plan, reason.clone()),
     };
-    if cell.backend == "wgpu" {
-        return failed(cell, scene, threads, plan, WGPU_UNAVAILABLE.to_string());
-    }
-    match catch_unwind(AssertUnwindSafe(|| measure(plan, cell, s, ref_images))) {
+    match catch_unwind(AssertUnwindSafe(|| measure(plan, cell, s, ref_images, gpu))) {
         Ok(Ok(m)) => CellResult {
             status: "ok".to_string(),
             measures: Some(m),
@@ -154,6 +186,7 @@ fn run_cell(
 fn counters(s: &Stats) -> Stats {
     let mut c = s.clone();
     c.timings_ms.clear();
+    c.device_timings_ms.clear();
     c.accuracy = None;
     for k in c.per_kind.values_mut() {
         k.trace_ms = 0.0;
@@ -166,6 +199,59 @@ fn measure(
     cell: &Cell,
     scene: &Arc<Scene>,
     ref_images: &mut HashMap<String, Result<Arc<Vec<u8>>, String>>,
+    gpu: &mut GpuState,
+) -> Result<Measures, String> {
+    match cell.backend.as_str() {
+        "wgpu" => {
+            let gscene = gpu.scene(&cell.scene_spec, scene)?;
+            let t_build = Instant::now();
+            let stages = crsh_wgpu::build_stages(&cell.config, &gscene)
+                .map_err(|e| format!("building pipeline: {e}"))?;
+            let build_ms = t_build.elapsed().as_secs_f64() * 1e3;
+            let reference = |spec: &crsh_core::StageSpec| {
+                HostIntersector::build(spec, &gscene)
+                    .map(|r| Box::new(r) as Box<dyn Intersector<Wgpu>>)
+            };
+            measure_on(
+                &gscene.backend,
+                &stages,
+                build_ms,
+                &reference,
+                plan,
+                cell,
+                scene,
+                ref_images,
+            )
+        }
+        _ => {
+            let t_build = Instant::now();
+            let stages = crsh_cpu::build_stages(&cell.config, scene)
+                .map_err(|e| format!("building pipeline: {e}"))?;
+            let build_ms = t_build.elapsed().as_secs_f64() * 1e3;
+            let reference = |spec: &crsh_core::StageSpec| crsh_cpu::build_intersector(spec, scene);
+            measure_on(
+                &Cpu, &stages, build_ms, &reference, plan, cell, scene, ref_images,
+            )
+        }
+    }
+}
+
+/// Builds a cell's reference intersector on backend `B`.
+type ReferenceBuilder<'a, B> =
+    dyn Fn(&crsh_core::StageSpec) -> crsh_core::Result<Box<dyn Intersector<B>>> + 'a;
+
+/// Runs a cell's frames on `backend`: warm-up, timed repeats, and the accuracy frame with the
+/// reference intersector (its image compared with the CPU reference pipeline's).
+#[allow(clippy::too_many_arguments)]
+fn measure_on<B: Backend>(
+    backend: &B,
+    stages: &Stages<B>,
+    build_stages_ms: f64,
+    build_reference: &ReferenceBuilder<'_, B>,
+    plan: &Plan,
+    cell: &Cell,
+    scene: &Arc<Scene>,
+    ref_images: &mut HashMap<String, Result<Arc<Vec<u8>>, String>>,
 ) -> Result<Measures, String> {
     let opts = FrameOptions {
         width: cell.width,
@@ -173,12 +259,8 @@ fn measure(
         max_depth: cell.depth,
         triangles: scene.triangle_count() as u64,
     };
-    let t_build = Instant::now();
-    let stages = crsh_cpu::build_stages(&cell.config, scene)
-        .map_err(|e| format!("building pipeline: {e}"))?;
-    let build_stages_ms = t_build.elapsed().as_secs_f64() * 1e3;
-    let frame = |reference: Option<&dyn crsh_core::Intersector<Cpu>>| {
-        render_frame(&Cpu, &stages, &opts, reference, &mut |_| {})
+    let frame = |reference: Option<&dyn Intersector<B>>| {
+        render_frame(backend, stages, &opts, reference, &mut |_| {})
             .map_err(|e| format!("render failed: {e}"))
     };
     for _ in 0..plan.warmup {
@@ -191,16 +273,22 @@ fn measure(
     let first = &runs[0];
     let counters_equal = runs.iter().all(|r| counters(r) == counters(first));
 
-    let mut keys: Vec<&String> = runs.iter().flat_map(|r| r.timings_ms.keys()).collect();
-    keys.sort();
-    keys.dedup();
-    let timings_ms: BTreeMap<String, TimeSummary> = keys
-        .into_iter()
-        .map(|k| {
-            let v: Vec<f64> = runs.iter().map(|r| r.time_ms(k)).collect();
-            (k.clone(), TimeSummary::of(&v))
-        })
-        .collect();
+    let summarise = |times: &dyn Fn(&Stats) -> &BTreeMap<String, f64>| {
+        let mut keys: Vec<&String> = runs.iter().flat_map(|r| times(r).keys()).collect();
+        keys.sort();
+        keys.dedup();
+        keys.into_iter()
+            .map(|k| {
+                let v: Vec<f64> = runs
+                    .iter()
+                    .map(|r| times(r).get(k).copied().unwrap_or(0.0))
+                    .collect();
+                (k.clone(), TimeSummary::of(&v))
+            })
+            .collect::<BTreeMap<String, TimeSummary>>()
+    };
+    let timings_ms = summarise(&|r: &Stats| &r.timings_ms);
+    let device_timings_ms = summarise(&|r: &Stats| &r.device_timings_ms);
     // The median run's view: counters from the first run (equal in all), per-kind trace times
     // and the frame total as medians, from which Mrays/s follow.
     let mut median = first.clone();
@@ -219,10 +307,13 @@ fn measure(
     let accuracy = match &cell.reference {
         None => None,
         Some(ref_cfg) => {
-            let reference = crsh_cpu::build_intersector(&ref_cfg.intersect, scene)
+            let reference = build_reference(&ref_cfg.intersect)
                 .map_err(|e| format!("building the reference intersector: {e}"))?;
             let checked = frame(Some(reference.as_ref()))?;
-            let rgba = to_rgba8(&checked.image);
+            let image = backend
+                .download(&checked.image)
+                .map_err(|e| format!("reading the image back: {e}"))?;
+            let rgba = to_rgba8(&image);
             let key = serde_json::json!([
                 cell.scene_spec,
                 opts.width,
@@ -292,6 +383,7 @@ fn measure(
         peak_candidate_bytes: first.peak_candidate_bytes,
         counters_equal_across_repeats: counters_equal,
         timings_ms,
+        device_timings_ms,
         mrays_per_s: mrays_per_s(&median),
         build_stages_ms,
         accuracy,
