@@ -282,6 +282,44 @@ impl<T: Pod> GpuBuffer<T> {
         Ok(bytemuck::pod_collect_to_vec(&bytes))
     }
 
+    /// A host copy of elements `range` (element sizes that are multiples of 4 bytes, as every
+    /// crsh record is; others are read whole and cut).
+    pub fn to_vec_range(
+        &self,
+        ctx: &GpuContext,
+        range: std::ops::Range<usize>,
+    ) -> GpuResult<Vec<T>> {
+        let range =
+            range.start.min(self.len)..range.end.min(self.len).max(range.start.min(self.len));
+        let elem = size_of::<T>();
+        if range.is_empty() || elem == 0 {
+            return Ok(vec![T::zeroed(); range.len()]);
+        }
+        if elem % 4 != 0 {
+            return Ok(self.to_vec(ctx)?[range].to_vec());
+        }
+        let offset = (range.start * elem) as u64;
+        let bytes = (range.len() * elem) as u64;
+        let staging = create_raw_buffer(
+            ctx,
+            "crsh readback",
+            bytes,
+            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            false,
+        )?;
+        let mut encoder = ctx
+            .device()
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("crsh readback range"),
+            });
+        encoder.copy_buffer_to_buffer(&self.buffer, offset, &staging, 0, bytes);
+        ctx.capture("readback copy", || {
+            ctx.queue().submit([encoder.finish()]);
+        })?;
+        let raw = map_read_bytes(ctx, &staging, bytes)?;
+        Ok(bytemuck::pod_collect_to_vec(&raw))
+    }
+
     /// Number of elements.
     pub fn len(&self) -> usize {
         self.len

@@ -1,0 +1,347 @@
+//! `brute` on the wgpu backend: every ray against every triangle (whole-scene queries), or
+//! against the triangles a ray-space hierarchy paired with its node (candidate queries).
+//!
+//! The twin is [`crsh_cpu::intersect::brute::BruteForce`], and the results are the CPU's:
+//!
+//! - The triangles are prepared on the host by the CPU's own code
+//!   ([`crsh_cpu::triangle::PreparedTriangle`]: `v0`, `e1`, `e2`, `det_eps`), and
+//!   `kernels/mt.wgsl` runs the Möller-Trumbore solve with the same operations in the same
+//!   order, so `t`, `u`, `v` agree with the CPU's up to the rounding of the division (WGSL's
+//!   `1/x` need not be correctly rounded; lavapipe's is) and contraction into fused
+//!   multiply-adds, which a driver may do.
+//! - **Whole-scene queries**: one invocation per ray sweeps the triangles in increasing id
+//!   order, staged through workgroup memory 256 at a time. Closest hit: [`Hit::closer_than`]
+//!   over all of them, merged with the hit already stored. Any hit: a ray whose stored hit is
+//!   already a hit is skipped; otherwise its lowest-id hit stops it, which is exactly the hit
+//!   the CPU stores (the first 8-wide block with a hit, its lowest lane), and the test count
+//!   is the CPU's (`min(8·(block + 1), triangles)`, or every triangle when nothing is hit).
+//!   A workgroup stops sweeping as soon as none of its rays is still searching.
+//! - **Candidate queries**: one invocation per hierarchy leaf tests its ray against the pairs
+//!   of its node (found by binary search in the pairs, which must be strictly increasing by
+//!   (node, triangle) as the traversals emit them; pairs that are not are sorted on the host
+//!   first), in increasing triangle order, with the CPU's merge rules; every test and every
+//!   test that hit are counted (the level-0 row of [`Stats::levels`]).
+//!
+//! Rays are bound in chunks of one storage binding for whole-scene queries; candidate queries
+//! bind the whole ray buffer (a leaf may name any ray) and fail with
+//! [`crate::GpuError::TooLarge`] above the binding limit. Only the Möller-Trumbore test
+//! (`test = "mt"`) has a WGSL twin; the other tests are refused as unsupported.
+
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+use crsh_core::{
+    Candidate, CoreError, Hit, HitMode, Intersector, Query, Ray, RayKind, Result, StageSpec, Stats,
+};
+use crsh_cpu::triangle::{PreparedTriangle, TriangleSet};
+
+use crate::adapter::GpuContext;
+use crate::backend::{GpuBuffer, Wgpu};
+use crate::error::GpuResult;
+use crate::kernel::{chunks, encoder, submit, uniform, Kernel, Slot};
+use crate::scene::GpuScene;
+
+const SHADER: &str = include_str!("brute.wgsl");
+
+/// Uniform block of `brute.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct Params {
+    n: u32,
+    n_tris: u32,
+    any_hit: u32,
+    n_pairs: u32,
+    subdivision: u32,
+    first: u32,
+    pad: [u32; 2],
+}
+
+/// The compiled kernels (one per device).
+struct BruteKernels {
+    kernel: Kernel,
+}
+
+impl BruteKernels {
+    fn new(ctx: &GpuContext) -> GpuResult<BruteKernels> {
+        let source = format!("{}\n{SHADER}", super::MT_WGSL);
+        Ok(BruteKernels {
+            kernel: Kernel::new(
+                ctx,
+                "crsh brute",
+                &source,
+                &["scene_query", "candidates", "check_pairs"],
+                &[
+                    Slot::Uniform,
+                    Slot::Read,
+                    Slot::Read,
+                    Slot::ReadWrite,
+                    Slot::ReadWrite,
+                    Slot::Read,
+                    Slot::Read,
+                ],
+            )?,
+        })
+    }
+}
+
+/// The GPU brute-force intersector (variant `brute`, parameter `test`, only `mt`).
+pub struct BruteForce {
+    scene: Arc<GpuScene>,
+    tris: GpuBuffer<PreparedTriangle>,
+    n_tris: u32,
+}
+
+impl BruteForce {
+    /// Prepares `scene`'s triangles for the Möller-Trumbore test on the host and uploads them.
+    pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<BruteForce> {
+        let test = spec.str("test")?;
+        if test != "mt" {
+            return Err(CoreError::Unsupported {
+                stage: "intersect",
+                variant: "brute".into(),
+                what: format!("test `{test}` on the wgpu backend (only `mt` has a WGSL twin)"),
+            });
+        }
+        let set: TriangleSet = TriangleSet::new(&scene.scene);
+        let n_tris = u32::try_from(set.len()).map_err(|_| {
+            CoreError::InvalidInput(format!("{} triangles exceed u32 ids", set.len()))
+        })?;
+        let tris = GpuBuffer::from_slice(scene.ctx(), "crsh brute triangles", set.triangles())?;
+        Ok(BruteForce {
+            scene: Arc::clone(scene),
+            tris,
+            n_tris,
+        })
+    }
+
+    fn kernels(&self) -> GpuResult<Arc<BruteKernels>> {
+        self.scene.ctx().kernel(BruteKernels::new)
+    }
+
+    /// Whole-scene query; returns the tests performed.
+    fn scene_query(
+        &self,
+        rays: &GpuBuffer<Ray>,
+        any_hit: bool,
+        hits: &GpuBuffer<Hit>,
+    ) -> Result<u64> {
+        let ctx = self.scene.ctx();
+        let k = self.kernels()?;
+        let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh brute counters", 6)?;
+        let dummy = GpuBuffer::<u32>::zeroed(ctx, "crsh brute unused", 4)?;
+        let mut enc = encoder(ctx, "crsh brute scene query");
+        let mut groups = Vec::new();
+        for range in chunks::<Ray>(ctx, rays.len()) {
+            let params = Params {
+                n: range.len() as u32,
+                n_tris: self.n_tris,
+                any_hit: u32::from(any_hit),
+                n_pairs: 0,
+                subdivision: 1,
+                first: range.start as u32,
+                pad: [0; 2],
+            };
+            let u = uniform(ctx, "crsh brute params", &params);
+            let bg = k.kernel.bind_group(
+                ctx,
+                &[
+                    u.as_entire_binding(),
+                    rays.slice_binding(range.clone()),
+                    self.tris.binding(),
+                    hits.slice_binding(range.clone()),
+                    counters.binding(),
+                    dummy.binding(),
+                    dummy.binding(),
+                ],
+            );
+            groups.push((bg, range.len() as u32));
+        }
+        {
+            let mut pass = ctx.compute_pass(&mut enc, "crsh brute scene query");
+            for (bg, n) in &groups {
+                k.kernel.dispatch(ctx, &mut pass, "scene_query", bg, *n)?;
+            }
+        }
+        submit(ctx, "crsh brute scene query", enc)?;
+        let c = counters.to_vec(ctx)?;
+        check_invalid(c[5])?;
+        Ok(u64::from(c[0]) | (u64::from(c[1]) << 32))
+    }
+
+    /// Candidate query; returns `(tests, hits found)`.
+    fn candidate_query(
+        &self,
+        rays: &GpuBuffer<Ray>,
+        order: &GpuBuffer<u32>,
+        n_nodes: usize,
+        subdivision: u32,
+        pairs: &GpuBuffer<Candidate>,
+        any_hit: bool,
+        hits: &GpuBuffer<Hit>,
+    ) -> Result<Option<(u64, u64)>> {
+        let ctx = self.scene.ctx();
+        let k = self.kernels()?;
+        ctx.check_storage_binding("candidate rays", rays.byte_len())?;
+        ctx.check_storage_binding("candidate hits", hits.byte_len())?;
+        ctx.check_storage_binding("candidate pairs", pairs.byte_len())?;
+        let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh brute counters", 6)?;
+        let leaves = order.len().min(n_nodes * subdivision as usize);
+        let params = Params {
+            n: leaves as u32,
+            n_tris: self.n_tris,
+            any_hit: u32::from(any_hit),
+            n_pairs: pairs.len() as u32,
+            subdivision,
+            first: 0,
+            pad: [0; 2],
+        };
+        let check = Params {
+            n: n_nodes as u32,
+            ..params
+        };
+        let bind = |p: &Params| {
+            let u = uniform(ctx, "crsh brute params", p);
+            k.kernel.bind_group(
+                ctx,
+                &[
+                    u.as_entire_binding(),
+                    rays.binding(),
+                    self.tris.binding(),
+                    hits.binding(),
+                    counters.binding(),
+                    order.binding(),
+                    pairs.binding(),
+                ],
+            )
+        };
+        let check_bg = bind(&check);
+        let mut enc = encoder(ctx, "crsh brute check pairs");
+        {
+            let mut pass = ctx.compute_pass(&mut enc, "crsh brute check pairs");
+            k.kernel
+                .dispatch(ctx, &mut pass, "check_pairs", &check_bg, pairs.len() as u32)?;
+        }
+        submit(ctx, "crsh brute check pairs", enc)?;
+        let flags = counters.to_vec(ctx)?;
+        if flags[4] & 2 != 0 {
+            return Err(CoreError::InvalidInput(format!(
+                "a candidate pair is out of range ({n_nodes} nodes, {} triangles)",
+                self.n_tris
+            )));
+        }
+        if flags[4] & 1 != 0 {
+            return Ok(None);
+        }
+        let bg = bind(&params);
+        let mut enc = encoder(ctx, "crsh brute candidates");
+        {
+            let mut pass = ctx.compute_pass(&mut enc, "crsh brute candidates");
+            k.kernel
+                .dispatch(ctx, &mut pass, "candidates", &bg, leaves as u32)?;
+        }
+        submit(ctx, "crsh brute candidates", enc)?;
+        let c = counters.to_vec(ctx)?;
+        check_invalid(c[5])?;
+        Ok(Some((
+            u64::from(c[0]) | (u64::from(c[1]) << 32),
+            u64::from(c[2]) | (u64::from(c[3]) << 32),
+        )))
+    }
+}
+
+/// The error for a kernel's invalid-ray report (`0xffffffff - index` of the first, or 0).
+pub(crate) fn check_invalid(report: u32) -> Result<()> {
+    if report == 0 {
+        return Ok(());
+    }
+    Err(CoreError::InvalidInput(format!(
+        "ray {} is not valid (NaN or infinite origin or direction, zero direction, or NaN \
+         interval)",
+        u32::MAX - report
+    )))
+}
+
+impl Intersector<Wgpu> for BruteForce {
+    fn name(&self) -> &str {
+        "brute"
+    }
+
+    fn intersect(
+        &self,
+        backend: &Wgpu,
+        rays: &GpuBuffer<Ray>,
+        query: Query<'_, Wgpu>,
+        mode: HitMode,
+        hits: &mut GpuBuffer<Hit>,
+        stats: &mut Stats,
+    ) -> Result<()> {
+        if rays.len() != hits.len() {
+            return Err(CoreError::InvalidInput(format!(
+                "{} rays but {} hits",
+                rays.len(),
+                hits.len()
+            )));
+        }
+        let any_hit = mode == HitMode::Any;
+        let tests = match query {
+            Query::Scene => {
+                if rays.is_empty() {
+                    return Ok(());
+                }
+                self.scene_query(rays, any_hit, hits)?
+            }
+            Query::Candidates { hierarchy, batch } => {
+                if batch.pairs.is_empty() || rays.is_empty() {
+                    return Ok(());
+                }
+                let Some(level0) = hierarchy.levels.first() else {
+                    return Err(CoreError::InvalidInput("hierarchy has no levels".into()));
+                };
+                if hierarchy.subdivision == 0 {
+                    return Err(CoreError::InvalidInput("hierarchy subdivision is 0".into()));
+                }
+                if hierarchy.order.len() != rays.len() {
+                    return Err(CoreError::InvalidInput(format!(
+                        "hierarchy order has {} entries for {} rays",
+                        hierarchy.order.len(),
+                        rays.len()
+                    )));
+                }
+                let run = |pairs: &GpuBuffer<Candidate>| {
+                    self.candidate_query(
+                        rays,
+                        &hierarchy.order,
+                        level0.len(),
+                        hierarchy.subdivision,
+                        pairs,
+                        any_hit,
+                        hits,
+                    )
+                };
+                let (tests, found) = match run(&batch.pairs)? {
+                    Some(r) => r,
+                    None => {
+                        // Unsorted or repeated pairs: sort and de-duplicate on the host, as the
+                        // CPU twin does, then run again.
+                        let mut host = batch.pairs.to_vec(backend.context())?;
+                        host.sort_unstable();
+                        host.dedup();
+                        let sorted =
+                            GpuBuffer::from_slice(backend.context(), "crsh sorted pairs", &host)?;
+                        run(&sorted)?.ok_or_else(|| {
+                            CoreError::Backend("sorted pairs reported unsorted".into())
+                        })?
+                    }
+                };
+                let first = rays.to_vec_range(backend.context(), 0..1)?;
+                let kind = RayKind::from_u32(first[0].kind).ok_or_else(|| {
+                    CoreError::InvalidInput(format!("ray 0 has an unknown kind {}", first[0].kind))
+                })?;
+                stats.add_level(kind, 0, tests, found);
+                tests
+            }
+        };
+        stats.add_ray_triangle(tests);
+        Ok(())
+    }
+}

@@ -1,0 +1,215 @@
+// `brute` on the device: the twin of crsh_cpu::intersect::brute (see brute.rs).
+// Prepended: common.wgsl, mt.wgsl.
+
+struct Params {
+    // Rays in this dispatch (a chunk of the batch for scene queries; leaves for candidates).
+    n: u32,
+    n_tris: u32,
+    // 1 for any-hit queries.
+    any_hit: u32,
+    // Candidate queries: pairs in the batch, and the hierarchy's subdivision.
+    n_pairs: u32,
+    subdivision: u32,
+    // Scene queries: index of the chunk's first ray in the batch.
+    first: u32,
+    _b: u32,
+    _c: u32,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> rays: array<Ray>;
+@group(0) @binding(2) var<storage, read> tris: array<MtTri>;
+@group(0) @binding(3) var<storage, read_write> hits: array<Hit>;
+// [tests lo, tests hi, found lo, found hi]
+@group(0) @binding(4) var<storage, read_write> counters: array<atomic<u32>>;
+// Candidate queries: the hierarchy's order (leaf -> ray) and the sorted pairs.
+@group(0) @binding(5) var<storage, read> order: array<u32>;
+@group(0) @binding(6) var<storage, read> pairs: array<Candidate>;
+
+const LANES: u32 = 8u;
+
+var<workgroup> tile: array<MtTri, WG>;
+var<workgroup> wg_tests: atomic<u32>;
+var<workgroup> wg_found: atomic<u32>;
+var<workgroup> live: atomic<u32>;
+var<workgroup> live_copy: u32;
+
+// Every ray of the chunk against every triangle, in increasing id order, triangles staged in
+// workgroup memory WG at a time. Closest: Hit::closer_than over all; any-hit: a ray whose hit
+// is already a hit is skipped, otherwise the first (lowest-id) hit stops it, and the tests
+// counted are those of the CPU's 8-wide blocks: min(8·(block of the hit + 1), triangles).
+@compute @workgroup_size(WG)
+fn scene_query(@builtin(global_invocation_id) gid: vec3<u32>,
+               @builtin(local_invocation_index) lid: u32,
+               @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_id(gid, nwg);
+    var best = Hit(inf(), NO_HIT, 0.0, 0.0);
+    var searching = false;
+    var o = vec3<f32>(0.0);
+    var d = vec3<f32>(0.0);
+    var d_len = 0.0;
+    var t_min = 0.0;
+    var t_max = 0.0;
+    if (i < p.n) {
+        let r = rays[i];
+        best = hits[i];
+        searching = p.any_hit == 0u || best.tri == NO_HIT;
+        if (!ray_valid(r)) {
+            // Reported by the host (the smallest bad index wins); the ray is not tested.
+            atomicMax(&counters[5], 0xffffffffu - (p.first + i));
+            searching = false;
+        }
+        o = ray_origin(r);
+        d = ray_dir(r);
+        d_len = ray_dir_len(d);
+        t_min = r.t_min;
+        t_max = r.t_max;
+    }
+    let was_active = searching;
+    var tests = 0u;
+    if (lid == 0u) {
+        atomicStore(&wg_tests, 0u);
+    }
+    workgroupBarrier();
+    for (var base = 0u; base < p.n_tris; base += WG) {
+        if (p.any_hit != 0u) {
+            if (lid == 0u) {
+                atomicStore(&live, 0u);
+            }
+            workgroupBarrier();
+            if (searching) {
+                atomicStore(&live, 1u);
+            }
+            workgroupBarrier();
+            if (lid == 0u) {
+                live_copy = atomicLoad(&live);
+            }
+            if (workgroupUniformLoad(&live_copy) == 0u) {
+                break;
+            }
+        }
+        workgroupBarrier();
+        if (base + lid < p.n_tris) {
+            tile[lid] = tris[base + lid];
+        }
+        workgroupBarrier();
+        if (searching) {
+            let m = min(WG, p.n_tris - base);
+            for (var k = 0u; k < m; k++) {
+                let h = mt_hit(tile[k], o, d, d_len, t_min, t_max);
+                if (h.x < inf()) {
+                    let tri = base + k;
+                    if (p.any_hit != 0u) {
+                        best = Hit(h.x, tri, h.y, h.z);
+                        searching = false;
+                        tests = min((tri / LANES + 1u) * LANES, p.n_tris);
+                        break;
+                    } else if (closer_than(h.x, tri, best)) {
+                        best = Hit(h.x, tri, h.y, h.z);
+                    }
+                }
+            }
+        }
+    }
+    if (i < p.n) {
+        if (was_active && (p.any_hit == 0u || searching)) {
+            tests = p.n_tris;
+        }
+        hits[i] = best;
+    }
+    atomicAdd(&wg_tests, tests);
+    workgroupBarrier();
+    if (lid == 0u) {
+        add_u64(0u, atomicLoad(&wg_tests));
+    }
+}
+
+// The first pair index whose node is >= `node` (pairs sorted by node, then triangle).
+fn first_pair(node: u32) -> u32 {
+    var lo = 0u;
+    var hi = p.n_pairs;
+    while (lo < hi) {
+        let mid = lo + (hi - lo) / 2u;
+        if (pairs[mid].node < node) {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    return lo;
+}
+
+// One invocation per hierarchy leaf: its ray against the triangles paired with its node, in
+// increasing id order (pairs strictly increasing), merged into its current hit like the CPU's
+// candidate mode (any-hit: a hit ray is skipped, the first hit stops it). Counts every test
+// and every test that found an intersection (the level-0 row of the tables).
+@compute @workgroup_size(WG)
+fn candidates(@builtin(global_invocation_id) gid: vec3<u32>,
+              @builtin(local_invocation_index) lid: u32,
+              @builtin(num_workgroups) nwg: vec3<u32>) {
+    let leaf = linear_id(gid, nwg);
+    if (lid == 0u) {
+        atomicStore(&wg_tests, 0u);
+        atomicStore(&wg_found, 0u);
+    }
+    workgroupBarrier();
+    var tests = 0u;
+    var found = 0u;
+    if (leaf < p.n) {
+        let node = leaf / p.subdivision;
+        let ri = order[leaf];
+        let r = rays[ri];
+        var best = hits[ri];
+        let o = ray_origin(r);
+        let d = ray_dir(r);
+        let d_len = ray_dir_len(d);
+        if (!ray_valid(r)) {
+            atomicMax(&counters[5], 0xffffffffu - ri);
+        } else if (p.any_hit == 0u || best.tri == NO_HIT) {
+            for (var k = first_pair(node); k < p.n_pairs && pairs[k].node == node; k++) {
+                let tri = pairs[k].tri;
+                tests += 1u;
+                let h = mt_hit(tris[tri], o, d, d_len, r.t_min, r.t_max);
+                if (h.x < inf()) {
+                    found += 1u;
+                    if (p.any_hit != 0u) {
+                        best = Hit(h.x, tri, h.y, h.z);
+                        break;
+                    } else if (closer_than(h.x, tri, best)) {
+                        best = Hit(h.x, tri, h.y, h.z);
+                    }
+                }
+            }
+            hits[ri] = best;
+        }
+    }
+    atomicAdd(&wg_tests, tests);
+    atomicAdd(&wg_found, found);
+    workgroupBarrier();
+    if (lid == 0u) {
+        add_u64(0u, atomicLoad(&wg_tests));
+        add_u64(2u, atomicLoad(&wg_found));
+    }
+}
+
+// 1 in flags[0] when the pairs are not strictly increasing or reference a node or triangle
+// out of range (then the host sorts / reports them).
+@compute @workgroup_size(WG)
+fn check_pairs(@builtin(global_invocation_id) gid: vec3<u32>,
+               @builtin(num_workgroups) nwg: vec3<u32>) {
+    let k = linear_id(gid, nwg);
+    if (k >= p.n_pairs) {
+        return;
+    }
+    let c = pairs[k];
+    // n = nodes here.
+    if (c.node >= p.n || c.tri >= p.n_tris) {
+        atomicOr(&counters[4], 2u);
+    }
+    if (k + 1u < p.n_pairs) {
+        let nx = pairs[k + 1u];
+        if (nx.node < c.node || (nx.node == c.node && nx.tri <= c.tri)) {
+            atomicOr(&counters[4], 1u);
+        }
+    }
+}

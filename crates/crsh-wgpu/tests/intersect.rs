@@ -1,0 +1,325 @@
+//! The GPU intersectors against their CPU twins on the same rays: whole-scene queries (closest
+//! and any hit, merging into existing hits), candidate queries on a hierarchy and candidates
+//! built by the CPU stages, counters, and bad input.
+//!
+//! Without an adapter every test prints `SKIP:` and passes, unless `CRSH_REQUIRE_GPU=1`.
+
+use std::sync::Arc;
+
+use crsh_core::glam::{DVec3, Vec3};
+use crsh_core::{
+    Backend, CandidateBatch, HierarchyBuilder, Hit, HitMode, Intersector, Query, Ray, RayHierarchy,
+    RayKind, StageSpec, Stats, Traverser,
+};
+use crsh_cpu::Cpu;
+use crsh_scene::Scene;
+use crsh_wgpu::intersect::brute::BruteForce;
+use crsh_wgpu::{GpuScene, Wgpu};
+
+struct Lcg(u64);
+
+impl Lcg {
+    fn unit(&mut self) -> f32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((self.0 >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+    }
+}
+
+/// Rays from points inside the scene's box in random directions; a third are finite segments
+/// and some start from triangle vertices (exact edge and vertex cases).
+fn rays(scene: &Scene, seed: u64, n: usize, kind: RayKind) -> Vec<Ray> {
+    let mut g = Lcg(seed);
+    let (lo, hi) = (scene.bounds.min, scene.bounds.max);
+    (0..n)
+        .map(|i| {
+            let origin = if i % 7 == 0 {
+                scene.triangle(i % scene.triangle_count())[i % 3]
+            } else {
+                lo + (hi - lo)
+                    * Vec3::new(
+                        g.unit() * 0.5 + 0.5,
+                        g.unit() * 0.5 + 0.5,
+                        g.unit() * 0.5 + 0.5,
+                    )
+            };
+            let dir = Vec3::new(g.unit(), g.unit(), g.unit());
+            let dir = if dir.length_squared() < 1e-6 {
+                Vec3::X
+            } else {
+                dir
+            };
+            Ray {
+                origin,
+                t_min: if i % 7 == 0 { 1e-4 } else { 0.0 },
+                dir,
+                t_max: if i % 3 == 0 {
+                    (hi - lo).length() * 0.3
+                } else {
+                    f32::INFINITY
+                },
+                throughput: Vec3::ONE,
+                kind: kind as u32,
+                pixel: i as u32,
+                light: 0,
+                depth: 1,
+                source: i as u32,
+            }
+        })
+        .collect()
+}
+
+fn scene(name: &str) -> Arc<Scene> {
+    Arc::new(crsh_scene::builtin::build(name).unwrap())
+}
+
+/// Whether a GPU/CPU disagreement on `ray` is float rounding at an edge: re-tested in f64,
+/// one of the two triangles is hit within a relative 1e-5 of its edge, or their `t` agree.
+fn explained(scene: &Scene, ray: &Ray, a: &Hit, b: &Hit) -> bool {
+    if a.is_hit() && b.is_hit() && (a.t - b.t).abs() <= 1e-5 * a.t.abs().max(b.t.abs()) {
+        return true;
+    }
+    [a, b].iter().filter(|h| h.is_hit()).any(|h| {
+        let [p0, p1, p2] = scene.triangle(h.tri as usize).map(|v| v.as_dvec3());
+        let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
+        let (e1, e2) = (p1 - p0, p2 - p0);
+        let p = d.cross(e2);
+        let det = e1.dot(p);
+        let s = o - p0;
+        let u = s.dot(p) / det;
+        let q = s.cross(e1);
+        let v = d.dot(q) / det;
+        let margin = u.min(v).min(1.0 - u - v).abs();
+        margin < 1e-5 || !DVec3::new(u, v, det).is_finite()
+    })
+}
+
+fn compare(scene: &Scene, rays: &[Ray], got: &[Hit], want: &[Hit], mode: HitMode) -> usize {
+    let mut mismatches = 0;
+    for (i, (g, w)) in got.iter().zip(want).enumerate() {
+        let same = match mode {
+            HitMode::Any => g.is_hit() == w.is_hit(),
+            HitMode::Closest => {
+                g.tri == w.tri && (!w.is_hit() || (g.t - w.t).abs() <= 1e-5 * w.t.abs())
+            }
+        };
+        if !same {
+            mismatches += 1;
+            assert!(
+                explained(scene, &rays[i], g, w),
+                "ray {i} {:?}: gpu {g:?} cpu {w:?} is not an edge case",
+                rays[i]
+            );
+        }
+    }
+    mismatches
+}
+
+fn brute_spec(test: &str) -> StageSpec {
+    let mut s = StageSpec::new("brute");
+    s.params
+        .insert("test".into(), crsh_core::ParamValue::Str(test.into()));
+    s
+}
+
+fn gpu_scene(b: &Wgpu, s: &Arc<Scene>) -> Arc<GpuScene> {
+    GpuScene::new(b, s).unwrap()
+}
+
+#[test]
+fn brute_scene_queries_match_the_cpu() {
+    let Some(b) = crsh_wgpu::testing::shared_backend("brute_scene_queries_match_the_cpu") else {
+        return;
+    };
+    for name in ["cornell-mirrors", "office-boxes"] {
+        let s = scene(name);
+        let g = gpu_scene(&b, &s);
+        let spec = brute_spec("mt");
+        let gpu = BruteForce::new(&g, &spec).unwrap();
+        let cpu = crsh_cpu::build_intersector(&StageSpec::new("brute"), &s).unwrap();
+        let rays = rays(&s, 5, 700, RayKind::Reflection);
+        // Start from a mix of misses and existing hits (merging), as candidate batches do.
+        let start: Vec<Hit> = (0..rays.len())
+            .map(|i| {
+                if i % 5 == 0 {
+                    Hit {
+                        t: 0.05,
+                        tri: 3,
+                        u: 0.1,
+                        v: 0.1,
+                    }
+                } else {
+                    Hit::MISS
+                }
+            })
+            .collect();
+        for mode in [HitMode::Closest, HitMode::Any] {
+            let mut want = start.clone();
+            let mut cpu_stats = Stats::default();
+            cpu.intersect(&Cpu, &rays, Query::Scene, mode, &mut want, &mut cpu_stats)
+                .unwrap();
+            let buf = b.upload(&rays).unwrap();
+            let mut hits = b.upload(&start).unwrap();
+            let mut stats = Stats::default();
+            gpu.intersect(&b, &buf, Query::Scene, mode, &mut hits, &mut stats)
+                .unwrap();
+            let got = b.download(&hits).unwrap();
+            let bad = compare(&s, &rays, &got, &want, mode);
+            assert!(
+                bad * 10_000 <= rays.len(),
+                "{name} {mode:?}: {bad} mismatches"
+            );
+            assert!(want.iter().filter(|h| h.is_hit()).count() > rays.len() / 4);
+            if bad == 0 {
+                assert_eq!(stats.tests, cpu_stats.tests, "{name} {mode:?}: counters");
+            }
+            // Rays whose stored hit is closer than anything keep it.
+            for i in (0..rays.len()).step_by(5) {
+                if mode == HitMode::Closest && want[i].tri == 3 && want[i].t == 0.05 {
+                    assert_eq!(got[i], want[i]);
+                }
+            }
+        }
+    }
+}
+
+/// Candidate queries on the CPU's own hierarchy and candidates, uploaded: the same hits and
+/// level-0 counts as the CPU's candidate mode, batch after batch.
+#[test]
+fn brute_candidate_queries_match_the_cpu() {
+    let Some(b) = crsh_wgpu::testing::shared_backend("brute_candidate_queries_match_the_cpu")
+    else {
+        return;
+    };
+    for name in ["cornell-mirrors", "office-boxes"] {
+        let s = scene(name);
+        let g = gpu_scene(&b, &s);
+        for (kind, mode) in [
+            (RayKind::Reflection, HitMode::Closest),
+            (RayKind::Shadow, HitMode::Any),
+        ] {
+            let rays = rays(&s, 9, 600, kind);
+            let builder =
+                crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(4, 2).unwrap();
+            let order: Vec<u32> = (0..rays.len() as u32).collect();
+            let mut st = Stats::default();
+            let h_cpu = builder.build(&Cpu, &rays, order, &mut st).unwrap();
+            // A small budget so that the traversal sends several batches.
+            let trav = crsh_cpu::traverse::crsh::Crsh::with_options(&s, true, 0.01).unwrap();
+            let mut batches: Vec<Vec<crsh_core::Candidate>> = Vec::new();
+            trav.traverse(
+                &Cpu,
+                &rays,
+                kind,
+                &h_cpu,
+                &mut |batch, _| {
+                    batches.push(batch.pairs);
+                    Ok(())
+                },
+                &mut st,
+            )
+            .unwrap();
+            assert!(batches.len() > 1, "{name}: one batch only");
+            let cpu = crsh_cpu::build_intersector(&StageSpec::new("brute"), &s).unwrap();
+            let gpu = BruteForce::new(&g, &brute_spec("mt")).unwrap();
+            let h_gpu: RayHierarchy<Wgpu> = RayHierarchy {
+                order: b.upload(&h_cpu.order).unwrap(),
+                levels: h_cpu.levels.iter().map(|l| b.upload(l).unwrap()).collect(),
+                subdivision: h_cpu.subdivision,
+                reach: h_cpu.reach.iter().map(|l| b.upload(l).unwrap()).collect(),
+            };
+            let mut want = vec![Hit::MISS; rays.len()];
+            let mut cpu_stats = Stats::default();
+            let buf = b.upload(&rays).unwrap();
+            let mut hits = b.filled(rays.len(), Hit::MISS).unwrap();
+            let mut stats = Stats::default();
+            for (i, pairs) in batches.iter().enumerate() {
+                let cb = CandidateBatch {
+                    pairs: pairs.clone(),
+                };
+                cpu.intersect(
+                    &Cpu,
+                    &rays,
+                    Query::Candidates {
+                        hierarchy: &h_cpu,
+                        batch: &cb,
+                    },
+                    mode,
+                    &mut want,
+                    &mut cpu_stats,
+                )
+                .unwrap();
+                // Every other batch reversed: the GPU intersector must sort it first.
+                let mut p = pairs.clone();
+                if i % 2 == 1 {
+                    p.reverse();
+                }
+                let gb = CandidateBatch {
+                    pairs: b.upload(&p).unwrap(),
+                };
+                gpu.intersect(
+                    &b,
+                    &buf,
+                    Query::Candidates {
+                        hierarchy: &h_gpu,
+                        batch: &gb,
+                    },
+                    mode,
+                    &mut hits,
+                    &mut stats,
+                )
+                .unwrap();
+            }
+            let got = b.download(&hits).unwrap();
+            let bad = compare(&s, &rays, &got, &want, mode);
+            assert!(
+                bad * 10_000 <= rays.len(),
+                "{name} {kind:?}: {bad} mismatches"
+            );
+            assert!(got.iter().any(|h| h.is_hit()));
+            if bad == 0 {
+                assert_eq!(stats.tests, cpu_stats.tests, "{name} {kind:?}");
+                assert_eq!(stats.levels, cpu_stats.levels, "{name} {kind:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn brute_rejects_bad_input() {
+    let Some(b) = crsh_wgpu::testing::shared_backend("brute_rejects_bad_input") else {
+        return;
+    };
+    let s = scene("cornell-mirrors");
+    let g = gpu_scene(&b, &s);
+    let gpu = BruteForce::new(&g, &brute_spec("mt")).unwrap();
+    assert!(BruteForce::new(&g, &brute_spec("watertight")).is_err());
+    let mut r = rays(&s, 1, 10, RayKind::Reflection);
+    r[6].dir = Vec3::new(f32::NAN, 0.0, 1.0);
+    let buf = b.upload(&r).unwrap();
+    let mut hits = b.filled(10, Hit::MISS).unwrap();
+    let e = gpu
+        .intersect(
+            &b,
+            &buf,
+            Query::Scene,
+            HitMode::Closest,
+            &mut hits,
+            &mut Stats::default(),
+        )
+        .unwrap_err();
+    assert!(e.to_string().contains("ray 6 is not valid"), "{e}");
+    let mut short = b.filled(9, Hit::MISS).unwrap();
+    assert!(gpu
+        .intersect(
+            &b,
+            &buf,
+            Query::Scene,
+            HitMode::Closest,
+            &mut short,
+            &mut Stats::default()
+        )
+        .is_err());
+}
