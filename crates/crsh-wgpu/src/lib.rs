@@ -29,6 +29,7 @@ pub mod error;
 pub mod intersect;
 pub mod kernel;
 pub mod kernels;
+pub mod raygen;
 pub mod scene;
 pub mod testing;
 

@@ -1,0 +1,3 @@
+//! Secondary ray generation on the device.
+
+pub mod whitted;
