@@ -16,10 +16,20 @@ use crsh_core::{
 use crsh_cpu::Cpu;
 
 use crate::backend::{GpuBuffer, Wgpu};
+use crate::intersect::brute::BruteForce;
+use crate::primary::raster::Raster;
+use crate::raygen::whitted::Whitted;
 use crate::scene::GpuScene;
+use crate::shade::phong::Phong;
+use crsh_core::{Hasher, HierarchyBuilder, PrimaryVisibility, RayGen, Shader, Sorter, Traverser};
 
 /// The `(stage, variant)` pairs the wgpu backend implements.
-pub const GPU_VARIANTS: &[(StageKind, &str)] = &[];
+pub const GPU_VARIANTS: &[(StageKind, &str)] = &[
+    (StageKind::Primary, "raster"),
+    (StageKind::Raygen, "whitted"),
+    (StageKind::Intersect, "brute"),
+    (StageKind::Shade, "phong"),
+];
 
 /// Every stage variant the wgpu backend offers: the CPU catalogue's entries for
 /// [`GPU_VARIANTS`], with the same parameters, defaults and documentation.
@@ -74,11 +84,59 @@ pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<GpuScene>) -> Result<Stage
     check_supported(cfg)?;
     let mut cfg = cfg.clone();
     cfg.resolve(&catalogue())?;
-    let _ = scene;
-    Err(CoreError::Unsupported {
-        stage: "primary",
-        variant: cfg.primary.kind.clone(),
+    let unknown = |slot: StageKind, spec: &StageSpec| CoreError::Unsupported {
+        stage: slot.key(),
+        variant: spec.kind.clone(),
         what: "the wgpu backend".into(),
+    };
+    let primary: Box<dyn PrimaryVisibility<Wgpu>> = match cfg.primary.kind.as_str() {
+        "raster" => Box::new(Raster::new(scene, &cfg.primary)?),
+        _ => return Err(unknown(StageKind::Primary, &cfg.primary)),
+    };
+    let raygen: Box<dyn RayGen<Wgpu>> = match cfg.raygen.kind.as_str() {
+        "whitted" => Box::new(Whitted::new(scene, &cfg.raygen)?),
+        _ => return Err(unknown(StageKind::Raygen, &cfg.raygen)),
+    };
+    let shader: Box<dyn Shader<Wgpu>> = match cfg.shade.kind.as_str() {
+        "phong" => Box::new(Phong::new(scene, &cfg.shade)?),
+        _ => return Err(unknown(StageKind::Shade, &cfg.shade)),
+    };
+    let intersector: Box<dyn Intersector<Wgpu>> = match cfg.intersect.kind.as_str() {
+        "brute" => Box::new(BruteForce::new(scene, &cfg.intersect)?),
+        _ => return Err(unknown(StageKind::Intersect, &cfg.intersect)),
+    };
+    let hasher: Option<Box<dyn Hasher<Wgpu>>> = match &cfg.hash {
+        None => None,
+        Some(spec) => return Err(unknown(StageKind::Hash, spec)),
+    };
+    let sorter: Option<Box<dyn Sorter<Wgpu>>> = match &cfg.sort {
+        None => None,
+        Some(spec) => return Err(unknown(StageKind::Sort, spec)),
+    };
+    let hierarchy: Option<Box<dyn HierarchyBuilder<Wgpu>>> = match &cfg.hierarchy {
+        None => None,
+        Some(spec) => return Err(unknown(StageKind::Hierarchy, spec)),
+    };
+    let traverser: Option<Box<dyn Traverser<Wgpu>>> = match &cfg.traverse {
+        None => None,
+        Some(spec) => return Err(unknown(StageKind::Traverse, spec)),
+    };
+    if hierarchy.is_some() && !intersector.supports_candidates() {
+        return Err(CoreError::Unsupported {
+            stage: "intersect",
+            variant: cfg.intersect.kind.clone(),
+            what: "the final tests of a ray-space hierarchy".into(),
+        });
+    }
+    Ok(Stages {
+        primary,
+        raygen,
+        hasher,
+        sorter,
+        hierarchy,
+        traverser,
+        intersector,
+        shader,
     })
 }
 

@@ -29,8 +29,10 @@ pub mod error;
 pub mod intersect;
 pub mod kernel;
 pub mod kernels;
+pub mod primary;
 pub mod raygen;
 pub mod scene;
+pub mod shade;
 pub mod testing;
 
 pub use adapter::{enumerate_adapters, AdapterInfo, GpuContext};

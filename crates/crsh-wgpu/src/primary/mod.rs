@@ -1,0 +1,3 @@
+//! Primary visibility on the device.
+
+pub mod raster;

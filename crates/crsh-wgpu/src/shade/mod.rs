@@ -1,0 +1,3 @@
+//! Shading on the device.
+
+pub mod phong;
