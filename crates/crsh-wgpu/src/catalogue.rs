@@ -17,6 +17,7 @@ use crsh_cpu::Cpu;
 
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::intersect::brute::BruteForce;
+use crate::intersect::bvh::CwBvh;
 use crate::primary::raster::Raster;
 use crate::raygen::whitted::Whitted;
 use crate::scene::GpuScene;
@@ -28,6 +29,7 @@ pub const GPU_VARIANTS: &[(StageKind, &str)] = &[
     (StageKind::Primary, "raster"),
     (StageKind::Raygen, "whitted"),
     (StageKind::Intersect, "brute"),
+    (StageKind::Intersect, "bvh"),
     (StageKind::Shade, "phong"),
 ];
 
@@ -103,6 +105,7 @@ pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<GpuScene>) -> Result<Stage
     };
     let intersector: Box<dyn Intersector<Wgpu>> = match cfg.intersect.kind.as_str() {
         "brute" => Box::new(BruteForce::new(scene, &cfg.intersect)?),
+        "bvh" => Box::new(CwBvh::new(scene, &cfg.intersect)?),
         _ => return Err(unknown(StageKind::Intersect, &cfg.intersect)),
     };
     let hasher: Option<Box<dyn Hasher<Wgpu>>> = match &cfg.hash {

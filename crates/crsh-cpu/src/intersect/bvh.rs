@@ -237,6 +237,25 @@ impl CwBvh {
         }
     }
 
+    /// The CWBVH nodes (obvhs's `Pod` layout, 80 bytes each; the GPU twin uploads them).
+    pub fn nodes(&self) -> &[CwBvhNode] {
+        &self.bvh.nodes
+    }
+
+    /// Scene triangle id per BVH primitive slot.
+    pub fn leaf_ids(&self) -> &[u32] {
+        &self.leaf_ids
+    }
+
+    /// The leaf triangles prepared for Möller-Trumbore, per primitive slot (`None` when the
+    /// BVH was built for another test).
+    pub fn leaf_triangles_mt(&self) -> Option<&[crate::triangle::PreparedTriangle]> {
+        match &self.leaf_tris {
+            LeafTriangles::MollerTrumbore(t) => Some(t),
+            _ => None,
+        }
+    }
+
     /// Number of BVH nodes.
     pub fn node_count(&self) -> usize {
         self.bvh.nodes.len()
