@@ -221,6 +221,55 @@ fn bvh_matches_the_brute_force_reference() {
     assert!(stdout(&o).contains("hit agreement 1.000000"));
 }
 
+/// `--backend wgpu` renders on the adapter (lavapipe in CI) with the CPU's rays, tests and
+/// image, reports the adapter and the device timings; without an adapter it is a clear error.
+#[test]
+fn wgpu_backend_renders_what_the_cpu_renders() {
+    let dir = scratch("wgpu");
+    let args = [
+        "--pipeline",
+        "bvh",
+        "--scene",
+        "office-boxes",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--reference",
+        "brute",
+    ];
+    let mut gpu_args = args.to_vec();
+    gpu_args.extend(["--backend", "wgpu"]);
+    if crsh_wgpu::testing::shared_context("wgpu_backend_renders_what_the_cpu_renders").is_none() {
+        let mut full = vec!["render", "--out", "img.png"];
+        full.extend(&gpu_args);
+        expect_error(&dir, &full, 1, "--backend wgpu: cannot open a device");
+        return;
+    }
+    let (g, o) = render(&dir, &gpu_args);
+    let (c, _) = render(&dir, &args);
+    assert_eq!(g["backend"], "wgpu");
+    assert!(
+        g["adapter"]["name"].as_str().is_some_and(|n| !n.is_empty()),
+        "{g:#}"
+    );
+    assert!(stdout(&o).contains("adapter   "));
+    assert!(c.get("adapter").is_none());
+    assert_eq!(g["rays"], c["rays"]);
+    assert_eq!(g["tests"], c["tests"]);
+    assert_eq!(f(&g, "/accuracy/hit_agreement"), 1.0);
+    assert_eq!(g["accuracy"]["images_identical"], true, "{g:#}");
+    for key in [
+        "primary",
+        "ray_creation",
+        "intersection",
+        "shading",
+        "total",
+    ] {
+        assert!(g["timings_ms"].get(key).is_some(), "{key}");
+    }
+}
+
 #[test]
 fn output_does_not_depend_on_thread_count() {
     let dir = scratch("threads");

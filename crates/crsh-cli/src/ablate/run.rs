@@ -203,6 +203,9 @@ fn measure(
 ) -> Result<Measures, String> {
     match cell.backend.as_str() {
         "wgpu" => {
+            // A stage the GPU lacks is this cell's reason, adapter or not.
+            crsh_wgpu::check_supported(&cell.config)
+                .map_err(|e| format!("building pipeline: {e}"))?;
             let gscene = gpu.scene(&cell.scene_spec, scene)?;
             let t_build = Instant::now();
             let stages = crsh_wgpu::build_stages(&cell.config, &gscene)

@@ -1,0 +1,189 @@
+//! The whole pipeline on the wgpu backend against the CPU: for every preset the GPU runs
+//! ([`GPU_PRESETS`]) on the built-in scenes and the shared Cornell boxes, the GPU frame traces the same rays
+//! as the CPU frame, agrees with the CPU's exact answer on them (hit agreement ≥ 0.9999, the
+//! reference running on the host), and its image matches the CPU image (PSNR ≥ 45 dB); stage
+//! times come with device timestamps; the output is the same run after run.
+//!
+//! Without an adapter every test prints `SKIP:` and passes, unless `CRSH_REQUIRE_GPU=1`.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use crsh_core::metrics::{psnr_rgba8, to_rgba8};
+use crsh_core::{Backend, FrameOptions, PipelineConfig, StageSpec, Stats, STAGE_TIMINGS};
+use crsh_scene::Scene;
+use crsh_wgpu::{GpuScene, Wgpu};
+
+/// The presets whose every stage has a WGSL implementation.
+const GPU_PRESETS: [&str; 2] = ["brute", "bvh"];
+
+const W: u32 = 48;
+const H: u32 = 36;
+
+fn opts(max_depth: u32) -> FrameOptions {
+    FrameOptions {
+        width: W,
+        height: H,
+        max_depth,
+        triangles: 0,
+    }
+}
+
+fn config(name: &str, sets: &[&str]) -> PipelineConfig {
+    let mut cfg = crsh_cpu::preset(name).expect("preset exists");
+    for s in sets {
+        cfg.set(s).unwrap();
+    }
+    cfg
+}
+
+fn builtin(name: &str) -> Arc<Scene> {
+    Arc::new(crsh_scene::builtin::build(name).unwrap())
+}
+
+fn load(path: &Path) -> Arc<Scene> {
+    Arc::new(crsh_scene::load_path(path).unwrap_or_else(|e| panic!("{e}")))
+}
+
+/// A GPU frame (with the CPU `reference` on the host) and its image on the host.
+fn gpu_frame(
+    b: &Wgpu,
+    scene: &Arc<Scene>,
+    cfg: &PipelineConfig,
+    o: &FrameOptions,
+    reference: &str,
+) -> (Vec<[f32; 4]>, Stats) {
+    let g = GpuScene::new(b, scene).unwrap();
+    let frame = crsh_wgpu::render(&g, cfg, o, Some(&StageSpec::new(reference)), &mut |_| {})
+        .unwrap_or_else(|e| panic!("{} with {} on wgpu: {e}", scene.name, cfg.name));
+    (b.download(&frame.image).unwrap(), frame.stats)
+}
+
+fn cpu_frame(scene: &Arc<Scene>, cfg: &PipelineConfig, o: &FrameOptions) -> (Vec<[f32; 4]>, Stats) {
+    let f = crsh_cpu::render(scene, cfg, o, None, &mut |_| {})
+        .unwrap_or_else(|e| panic!("{} with {} on cpu: {e}", scene.name, cfg.name));
+    (f.image, f.stats)
+}
+
+/// Every preset on `scene`: GPU vs CPU rays, agreement and image.
+fn check_presets_agree(b: &Wgpu, scene: &Arc<Scene>, depth: u32) {
+    let o = opts(depth);
+    for name in GPU_PRESETS {
+        let cfg = config(name, &[]);
+        let (gpu_image, gpu) = gpu_frame(b, scene, &cfg, &o, "brute");
+        let (cpu_image, cpu) = cpu_frame(scene, &cfg, &o);
+        let acc = gpu.accuracy.clone().expect("reference given");
+        assert!(acc.rays > 0, "{} {name}: nothing compared", scene.name);
+        assert!(
+            acc.hit_agreement() >= 0.9999,
+            "{} {name}: GPU hits vs the CPU brute force: {acc:?}",
+            scene.name
+        );
+        // The rays spawned differ only where a primary or secondary hit differs.
+        for kind in crsh_core::RayKind::ALL {
+            let (g, c) = (gpu.rays.get(kind) as f64, cpu.rays.get(kind) as f64);
+            assert!(
+                (g - c).abs() <= 0.002 * c.max(1.0) + 2.0,
+                "{} {name}: {kind:?} rays gpu {g} cpu {c}",
+                scene.name
+            );
+        }
+        let psnr = psnr_rgba8(&to_rgba8(&gpu_image), &to_rgba8(&cpu_image));
+        assert!(
+            psnr >= 45.0,
+            "{} {name}: GPU image vs CPU image PSNR {psnr:.2} dB",
+            scene.name
+        );
+        for key in gpu.device_timings_ms.keys() {
+            assert!(
+                STAGE_TIMINGS.contains(&key.as_str()),
+                "unknown device key {key}"
+            );
+        }
+    }
+}
+
+#[test]
+fn every_preset_agrees_with_the_cpu_on_the_builtin_scenes() {
+    let Some(b) = crsh_wgpu::testing::shared_backend(
+        "every_preset_agrees_with_the_cpu_on_the_builtin_scenes",
+    ) else {
+        return;
+    };
+    for name in ["cornell-mirrors", "office-boxes"] {
+        check_presets_agree(&b, &builtin(name), 2);
+    }
+}
+
+#[test]
+fn every_preset_agrees_with_the_cpu_on_the_shared_cornell_boxes() {
+    let Some(b) = crsh_wgpu::testing::shared_backend(
+        "every_preset_agrees_with_the_cpu_on_the_shared_cornell_boxes",
+    ) else {
+        return;
+    };
+    let manifests = crsh_tests::shared_scenes_in("cornell", "toml");
+    if manifests.is_empty() {
+        println!("SKIP: no shared Cornell manifests (set CRSH_SCENES)");
+        return;
+    }
+    for path in manifests {
+        check_presets_agree(&b, &load(&path), 1);
+    }
+}
+
+/// The presets not in [`GPU_PRESETS`] are refused with a message naming the stage the wgpu
+/// backend lacks, before any device work.
+#[test]
+fn presets_the_gpu_lacks_are_clear_errors() {
+    for name in crsh_cpu::PRESETS
+        .iter()
+        .filter(|p| !GPU_PRESETS.contains(p))
+    {
+        let e = crsh_wgpu::check_supported(&config(name, &[])).unwrap_err();
+        assert!(e.to_string().contains("wgpu backend"), "{name}: {e}");
+    }
+    for name in GPU_PRESETS {
+        crsh_wgpu::check_supported(&config(name, &[])).unwrap();
+    }
+    assert!(crsh_wgpu::check_supported(&config("bvh", &["intersect.kind=brute64"])).is_err());
+}
+
+#[test]
+fn gpu_frames_are_deterministic_and_timed() {
+    let Some(b) = crsh_wgpu::testing::shared_backend("gpu_frames_are_deterministic_and_timed")
+    else {
+        return;
+    };
+    let scene = builtin("cornell-mirrors");
+    let cfg = config("bvh", &[]);
+    let (a, sa) = gpu_frame(&b, &scene, &cfg, &opts(2), "brute");
+    let (c, sc) = gpu_frame(&b, &scene, &cfg, &opts(2), "brute");
+    let bits = |im: &[[f32; 4]]| im.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
+    assert!(bits(&a) == bits(&c), "two GPU frames differ");
+    assert_eq!(sa.tests, sc.tests);
+    assert_eq!(sa.rays, sc.rays);
+    let keys = [
+        "primary",
+        "ray_creation",
+        "trimming",
+        "intersection",
+        "shading",
+    ];
+    for key in keys {
+        assert!(
+            sa.timings_ms.contains_key(key),
+            "no wall time for {key}: {:?}",
+            sa.timings_ms
+        );
+    }
+    if b.context().has_timestamp_query() {
+        for key in keys {
+            assert!(
+                sa.device_timings_ms.contains_key(key),
+                "no device time for {key}: {:?}",
+                sa.device_timings_ms
+            );
+        }
+    }
+}
