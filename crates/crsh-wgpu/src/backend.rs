@@ -295,7 +295,7 @@ impl<T: Pod> GpuBuffer<T> {
         if range.is_empty() || elem == 0 {
             return Ok(vec![T::zeroed(); range.len()]);
         }
-        if elem % 4 != 0 {
+        if !elem.is_multiple_of(4) {
             return Ok(self.to_vec(ctx)?[range].to_vec());
         }
         let offset = (range.start * elem) as u64;

@@ -233,7 +233,7 @@ fn lcm(a: u64, b: u64) -> u64 {
 pub fn chunks<T>(ctx: &GpuContext, len: usize) -> Vec<Range<usize>> {
     let step = chunk_elems::<T>(ctx);
     if len == 0 {
-        return vec![0..0];
+        return std::iter::once(0..0).collect();
     }
     (0..len)
         .step_by(step)

@@ -168,7 +168,9 @@ impl BruteForce {
         Ok(u64::from(c[0]) | (u64::from(c[1]) << 32))
     }
 
-    /// Candidate query; returns `(tests, hits found)`.
+    /// Candidate query; returns `(tests, hits found)`, or `None` when the pairs are not
+    /// strictly increasing (the caller sorts them).
+    #[allow(clippy::too_many_arguments)]
     fn candidate_query(
         &self,
         rays: &GpuBuffer<Ray>,
