@@ -22,6 +22,7 @@ use crate::primary::raster::Raster;
 use crate::raygen::whitted::Whitted;
 use crate::scene::GpuScene;
 use crate::shade::phong::Phong;
+use crate::sort::radix::RadixSorter;
 use crsh_core::{Hasher, HierarchyBuilder, PrimaryVisibility, RayGen, Shader, Sorter, Traverser};
 
 /// The `(stage, variant)` pairs the wgpu backend implements.
@@ -30,6 +31,7 @@ pub const GPU_VARIANTS: &[(StageKind, &str)] = &[
     (StageKind::Raygen, "whitted"),
     (StageKind::Intersect, "brute"),
     (StageKind::Intersect, "bvh"),
+    (StageKind::Sort, "radix"),
     (StageKind::Shade, "phong"),
 ];
 
@@ -114,6 +116,7 @@ pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<GpuScene>) -> Result<Stage
     };
     let sorter: Option<Box<dyn Sorter<Wgpu>>> = match &cfg.sort {
         None => None,
+        Some(spec) if spec.kind == "radix" => Some(Box::new(RadixSorter::new(scene, spec)?)),
         Some(spec) => return Err(unknown(StageKind::Sort, spec)),
     };
     let hierarchy: Option<Box<dyn HierarchyBuilder<Wgpu>>> = match &cfg.hierarchy {

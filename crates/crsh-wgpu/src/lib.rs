@@ -33,6 +33,7 @@ pub mod primary;
 pub mod raygen;
 pub mod scene;
 pub mod shade;
+pub mod sort;
 pub mod testing;
 
 pub use adapter::{enumerate_adapters, AdapterInfo, GpuContext};

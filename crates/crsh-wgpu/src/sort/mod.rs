@@ -1,0 +1,3 @@
+//! Ray sorting on the device.
+
+pub mod radix;
