@@ -26,6 +26,7 @@ pub mod adapter;
 pub mod backend;
 pub mod catalogue;
 pub mod error;
+pub mod hierarchy;
 pub mod intersect;
 pub mod kernel;
 pub mod kernels;

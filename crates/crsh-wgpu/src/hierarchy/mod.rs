@@ -1,0 +1,3 @@
+//! Ray-space hierarchy construction on the device.
+
+pub mod sphere_cone;

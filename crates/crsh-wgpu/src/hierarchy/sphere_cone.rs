@@ -1,0 +1,175 @@
+//! `sphere_cone` on the wgpu backend: the bottom-up sphere-cone hierarchy (seed 000 §3.2.7,
+//! eq. 3.8-3.15), built level by level, one invocation per node.
+//!
+//! The twin is [`crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder`] (same parameters
+//! `subdivision` and `depth`, same level sizes, the same constructions): leaf cones by the
+//! incremental eq. 3.8-3.11 in angle form, leaf spheres as the exact minimal ball of the origins
+//! (Welzl's algorithm, here in its nested non-recursive form; rays from one point get radius
+//! 0), upper levels folding the tight cone and sphere unions, then every stored bound
+//! re-measured against the stored axis and centre, and `reach` per node (the farthest point a
+//! ray of the node reaches, infinite for unbounded rays).
+//!
+//! What differs: the CPU constructs in `f64`, the device in `f32` (WGSL has no portable `f64`,
+//! and its `atan2`, `cos`, `sqrt` need not be correctly rounded), so the margins that make every
+//! ray certainly inside its node are wider: half-angles grow by 1e-5 relative + 2e-5 rad (CPU:
+//! 1e-6 + 1e-6), radii by 1e-5 relative + 1e-6 × the coordinates' magnitude (CPU: 1e-6
+//! relative). Nodes therefore agree with the CPU's within those margins plus rounding, and the
+//! tests check both that and containment of every ray in f64.
+
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+use crsh_core::{
+    CoreError, HierarchyBuilder, Ray, RayHierarchy, Result, SphereCone, StageSpec, Stats,
+};
+use crsh_cpu::hierarchy::sphere_cone::{level_sizes, DEPTH_RANGE, SUBDIVISION_RANGE};
+
+use crate::adapter::GpuContext;
+use crate::backend::{GpuBuffer, Wgpu};
+use crate::error::GpuResult;
+use crate::kernel::{encoder, submit, uniform, Kernel, Slot};
+use crate::scene::GpuScene;
+
+const SHADER: &str = include_str!("sphere_cone.wgsl");
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct Params {
+    nodes: u32,
+    sub: u32,
+    below: u32,
+    pad: u32,
+}
+
+struct SphereConeKernels {
+    kernel: Kernel,
+}
+
+impl SphereConeKernels {
+    fn new(ctx: &GpuContext) -> GpuResult<SphereConeKernels> {
+        let mut slots = vec![Slot::Uniform];
+        slots.extend([Slot::Read; 4]);
+        slots.extend([Slot::ReadWrite; 2]);
+        Ok(SphereConeKernels {
+            kernel: Kernel::new(
+                ctx,
+                "crsh sphere-cone",
+                SHADER,
+                &["leaves", "inner"],
+                &slots,
+            )?,
+        })
+    }
+}
+
+/// The GPU sphere-cone hierarchy builder.
+pub struct SphereConeBuilder {
+    scene: Arc<GpuScene>,
+    subdivision: u32,
+    depth: u32,
+}
+
+impl SphereConeBuilder {
+    /// The builder configured by a resolved `spec` (`subdivision`, `depth`), checked as on the
+    /// CPU.
+    pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<SphereConeBuilder> {
+        Ok(SphereConeBuilder {
+            scene: Arc::clone(scene),
+            subdivision: spec.u32_in("subdivision", SUBDIVISION_RANGE)?,
+            depth: spec.u32_in("depth", DEPTH_RANGE)?,
+        })
+    }
+}
+
+impl HierarchyBuilder<Wgpu> for SphereConeBuilder {
+    fn name(&self) -> &str {
+        "sphere_cone"
+    }
+
+    fn build(
+        &self,
+        backend: &Wgpu,
+        rays: &GpuBuffer<Ray>,
+        order: GpuBuffer<u32>,
+        _stats: &mut Stats,
+    ) -> Result<RayHierarchy<Wgpu>> {
+        let ctx = backend.context();
+        let n = rays.len();
+        if order.len() != n {
+            return Err(CoreError::InvalidInput(format!(
+                "sphere_cone: {} leaves for a batch of {n} rays (the order must be a permutation)",
+                order.len()
+            )));
+        }
+        let sizes = level_sizes(n, self.subdivision, self.depth);
+        let mut levels: Vec<GpuBuffer<SphereCone>> = Vec::with_capacity(sizes.len());
+        let mut reach: Vec<GpuBuffer<f32>> = Vec::with_capacity(sizes.len());
+        if n == 0 {
+            return Ok(RayHierarchy {
+                order,
+                levels,
+                subdivision: self.subdivision,
+                reach,
+            });
+        }
+        ctx.check_storage_binding("hierarchy rays", rays.byte_len())?;
+        let k = ctx.kernel(SphereConeKernels::new)?;
+        let mut enc = encoder(ctx, "crsh sphere-cone");
+        let mut below = n;
+        for (li, &size) in sizes.iter().enumerate() {
+            let nodes = GpuBuffer::<SphereCone>::zeroed(ctx, "crsh hierarchy level", size)?;
+            let level_reach = GpuBuffer::<f32>::zeroed(ctx, "crsh hierarchy reach", size)?;
+            let params = Params {
+                nodes: size as u32,
+                sub: self.subdivision,
+                below: below as u32,
+                pad: 0,
+            };
+            let u = uniform(ctx, "crsh sphere-cone params", &params);
+            let (children, child_reach) = if li == 0 {
+                (&nodes, &level_reach)
+            } else {
+                (&levels[li - 1], &reach[li - 1])
+            };
+            // Level 0 reads no children: bind placeholders that are not the outputs.
+            let none_nodes;
+            let none_reach;
+            let (children, child_reach) = if li == 0 {
+                none_nodes = GpuBuffer::<SphereCone>::zeroed(ctx, "crsh unused", 0)?;
+                none_reach = GpuBuffer::<f32>::zeroed(ctx, "crsh unused", 0)?;
+                let _ = (children, child_reach);
+                (&none_nodes, &none_reach)
+            } else {
+                (children, child_reach)
+            };
+            let bg = k.kernel.bind_group(
+                ctx,
+                &[
+                    u.as_entire_binding(),
+                    rays.binding(),
+                    order.binding(),
+                    children.binding(),
+                    child_reach.binding(),
+                    nodes.binding(),
+                    level_reach.binding(),
+                ],
+            );
+            {
+                let mut pass = ctx.compute_pass(&mut enc, "crsh sphere-cone level");
+                let entry = if li == 0 { "leaves" } else { "inner" };
+                k.kernel.dispatch(ctx, &mut pass, entry, &bg, size as u32)?;
+            }
+            levels.push(nodes);
+            reach.push(level_reach);
+            below = size;
+        }
+        submit(ctx, "crsh sphere-cone", enc)?;
+        let _ = &self.scene;
+        Ok(RayHierarchy {
+            order,
+            levels,
+            subdivision: self.subdivision,
+            reach,
+        })
+    }
+}
