@@ -16,6 +16,7 @@ use crsh_core::{
 use crsh_cpu::Cpu;
 
 use crate::backend::{GpuBuffer, Wgpu};
+use crate::hierarchy::sphere_cone::SphereConeBuilder;
 use crate::intersect::brute::BruteForce;
 use crate::intersect::bvh::CwBvh;
 use crate::primary::raster::Raster;
@@ -23,6 +24,7 @@ use crate::raygen::whitted::Whitted;
 use crate::scene::GpuScene;
 use crate::shade::phong::Phong;
 use crate::sort::radix::RadixSorter;
+use crate::traverse::crsh::Crsh;
 use crsh_core::{Hasher, HierarchyBuilder, PrimaryVisibility, RayGen, Shader, Sorter, Traverser};
 
 /// The `(stage, variant)` pairs the wgpu backend implements.
@@ -32,6 +34,8 @@ pub const GPU_VARIANTS: &[(StageKind, &str)] = &[
     (StageKind::Intersect, "brute"),
     (StageKind::Intersect, "bvh"),
     (StageKind::Sort, "radix"),
+    (StageKind::Hierarchy, "sphere_cone"),
+    (StageKind::Traverse, "crsh"),
     (StageKind::Shade, "phong"),
 ];
 
@@ -121,10 +125,14 @@ pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<GpuScene>) -> Result<Stage
     };
     let hierarchy: Option<Box<dyn HierarchyBuilder<Wgpu>>> = match &cfg.hierarchy {
         None => None,
+        Some(spec) if spec.kind == "sphere_cone" => {
+            Some(Box::new(SphereConeBuilder::new(scene, spec)?))
+        }
         Some(spec) => return Err(unknown(StageKind::Hierarchy, spec)),
     };
     let traverser: Option<Box<dyn Traverser<Wgpu>>> = match &cfg.traverse {
         None => None,
+        Some(spec) if spec.kind == "crsh" => Some(Box::new(Crsh::new(scene, spec)?)),
         Some(spec) => return Err(unknown(StageKind::Traverse, spec)),
     };
     if hierarchy.is_some() && !intersector.supports_candidates() {

@@ -36,6 +36,7 @@ pub mod scene;
 pub mod shade;
 pub mod sort;
 pub mod testing;
+pub mod traverse;
 
 pub use adapter::{enumerate_adapters, AdapterInfo, GpuContext};
 pub use backend::{GpuBuffer, Wgpu};

@@ -1,0 +1,528 @@
+//! `crsh` traversal on the wgpu backend: top-down traversal of the sphere-cone hierarchy
+//! against mesh and triangle bounding spheres with per-level stream compaction (seed 000
+//! §3.2.8, eq. 3.16).
+//!
+//! The twin is [`crsh_cpu::traverse::crsh::Crsh`]: the same parameters (`mesh_culling`,
+//! `candidate_budget_mb`), the same algorithm and the same memory bound:
+//!
+//! 1. `prepare`: every node becomes the CPU's `NodeBound` (margins, reach); a non-finite or
+//!    negative node is an error.
+//! 2. `mesh_cull` (with `mesh_culling`): every top node against every mesh sphere, once.
+//! 3. Per triangle batch (sized and retried under the budget exactly as the CPU does, from
+//!    the pair counts): `top_test` flags every (top node, triangle) pair of kept meshes that
+//!    passes the node-sphere test, the flags are scanned into positions
+//!    ([`crate::kernels::scan`]) and `top_emit` writes the survivors; then per level
+//!    `descend_test` / scan / `descend_emit` over (pair, child slot). The output order is by
+//!    (node, triangle) at every level, as on the CPU (a pair's place among its node's
+//!    children is computed from its node's run, found by binary search), so the final pairs
+//!    go to the intersector's candidate query already sorted.
+//!
+//! What differs: the node-sphere test runs in `f32` (the CPU's in `f64`) with the CPU's
+//! margins plus an acceptance of 1e-3 × the centre distance that covers the rounding of the
+//! cone test's `√(D² − ρ²)`, so the device keeps every pair the CPU keeps and a few more (a
+//! superset of the CPU's candidates, which the tests check, and never a missed intersection);
+//! level counts are therefore close to the CPU's, not equal. `peak_candidate_bytes` counts the
+//! input and output pair arrays of a level (the device needs no final concatenation); the
+//! survivor flags (4 bytes per tested pair) come on top and must fit one storage binding.
+
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+use crsh_core::{
+    Candidate, CandidateBatch, CoreError, Ray, RayHierarchy, RayKind, Result, StageSpec, Stats,
+    Traverser,
+};
+
+use crate::adapter::GpuContext;
+use crate::backend::{GpuBuffer, Wgpu};
+use crate::error::GpuResult;
+use crate::kernel::{encoder, submit, uniform, Kernel, Slot};
+use crate::kernels::scan::ScanKernel;
+use crate::scene::GpuScene;
+
+const SHADER: &str = include_str!("crsh.wgsl");
+const PAIR_BYTES: u64 = 8;
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct Params {
+    n: u32,
+    n_meshes: u32,
+    batch: u32,
+    t0: u32,
+    sub: u32,
+    n_children: u32,
+    mesh_culling: u32,
+    has_reach: u32,
+}
+
+/// `Bound` in WGSL (48 bytes).
+type BoundWords = [u32; 12];
+
+struct CrshKernels {
+    kernel: Kernel,
+}
+
+impl CrshKernels {
+    fn new(ctx: &GpuContext) -> GpuResult<CrshKernels> {
+        let slots = [
+            Slot::Uniform,
+            Slot::Read,
+            Slot::Read,
+            Slot::ReadWrite,
+            Slot::Read,
+            Slot::Read,
+            Slot::Read,
+            Slot::Read,
+            Slot::ReadWrite,
+            Slot::Read,
+            Slot::ReadWrite,
+            Slot::ReadWrite,
+            Slot::ReadWrite,
+        ];
+        Ok(CrshKernels {
+            kernel: Kernel::new(
+                ctx,
+                "crsh traversal",
+                SHADER,
+                &[
+                    "prepare",
+                    "mesh_cull",
+                    "top_test",
+                    "top_emit",
+                    "descend_test",
+                    "descend_emit",
+                ],
+                &slots,
+            )?,
+        })
+    }
+}
+
+/// The GPU CRSH traverser.
+pub struct Crsh {
+    scene: Arc<GpuScene>,
+    mesh_culling: bool,
+    budget_bytes: u64,
+}
+
+/// The buffers one dispatch binds (unused slots get placeholders).
+#[derive(Default)]
+struct Binds<'a> {
+    level_nodes: Option<&'a GpuBuffer<crsh_core::SphereCone>>,
+    level_reach: Option<&'a GpuBuffer<f32>>,
+    bounds: Option<&'a GpuBuffer<BoundWords>>,
+    child_bounds: Option<&'a GpuBuffer<BoundWords>>,
+    keep: Option<&'a GpuBuffer<u32>>,
+    pairs_in: Option<&'a GpuBuffer<Candidate>>,
+    flags: Option<&'a GpuBuffer<u32>>,
+    pairs_out: Option<&'a GpuBuffer<Candidate>>,
+    counters: Option<&'a GpuBuffer<u32>>,
+}
+
+enum Outcome {
+    Done {
+        pairs: GpuBuffer<Candidate>,
+        local: Box<Stats>,
+        peak: u64,
+        worst: u64,
+    },
+    Aborted {
+        needed: u64,
+        local: Box<Stats>,
+    },
+}
+
+impl Crsh {
+    /// The traverser over `scene` with `spec`'s `mesh_culling` and `candidate_budget_mb`
+    /// (validated as on the CPU).
+    pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<Crsh> {
+        let cpu = crsh_cpu::traverse::crsh::Crsh::new(&scene.scene, spec)?;
+        Ok(Crsh {
+            scene: Arc::clone(scene),
+            mesh_culling: cpu.mesh_culling(),
+            budget_bytes: cpu.budget_bytes(),
+        })
+    }
+
+    fn batch_triangles(&self, top_nodes: usize) -> usize {
+        let per_tri = 2 * PAIR_BYTES * top_nodes.max(1) as u64;
+        let n = (self.budget_bytes / per_tri).max(1);
+        n.min(self.scene.triangle_count().max(1) as u64) as usize
+    }
+
+    fn bind(&self, k: &Kernel, params: &Params, b: &Binds<'_>) -> GpuResult<wgpu::BindGroup> {
+        let ctx = self.scene.ctx();
+        let u = uniform(ctx, "crsh traversal params", params);
+        let nodes0 = GpuBuffer::<crsh_core::SphereCone>::zeroed(ctx, "crsh unused", 0)?;
+        let f0 = GpuBuffer::<f32>::zeroed(ctx, "crsh unused", 0)?;
+        let bw0 = GpuBuffer::<BoundWords>::zeroed(ctx, "crsh unused", 0)?;
+        let bw1 = GpuBuffer::<BoundWords>::zeroed(ctx, "crsh unused", 0)?;
+        let u0 = GpuBuffer::<u32>::zeroed(ctx, "crsh unused", 0)?;
+        let u1 = GpuBuffer::<u32>::zeroed(ctx, "crsh unused", 0)?;
+        let u2 = GpuBuffer::<u32>::zeroed(ctx, "crsh unused", 0)?;
+        let c0 = GpuBuffer::<Candidate>::zeroed(ctx, "crsh unused", 0)?;
+        let c1 = GpuBuffer::<Candidate>::zeroed(ctx, "crsh unused", 0)?;
+        let s = &self.scene;
+        Ok(k.bind_group(
+            ctx,
+            &[
+                u.as_entire_binding(),
+                b.level_nodes.unwrap_or(&nodes0).binding(),
+                b.level_reach.unwrap_or(&f0).binding(),
+                b.bounds.unwrap_or(&bw0).binding(),
+                b.child_bounds.unwrap_or(&bw1).binding(),
+                s.tri_spheres.binding(),
+                s.info.binding(),
+                s.meshes.binding(),
+                b.keep.unwrap_or(&u0).binding(),
+                b.pairs_in.unwrap_or(&c0).binding(),
+                b.flags.unwrap_or(&u1).binding(),
+                b.pairs_out.unwrap_or(&c1).binding(),
+                b.counters.unwrap_or(&u2).binding(),
+            ],
+        ))
+    }
+
+    /// One test / scan / emit round over `items` flags: returns `(survivors, tests, pairs)`.
+    fn compact(
+        &self,
+        k: &Kernel,
+        (test, emit): (&str, &str),
+        params: &Params,
+        binds: Binds<'_>,
+        items: usize,
+    ) -> Result<(u64, GpuBuffer<Candidate>)> {
+        let ctx = self.scene.ctx();
+        ctx.check_storage_binding("traversal survivor flags", items as u64 * 4)?;
+        let flags = GpuBuffer::<u32>::zeroed(ctx, "crsh traversal flags", items)?;
+        let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh traversal counters", 4)?;
+        let total = GpuBuffer::<u32>::zeroed(ctx, "crsh traversal total", 4)?;
+        let bg = self.bind(
+            k,
+            params,
+            &Binds {
+                flags: Some(&flags),
+                counters: Some(&counters),
+                ..binds_ref(&binds)
+            },
+        )?;
+        let mut enc = encoder(ctx, test);
+        {
+            let mut pass = ctx.compute_pass(&mut enc, test);
+            k.dispatch(ctx, &mut pass, test, &bg, items as u32)?;
+        }
+        ctx.kernel(ScanKernel::new)?.encode_in_place(
+            ctx,
+            &mut enc,
+            &flags,
+            Some((total.buffer(), 0)),
+        )?;
+        submit(ctx, test, enc)?;
+        let survivors = total.to_vec(ctx)?[0] as usize;
+        let c = counters.to_vec(ctx)?;
+        let tests = u64::from(c[0]) | (u64::from(c[1]) << 32);
+        let out = GpuBuffer::<Candidate>::zeroed(ctx, "crsh candidates", survivors)?;
+        if survivors > 0 {
+            ctx.check_storage_binding("candidate pairs", out.byte_len())?;
+            let bg = self.bind(
+                k,
+                params,
+                &Binds {
+                    flags: Some(&flags),
+                    counters: Some(&counters),
+                    pairs_out: Some(&out),
+                    ..binds
+                },
+            )?;
+            let mut enc = encoder(ctx, emit);
+            {
+                let mut pass = ctx.compute_pass(&mut enc, emit);
+                k.dispatch(ctx, &mut pass, emit, &bg, items as u32)?;
+            }
+            submit(ctx, emit, enc)?;
+        }
+        Ok((tests, out))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn run_batch(
+        &self,
+        k: &Kernel,
+        bounds: &[GpuBuffer<BoundWords>],
+        keep: Option<&GpuBuffer<u32>>,
+        sub: u32,
+        kind: RayKind,
+        t0: usize,
+        t1: usize,
+    ) -> Result<Outcome> {
+        let top = bounds.last().expect("checked non-empty");
+        let top_level = bounds.len() as u32;
+        let mut local = Stats::default();
+        let mut worst = 0u64;
+        let batch = t1 - t0;
+        let params = Params {
+            n: top.len() as u32,
+            n_meshes: self.scene.scene.meshes.len() as u32,
+            batch: batch as u32,
+            t0: t0 as u32,
+            sub,
+            mesh_culling: u32::from(self.mesh_culling),
+            ..Default::default()
+        };
+        let (tests, mut level) = self.compact(
+            k,
+            ("top_test", "top_emit"),
+            &params,
+            Binds {
+                bounds: Some(top),
+                keep,
+                ..Default::default()
+            },
+            top.len() * batch,
+        )?;
+        local.add_bounds(tests);
+        local.add_level(kind, top_level, tests, level.len() as u64);
+        let mut peak = level.byte_len();
+        for li in (1..bounds.len()).rev() {
+            let p = level.len() as u64;
+            let worst_out = p * u64::from(sub) * PAIR_BYTES;
+            let needed = if li == 1 {
+                (level.byte_len() + worst_out).max(2 * worst_out)
+            } else {
+                level.byte_len() + worst_out
+            };
+            worst = worst.max(needed);
+            if needed > self.budget_bytes && batch > 1 {
+                return Ok(Outcome::Aborted {
+                    needed,
+                    local: Box::new(local),
+                });
+            }
+            if level.is_empty() {
+                local.add_level(kind, li as u32, 0, 0);
+                continue;
+            }
+            let children = &bounds[li - 1];
+            let params = Params {
+                n: level.len() as u32,
+                sub,
+                n_children: children.len() as u32,
+                ..Default::default()
+            };
+            let (tests, next) = self.compact(
+                k,
+                ("descend_test", "descend_emit"),
+                &params,
+                Binds {
+                    child_bounds: Some(children),
+                    pairs_in: Some(&level),
+                    ..Default::default()
+                },
+                level.len() * sub as usize,
+            )?;
+            local.add_bounds(tests);
+            local.add_level(kind, li as u32, tests, next.len() as u64);
+            peak = peak.max(level.byte_len() + next.byte_len());
+            level = next;
+        }
+        Ok(Outcome::Done {
+            pairs: level,
+            local: Box::new(local),
+            peak,
+            worst,
+        })
+    }
+}
+
+fn binds_ref<'a>(b: &Binds<'a>) -> Binds<'a> {
+    Binds {
+        level_nodes: b.level_nodes,
+        level_reach: b.level_reach,
+        bounds: b.bounds,
+        child_bounds: b.child_bounds,
+        keep: b.keep,
+        pairs_in: b.pairs_in,
+        flags: b.flags,
+        pairs_out: b.pairs_out,
+        counters: b.counters,
+    }
+}
+
+impl Traverser<Wgpu> for Crsh {
+    fn name(&self) -> &str {
+        "crsh"
+    }
+
+    fn traverse(
+        &self,
+        backend: &Wgpu,
+        rays: &GpuBuffer<Ray>,
+        kind: RayKind,
+        h: &RayHierarchy<Wgpu>,
+        sink: &mut dyn FnMut(CandidateBatch<Wgpu>, &mut Stats) -> Result<()>,
+        stats: &mut Stats,
+    ) -> Result<()> {
+        let ctx = backend.context();
+        let n_rays = rays.len();
+        let n_tris = self.scene.triangle_count();
+        if n_rays == 0 {
+            return Ok(());
+        }
+        let sub = h.subdivision;
+        if sub == 0 {
+            return Err(CoreError::InvalidInput("hierarchy subdivision is 0".into()));
+        }
+        if h.levels.is_empty() {
+            return Err(CoreError::InvalidInput("hierarchy has no levels".into()));
+        }
+        if h.order.len() != n_rays {
+            return Err(CoreError::InvalidInput(format!(
+                "hierarchy order has {} entries for {n_rays} rays",
+                h.order.len()
+            )));
+        }
+        let mut below = n_rays;
+        for (i, level) in h.levels.iter().enumerate() {
+            let want = below.div_ceil(sub as usize);
+            if level.len() != want {
+                return Err(CoreError::InvalidInput(format!(
+                    "hierarchy level {i} has {} nodes, expected {want} (⌈{below} / {sub}⌉)",
+                    level.len()
+                )));
+            }
+            below = want;
+        }
+        let has_reach = !h.reach.is_empty();
+        if has_reach
+            && (h.reach.len() != h.levels.len()
+                || h.reach
+                    .iter()
+                    .zip(&h.levels)
+                    .any(|(r, l)| r.len() != l.len()))
+        {
+            return Err(CoreError::InvalidInput(
+                "hierarchy reach bounds do not match its levels".into(),
+            ));
+        }
+        let k = ctx.kernel(CrshKernels::new)?;
+        // Prepare every level's bounds.
+        let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh traversal counters", 4)?;
+        let mut bounds: Vec<GpuBuffer<BoundWords>> = Vec::with_capacity(h.levels.len());
+        let mut enc = encoder(ctx, "crsh traversal prepare");
+        for (li, level) in h.levels.iter().enumerate() {
+            let out = GpuBuffer::<BoundWords>::zeroed(ctx, "crsh node bounds", level.len())?;
+            let params = Params {
+                n: level.len() as u32,
+                has_reach: u32::from(has_reach),
+                ..Default::default()
+            };
+            let bg = self.bind(
+                &k.kernel,
+                &params,
+                &Binds {
+                    level_nodes: Some(level),
+                    level_reach: h.reach.get(li),
+                    bounds: Some(&out),
+                    counters: Some(&counters),
+                    ..Default::default()
+                },
+            )?;
+            {
+                let mut pass = ctx.compute_pass(&mut enc, "crsh traversal prepare");
+                k.kernel
+                    .dispatch(ctx, &mut pass, "prepare", &bg, level.len() as u32)?;
+            }
+            bounds.push(out);
+        }
+        submit(ctx, "crsh traversal prepare", enc)?;
+        if counters.to_vec(ctx)?[3] != 0 {
+            return Err(CoreError::InvalidInput(
+                "hierarchy has a node with a non-finite or negative sphere or cone, or a zero \
+                 cone axis"
+                    .into(),
+            ));
+        }
+        if n_tris == 0 {
+            return Ok(());
+        }
+        let top = bounds.last().expect("checked non-empty");
+        let meshes = self.scene.scene.meshes.len();
+        let keep = if self.mesh_culling {
+            let keep = GpuBuffer::<u32>::zeroed(ctx, "crsh mesh culling", top.len() * meshes)?;
+            let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh traversal counters", 4)?;
+            let params = Params {
+                n: top.len() as u32,
+                n_meshes: meshes as u32,
+                ..Default::default()
+            };
+            let bg = self.bind(
+                &k.kernel,
+                &params,
+                &Binds {
+                    bounds: Some(top),
+                    keep: Some(&keep),
+                    counters: Some(&counters),
+                    ..Default::default()
+                },
+            )?;
+            let mut enc = encoder(ctx, "crsh mesh culling");
+            {
+                let mut pass = ctx.compute_pass(&mut enc, "crsh mesh culling");
+                k.kernel.dispatch(
+                    ctx,
+                    &mut pass,
+                    "mesh_cull",
+                    &bg,
+                    (top.len() * meshes) as u32,
+                )?;
+            }
+            submit(ctx, "crsh mesh culling", enc)?;
+            let kept = u64::from(counters.to_vec(ctx)?[2]);
+            let tests = (top.len() * meshes) as u64;
+            stats.add_bounds(tests);
+            stats.add_mesh_culling(kind, tests, kept);
+            Some(keep)
+        } else {
+            None
+        };
+        let max_batch = self.batch_triangles(top.len());
+        let mut batch = max_batch;
+        let mut peak_all = 0u64;
+        let mut t0 = 0usize;
+        while t0 < n_tris {
+            let t1 = (t0 + batch).min(n_tris);
+            match self.run_batch(&k.kernel, &bounds, keep.as_ref(), sub, kind, t0, t1)? {
+                Outcome::Aborted { needed, local } => {
+                    stats.add_bounds(local.tests.bounds);
+                    for row in &local.levels {
+                        stats.add_level(kind, row.level, row.tests, row.hits);
+                    }
+                    let scaled = (batch as f64 * self.budget_bytes as f64 / needed as f64) as usize;
+                    batch = scaled.min(batch / 2).max(1);
+                }
+                Outcome::Done {
+                    pairs,
+                    local,
+                    peak,
+                    worst,
+                } => {
+                    stats.add_bounds(local.tests.bounds);
+                    for row in &local.levels {
+                        stats.add_level(kind, row.level, row.tests, row.hits);
+                    }
+                    peak_all = peak_all.max(peak);
+                    if !pairs.is_empty() {
+                        sink(CandidateBatch { pairs }, stats)?;
+                    }
+                    if worst <= self.budget_bytes / 2 {
+                        batch = (batch * 2).min(max_batch);
+                    }
+                    t0 = t1;
+                }
+            }
+        }
+        stats.peak_candidate_bytes = stats.peak_candidate_bytes.max(peak_all);
+        Ok(())
+    }
+}

@@ -1,0 +1,3 @@
+//! Ray-space hierarchy traversal on the device.
+
+pub mod crsh;
