@@ -15,7 +15,7 @@ use crsh_scene::Scene;
 use crsh_wgpu::{GpuScene, Wgpu};
 
 /// The presets whose every stage has a WGSL implementation.
-const GPU_PRESETS: [&str; 2] = ["brute", "bvh"];
+const GPU_PRESETS: [&str; 3] = ["brute", "bvh", "rah"];
 
 const W: u32 = 48;
 const H: u32 = 36;

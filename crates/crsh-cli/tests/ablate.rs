@@ -354,7 +354,7 @@ fn failed_cells_are_recorded_and_the_run_goes_on() {
             "--scenes",
             "cornell-mirrors,no/such/scene.toml",
             "--pipelines",
-            "bvh,rah",
+            "bvh,crsh",
             "--backends",
             "cpu,wgpu",
             "--width",
@@ -380,8 +380,8 @@ fn failed_cells_are_recorded_and_the_run_goes_on() {
             )
         })
         .collect();
-    // The bvh pipeline runs on wgpu where an adapter exists (lavapipe in CI); rah's hierarchy
-    // stages have no WGSL implementation yet, which its cell says.
+    // The bvh pipeline runs on wgpu where an adapter exists (lavapipe in CI); crsh's thesis
+    // hash has no WGSL implementation yet, which its cell says.
     let gpu = crsh_wgpu::testing::shared_context("failed_cells_are_recorded_and_the_run_goes_on")
         .is_some();
     let bvh_wgpu = if gpu { "ok" } else { "failed" };
@@ -390,12 +390,12 @@ fn failed_cells_are_recorded_and_the_run_goes_on() {
         [
             ("cornell-mirrors", "bvh", "cpu", "ok"),
             ("cornell-mirrors", "bvh", "wgpu", bvh_wgpu),
-            ("cornell-mirrors", "rah", "cpu", "ok"),
-            ("cornell-mirrors", "rah", "wgpu", "failed"),
+            ("cornell-mirrors", "crsh", "cpu", "ok"),
+            ("cornell-mirrors", "crsh", "wgpu", "failed"),
             ("no/such/scene.toml", "bvh", "cpu", "failed"),
             ("no/such/scene.toml", "bvh", "wgpu", "failed"),
-            ("no/such/scene.toml", "rah", "cpu", "failed"),
-            ("no/such/scene.toml", "rah", "wgpu", "failed"),
+            ("no/such/scene.toml", "crsh", "cpu", "failed"),
+            ("no/such/scene.toml", "crsh", "wgpu", "failed"),
         ]
     );
     if gpu {
@@ -406,8 +406,8 @@ fn failed_cells_are_recorded_and_the_run_goes_on() {
     } else {
         assert!(cs[1]["reason"].as_str().unwrap().contains("wgpu"));
     }
-    let rah = cs[3]["reason"].as_str().unwrap();
-    assert!(rah.contains("wgpu backend"), "{rah}");
+    let reason = cs[3]["reason"].as_str().unwrap();
+    assert!(reason.contains("wgpu backend"), "{reason}");
     assert!(cs[3].get("measures").is_none());
     assert!(cs[4]["reason"]
         .as_str()

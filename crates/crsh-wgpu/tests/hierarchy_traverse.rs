@@ -147,3 +147,138 @@ fn hierarchy_nodes_match_the_cpu_and_contain_their_rays() {
         }
     }
 }
+
+fn traverse_spec(mesh_culling: bool, budget_mb: f64) -> StageSpec {
+    let mut s = StageSpec::new("crsh");
+    s.params.insert(
+        "mesh_culling".into(),
+        crsh_core::ParamValue::Bool(mesh_culling),
+    );
+    s.params.insert(
+        "candidate_budget_mb".into(),
+        crsh_core::ParamValue::Float(budget_mb),
+    );
+    s
+}
+
+/// On the CPU's own hierarchy (uploaded), the GPU traversal keeps every pair the CPU keeps
+/// (so every intersecting pair) and at most a few more, in (node, triangle) order; its level
+/// rows are within that excess of the CPU's; a tiny budget gives several batches with the same
+/// union.
+#[test]
+fn traversal_keeps_every_cpu_candidate() {
+    use crsh_core::{Candidate, Traverser};
+    let Some(b) = crsh_wgpu::testing::shared_backend("traversal_keeps_every_cpu_candidate") else {
+        return;
+    };
+    for name in ["cornell-mirrors", "office-boxes"] {
+        let s = scene(name);
+        let g = GpuScene::new(&b, &s).unwrap();
+        for kind in [RayKind::Shadow, RayKind::Reflection] {
+            let (rays, order) = cpu_rays(&s, kind);
+            let cpu_h = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(8, 2)
+                .unwrap()
+                .build(&Cpu, &rays, order, &mut Stats::default())
+                .unwrap();
+            let gpu_h: RayHierarchy<Wgpu> = RayHierarchy {
+                order: b.upload(&cpu_h.order).unwrap(),
+                levels: cpu_h.levels.iter().map(|l| b.upload(l).unwrap()).collect(),
+                subdivision: cpu_h.subdivision,
+                reach: cpu_h.reach.iter().map(|l| b.upload(l).unwrap()).collect(),
+            };
+            let gpu_rays = b.upload(&rays).unwrap();
+            for (culling, budget) in [(true, 64.0), (false, 64.0), (true, 0.002)] {
+                let what = format!("{name} {kind:?} culling {culling} budget {budget}");
+                let cpu = crsh_cpu::traverse::crsh::Crsh::new(&s, &traverse_spec(culling, budget))
+                    .unwrap();
+                let mut want: Vec<Candidate> = Vec::new();
+                let mut cpu_stats = Stats::default();
+                cpu.traverse(
+                    &Cpu,
+                    &rays,
+                    kind,
+                    &cpu_h,
+                    &mut |batch, _| {
+                        want.extend(batch.pairs);
+                        Ok(())
+                    },
+                    &mut cpu_stats,
+                )
+                .unwrap();
+                let gpu = crsh_wgpu::traverse::crsh::Crsh::new(&g, &traverse_spec(culling, budget))
+                    .unwrap();
+                let mut got: Vec<Candidate> = Vec::new();
+                let mut batches = 0;
+                let mut gpu_stats = Stats::default();
+                gpu.traverse(
+                    &b,
+                    &gpu_rays,
+                    kind,
+                    &gpu_h,
+                    &mut |batch, _| {
+                        let pairs = b.download(&batch.pairs).unwrap();
+                        assert!(
+                            pairs.windows(2).all(|w| w[0] < w[1]),
+                            "{what}: pairs not increasing"
+                        );
+                        got.extend(pairs);
+                        batches += 1;
+                        Ok(())
+                    },
+                    &mut gpu_stats,
+                )
+                .unwrap();
+                got.sort_unstable();
+                want.sort_unstable();
+                let mut gi = got.iter().peekable();
+                for w in &want {
+                    while gi.peek().is_some_and(|g| *g < w) {
+                        gi.next();
+                    }
+                    assert_eq!(
+                        gi.peek(),
+                        Some(&w),
+                        "{what}: CPU candidate {w:?} missing on the GPU"
+                    );
+                }
+                assert!(!want.is_empty(), "{what}: no candidates");
+                assert!(
+                    (got.len() as f64) <= want.len() as f64 * 1.05 + 10.0,
+                    "{what}: GPU {} candidates, CPU {}",
+                    got.len(),
+                    want.len()
+                );
+                if budget < 1.0 {
+                    assert!(batches > 1, "{what}: one batch");
+                }
+                assert_eq!(gpu_stats.mesh_culling.is_empty(), !culling);
+                for (k, c) in &cpu_stats.mesh_culling {
+                    let gm = &gpu_stats.mesh_culling[k];
+                    assert_eq!(gm.tests, c.tests, "{what}: mesh culling tests");
+                    assert!(
+                        gm.hits >= c.hits,
+                        "{what}: the GPU culled a mesh the CPU kept"
+                    );
+                }
+                assert_eq!(gpu_stats.levels.len(), cpu_stats.levels.len(), "{what}");
+                // The top level tests the same pairs; below, the GPU's few extra survivors
+                // add tests and hits. (Under a tiny budget the batches abandoned and retried
+                // differ: the CPU sizes them from its arrays' capacities, the GPU from their
+                // lengths, and abandoned batches' tests count; only the rows are compared.)
+                let top = cpu_h.levels.len() as u32;
+                let within = |g: u64, c: u64| g >= c && g as f64 <= c as f64 * 1.05 + 10.0;
+                for (gl, cl) in gpu_stats.levels.iter().zip(&cpu_stats.levels) {
+                    assert_eq!(gl.level, cl.level, "{what}");
+                    // (With mesh culling the GPU may keep a mesh more for a node: more tests.)
+                    if gl.level == top && budget >= 1.0 && !culling {
+                        assert_eq!(gl.tests, cl.tests, "{what}: top level tests");
+                    }
+                    assert!(
+                        budget < 1.0 || (within(gl.tests, cl.tests) && within(gl.hits, cl.hits)),
+                        "{what}: {gl:?} vs {cl:?}"
+                    );
+                }
+            }
+        }
+    }
+}
