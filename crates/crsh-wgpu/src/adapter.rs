@@ -98,18 +98,31 @@ pub fn enumerate_adapters() -> Vec<AdapterInfo> {
 pub const OPTIONAL_FEATURES: wgpu::Features =
     wgpu::Features::TIMESTAMP_QUERY.union(wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS);
 
-/// Passes the profiler can time between two reads (each takes two timestamp queries).
+/// Passes the profiler can time at once, over all threads (each takes two timestamp queries).
 pub const MAX_TIMED_PASSES: u32 = 2048;
+
+/// Bytes between two resolved query pairs (wgpu's `QUERY_RESOLVE_BUFFER_ALIGNMENT`).
+const RESOLVE_STRIDE: u64 = 256;
+
+/// One thread's open stages and timed passes.
+#[derive(Default)]
+struct ThreadTimers {
+    /// Open stages, innermost last.
+    stack: Vec<String>,
+    /// The query pair and stage of each pass timed since this thread's last read.
+    passes: Vec<(u32, String)>,
+}
 
 #[derive(Default)]
 struct ProfilerState {
-    /// Open stages, innermost last.
-    stack: Vec<String>,
-    /// The stage of each timed pass since the last read; pass `i` owns queries `2i`, `2i + 1`.
-    labels: Vec<String>,
+    /// Per thread: stages are opened and closed by the thread that runs them, so concurrent
+    /// frames on one shared device (tests, a multi-threaded host) keep their timings apart.
+    threads: HashMap<std::thread::ThreadId, ThreadTimers>,
+    /// Query pairs not in use.
+    free: Vec<u32>,
 }
 
-/// GPU timestamp queries around passes, attributed to the stage open when the pass began.
+/// GPU timestamp queries around passes, attributed to the stage the beginning thread had open.
 struct Profiler {
     queries: Option<wgpu::QuerySet>,
     resolve: wgpu::Buffer,
@@ -129,7 +142,7 @@ impl Profiler {
         let resolve = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("crsh timestamp resolve"),
             size: if timed {
-                u64::from(2 * MAX_TIMED_PASSES) * 8
+                u64::from(MAX_TIMED_PASSES) * RESOLVE_STRIDE
             } else {
                 8
             },
@@ -139,12 +152,15 @@ impl Profiler {
         Profiler {
             queries,
             resolve,
-            state: Mutex::new(ProfilerState::default()),
+            state: Mutex::new(ProfilerState {
+                threads: HashMap::new(),
+                free: (0..MAX_TIMED_PASSES).rev().collect(),
+            }),
         }
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, ProfilerState> {
-        // The state is a plain stack and list; a panic cannot leave it half-updated.
+        // The state is plain maps and lists; a panic cannot leave them half-updated.
         self.state.lock().unwrap_or_else(|p| p.into_inner())
     }
 }
@@ -377,40 +393,50 @@ impl GpuContext {
         })
     }
 
-    /// Opens stage `key` for the timestamp profiler: compute and render passes begun with
-    /// [`GpuContext::compute_pass`] / [`GpuContext::render_timestamps`] until the matching
-    /// [`GpuContext::end_stage`] are timed and attributed to the innermost open stage.
+    /// Opens stage `key` for the timestamp profiler on the calling thread: compute and render
+    /// passes this thread begins with [`GpuContext::compute_pass`] /
+    /// [`GpuContext::render_timestamps`] until the matching [`GpuContext::end_stage`] are timed
+    /// and attributed to its innermost open stage.
     pub fn begin_stage(&self, key: &str) {
-        self.profiler.lock().stack.push(key.to_string());
+        let mut state = self.profiler.lock();
+        let t = state
+            .threads
+            .entry(std::thread::current().id())
+            .or_default();
+        t.stack.push(key.to_string());
     }
 
-    /// Closes the innermost stage and reads back every timestamp pair written since the last
-    /// read: milliseconds per stage key. Call it after waiting for the device, and submit a
-    /// stage's encoders before opening a nested stage (a pass still in an unsubmitted encoder
-    /// has no timestamps yet). Without timestamp queries it returns nothing.
+    /// Closes the calling thread's innermost stage and reads back every timestamp pair this
+    /// thread wrote since its last read: milliseconds per stage key. Call it after waiting for
+    /// the device, and submit a stage's encoders before opening a nested stage (a pass still in
+    /// an unsubmitted encoder has no timestamps yet). Without timestamp queries it returns
+    /// nothing.
     pub fn end_stage(&self) -> GpuResult<Vec<(String, f64)>> {
+        let id = std::thread::current().id();
         let mut state = self.profiler.lock();
-        state.stack.pop();
-        if state.labels.is_empty() {
+        let Some(t) = state.threads.get_mut(&id) else {
+            return Ok(Vec::new());
+        };
+        t.stack.pop();
+        let passes = std::mem::take(&mut t.passes);
+        if t.stack.is_empty() {
+            state.threads.remove(&id);
+        }
+        drop(state);
+        if passes.is_empty() {
             return Ok(Vec::new());
         }
-        let labels = std::mem::take(&mut state.labels);
-        drop(state);
-        self.read_timestamps(labels)
+        let read = self.read_timestamps(&passes);
+        let mut state = self.profiler.lock();
+        state.free.extend(passes.iter().map(|(pair, _)| *pair));
+        read
     }
 
-    fn read_timestamps(&self, labels: Vec<String>) -> GpuResult<Vec<(String, f64)>> {
+    fn read_timestamps(&self, passes: &[(u32, String)]) -> GpuResult<Vec<(String, f64)>> {
         let Some(queries) = &self.profiler.queries else {
             return Ok(Vec::new());
         };
-        let count = 2 * labels.len() as u32;
-        let bytes = u64::from(count) * 8;
-        let mut encoder = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("crsh timestamps"),
-            });
-        encoder.resolve_query_set(queries, 0..count, &self.profiler.resolve, 0);
+        let bytes = passes.len() as u64 * 16;
         let staging = crate::backend::create_raw_buffer(
             self,
             "crsh timestamps readback",
@@ -418,33 +444,45 @@ impl GpuContext {
             wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             false,
         )?;
-        encoder.copy_buffer_to_buffer(&self.profiler.resolve, 0, &staging, 0, bytes);
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("crsh timestamps"),
+            });
+        for (i, (pair, _)) in passes.iter().enumerate() {
+            let at = u64::from(*pair) * RESOLVE_STRIDE;
+            encoder.resolve_query_set(queries, 2 * pair..2 * pair + 2, &self.profiler.resolve, at);
+            encoder.copy_buffer_to_buffer(&self.profiler.resolve, at, &staging, i as u64 * 16, 16);
+        }
         self.capture("resolve timestamps", || {
             self.queue.submit([encoder.finish()]);
         })?;
         let raw = crate::backend::map_read_bytes(self, &staging, bytes)?;
         let ticks: Vec<u64> = bytemuck::pod_collect_to_vec(&raw);
         let period_ms = f64::from(self.timestamp_period_ns()) * 1e-6;
-        Ok(labels
-            .into_iter()
+        Ok(passes
+            .iter()
             .zip(ticks.chunks_exact(2))
-            .map(|(label, t)| (label, t[1].saturating_sub(t[0]) as f64 * period_ms))
+            .map(|((_, label), t)| (label.clone(), t[1].saturating_sub(t[0]) as f64 * period_ms))
             .collect())
     }
 
-    /// Timestamp writes for the next pass of the innermost open stage: `None` when no stage is
-    /// open, the adapter has no timestamp queries, or this stage's query pool is full (the
-    /// pass then runs untimed; the pool holds [`MAX_TIMED_PASSES`] passes between reads).
+    /// Timestamp writes for the next pass of the calling thread's innermost open stage: `None`
+    /// when it has no open stage, the adapter has no timestamp queries, or all
+    /// [`MAX_TIMED_PASSES`] query pairs are in use (the pass then runs untimed).
     fn next_timestamps(&self) -> Option<(&wgpu::QuerySet, u32)> {
         let queries = self.profiler.queries.as_ref()?;
         let mut state = self.profiler.lock();
-        let stage = state.stack.last()?.clone();
-        if state.labels.len() >= MAX_TIMED_PASSES as usize {
-            return None;
-        }
-        let first = 2 * state.labels.len() as u32;
-        state.labels.push(stage);
-        Some((queries, first))
+        let id = std::thread::current().id();
+        let stage = state.threads.get(&id)?.stack.last()?.clone();
+        let pair = state.free.pop()?;
+        state
+            .threads
+            .get_mut(&id)
+            .expect("present above")
+            .passes
+            .push((pair, stage));
+        Some((queries, 2 * pair))
     }
 
     /// Begins a compute pass on `encoder`, timed for the innermost open stage (see
