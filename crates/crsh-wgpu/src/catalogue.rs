@@ -23,6 +23,7 @@ use crate::primary::raster::Raster;
 use crate::raygen::whitted::Whitted;
 use crate::scene::GpuScene;
 use crate::shade::phong::Phong;
+use crate::sort::compress::CompressSorter;
 use crate::sort::radix::RadixSorter;
 use crate::traverse::crsh::Crsh;
 use crsh_core::{Hasher, HierarchyBuilder, PrimaryVisibility, RayGen, Shader, Sorter, Traverser};
@@ -34,6 +35,7 @@ pub const GPU_VARIANTS: &[(StageKind, &str)] = &[
     (StageKind::Intersect, "brute"),
     (StageKind::Intersect, "bvh"),
     (StageKind::Sort, "radix"),
+    (StageKind::Sort, "compress"),
     (StageKind::Hierarchy, "sphere_cone"),
     (StageKind::Traverse, "crsh"),
     (StageKind::Shade, "phong"),
@@ -121,6 +123,7 @@ pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<GpuScene>) -> Result<Stage
     let sorter: Option<Box<dyn Sorter<Wgpu>>> = match &cfg.sort {
         None => None,
         Some(spec) if spec.kind == "radix" => Some(Box::new(RadixSorter::new(scene, spec)?)),
+        Some(spec) if spec.kind == "compress" => Some(Box::new(CompressSorter::new(scene, spec)?)),
         Some(spec) => return Err(unknown(StageKind::Sort, spec)),
     };
     let hierarchy: Option<Box<dyn HierarchyBuilder<Wgpu>>> = match &cfg.hierarchy {

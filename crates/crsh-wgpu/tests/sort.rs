@@ -92,3 +92,61 @@ fn radix_sorter_rejects_bad_keys_and_is_a_stage() {
     let order = sorter.sort(&b, &keys, 21, &mut Stats::default()).unwrap();
     assert_eq!(b.download(&order).unwrap(), vec![0, 1, 3, 2]);
 }
+
+/// Compression, the chunk sort and decompression give the CPU's chunks and permutation, bit
+/// for bit, with long runs, no runs, and one run.
+#[test]
+fn compress_sorter_matches_the_cpu() {
+    use crsh_wgpu::sort::compress::{compress, CompressSorter};
+    let Some(b) = crsh_wgpu::testing::shared_backend("compress_sorter_matches_the_cpu") else {
+        return;
+    };
+    let scene = std::sync::Arc::new(crsh_scene::builtin::build("cornell-mirrors").unwrap());
+    let g = GpuScene::new(&b, &scene).unwrap();
+    let sorter = CompressSorter::new(&g, &StageSpec::new("compress")).unwrap();
+    let mut rng = Rng(77);
+    let mut cases: Vec<(Vec<u64>, u32)> = Vec::new();
+    for (n, bits, distinct) in [
+        (0usize, 32u32, 1u64),
+        (1, 32, 1),
+        (100, 4, 3),
+        (5000, 32, 40),
+        (3000, 64, 3000),
+        (4 * RADIX_BLOCK + 9, 50, 200),
+    ] {
+        let values: Vec<u64> = (0..distinct).map(|_| masked(rng.next(), bits)).collect();
+        // Runs: each value repeated a random number of times.
+        let mut keys = Vec::with_capacity(n);
+        while keys.len() < n {
+            let v = values[(rng.next() % distinct) as usize];
+            for _ in 0..(1 + rng.next() % 9) {
+                if keys.len() < n {
+                    keys.push(v);
+                }
+            }
+        }
+        cases.push((keys, bits));
+    }
+    cases.push((vec![7u64; 2000], 3));
+    for (keys, bits) in &cases {
+        let cpu_chunks = crsh_cpu::sort::compress::compress(keys);
+        let buf = b.upload(keys).unwrap();
+        let chunks = compress(b.context(), &buf).unwrap();
+        assert_eq!(b.download(&chunks.keys).unwrap(), cpu_chunks.keys);
+        assert_eq!(b.download(&chunks.base).unwrap(), cpu_chunks.base);
+        assert_eq!(b.download(&chunks.size).unwrap(), cpu_chunks.size);
+        let mut stats = Stats::default();
+        let order = b
+            .download(&sorter.sort(&b, &buf, *bits, &mut stats).unwrap())
+            .unwrap();
+        assert!(
+            order == cpu_order(keys, *bits).unwrap(),
+            "{} keys, {bits} bits",
+            keys.len()
+        );
+        if !keys.is_empty() {
+            assert!(stats.timings_ms.contains_key("compression"));
+            assert!(stats.timings_ms.contains_key("decompression"));
+        }
+    }
+}

@@ -1,3 +1,4 @@
 //! Ray sorting on the device.
 
+pub mod compress;
 pub mod radix;
