@@ -14,8 +14,8 @@ use crsh_core::{Backend, FrameOptions, PipelineConfig, StageSpec, Stats, STAGE_T
 use crsh_scene::Scene;
 use crsh_wgpu::{GpuScene, Wgpu};
 
-/// The presets whose every stage has a WGSL implementation.
-const GPU_PRESETS: [&str; 3] = ["brute", "bvh", "rah"];
+/// The presets whose every stage has a WGSL implementation: all of them.
+const GPU_PRESETS: [&str; 4] = ["brute", "bvh", "crsh", "rah"];
 
 const W: u32 = 48;
 const H: u32 = 36;
@@ -132,21 +132,26 @@ fn every_preset_agrees_with_the_cpu_on_the_shared_cornell_boxes() {
     }
 }
 
-/// The presets not in [`GPU_PRESETS`] are refused with a message naming the stage the wgpu
-/// backend lacks, before any device work.
+/// Every preset runs on the GPU; a variant without a WGSL implementation (the f64 reference,
+/// the Morton hash, ray-cast primaries) is refused with a message naming the stage, before any
+/// device work.
 #[test]
-fn presets_the_gpu_lacks_are_clear_errors() {
-    for name in crsh_cpu::PRESETS
-        .iter()
-        .filter(|p| !GPU_PRESETS.contains(p))
-    {
-        let e = crsh_wgpu::check_supported(&config(name, &[])).unwrap_err();
-        assert!(e.to_string().contains("wgpu backend"), "{name}: {e}");
-    }
-    for name in GPU_PRESETS {
+fn variants_the_gpu_lacks_are_clear_errors() {
+    for name in crsh_cpu::PRESETS {
+        assert!(
+            GPU_PRESETS.contains(name),
+            "{name} is not checked on the GPU"
+        );
         crsh_wgpu::check_supported(&config(name, &[])).unwrap();
     }
-    assert!(crsh_wgpu::check_supported(&config("bvh", &["intersect.kind=brute64"])).is_err());
+    for (preset, set) in [
+        ("bvh", "intersect.kind=brute64"),
+        ("crsh", "hash.kind=morton"),
+        ("bvh", "primary.kind=raycast"),
+    ] {
+        let e = crsh_wgpu::check_supported(&config(preset, &[set])).unwrap_err();
+        assert!(e.to_string().contains("wgpu backend"), "{set}: {e}");
+    }
 }
 
 #[test]
@@ -156,18 +161,25 @@ fn gpu_frames_are_deterministic_and_timed() {
         return;
     };
     let scene = builtin("cornell-mirrors");
-    let cfg = config("bvh", &[]);
+    let cfg = config("crsh", &[]);
     let (a, sa) = gpu_frame(&b, &scene, &cfg, &opts(2), "brute");
     let (c, sc) = gpu_frame(&b, &scene, &cfg, &opts(2), "brute");
     let bits = |im: &[[f32; 4]]| im.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
     assert!(bits(&a) == bits(&c), "two GPU frames differ");
     assert_eq!(sa.tests, sc.tests);
     assert_eq!(sa.rays, sc.rays);
+    assert_eq!(sa.levels, sc.levels);
     let keys = [
         "primary",
         "ray_creation",
         "trimming",
-        "intersection",
+        "hashing",
+        "compression",
+        "sorting",
+        "decompression",
+        "hierarchy_creation",
+        "traversal",
+        "final_tests",
         "shading",
     ];
     for key in keys {

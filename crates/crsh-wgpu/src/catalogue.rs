@@ -16,6 +16,7 @@ use crsh_core::{
 use crsh_cpu::Cpu;
 
 use crate::backend::{GpuBuffer, Wgpu};
+use crate::hash::thesis::ThesisHasher;
 use crate::hierarchy::sphere_cone::SphereConeBuilder;
 use crate::intersect::brute::BruteForce;
 use crate::intersect::bvh::CwBvh;
@@ -34,6 +35,7 @@ pub const GPU_VARIANTS: &[(StageKind, &str)] = &[
     (StageKind::Raygen, "whitted"),
     (StageKind::Intersect, "brute"),
     (StageKind::Intersect, "bvh"),
+    (StageKind::Hash, "thesis"),
     (StageKind::Sort, "radix"),
     (StageKind::Sort, "compress"),
     (StageKind::Hierarchy, "sphere_cone"),
@@ -118,6 +120,7 @@ pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<GpuScene>) -> Result<Stage
     };
     let hasher: Option<Box<dyn Hasher<Wgpu>>> = match &cfg.hash {
         None => None,
+        Some(spec) if spec.kind == "thesis" => Some(Box::new(ThesisHasher::new(scene, spec)?)),
         Some(spec) => return Err(unknown(StageKind::Hash, spec)),
     };
     let sorter: Option<Box<dyn Sorter<Wgpu>>> = match &cfg.sort {

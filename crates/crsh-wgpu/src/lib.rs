@@ -26,6 +26,7 @@ pub mod adapter;
 pub mod backend;
 pub mod catalogue;
 pub mod error;
+pub mod hash;
 pub mod hierarchy;
 pub mod intersect;
 pub mod kernel;

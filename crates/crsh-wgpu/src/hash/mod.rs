@@ -1,0 +1,3 @@
+//! Ray hashing on the device.
+
+pub mod thesis;
