@@ -133,7 +133,7 @@ fn every_preset_agrees_with_the_cpu_on_the_shared_cornell_boxes() {
 }
 
 /// Every preset runs on the GPU; a variant without a WGSL implementation (the f64 reference,
-/// the Morton hash, ray-cast primaries) is refused with a message naming the stage, before any
+/// ray-cast primaries, the watertight test) is refused with a message naming the stage, before any
 /// device work.
 #[test]
 fn variants_the_gpu_lacks_are_clear_errors() {
@@ -146,7 +146,7 @@ fn variants_the_gpu_lacks_are_clear_errors() {
     }
     for (preset, set) in [
         ("bvh", "intersect.kind=brute64"),
-        ("crsh", "hash.kind=morton"),
+        ("crsh", "intersect.test=watertight"),
         ("bvh", "primary.kind=raycast"),
     ] {
         let e = crsh_wgpu::check_supported(&config(preset, &[set])).unwrap_err();

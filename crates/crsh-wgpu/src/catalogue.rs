@@ -16,6 +16,7 @@ use crsh_core::{
 use crsh_cpu::Cpu;
 
 use crate::backend::{GpuBuffer, Wgpu};
+use crate::hash::morton_octa::MortonOcta;
 use crate::hash::thesis::ThesisHasher;
 use crate::hierarchy::sphere_cone::SphereConeBuilder;
 use crate::intersect::brute::BruteForce;
@@ -36,6 +37,7 @@ pub const GPU_VARIANTS: &[(StageKind, &str)] = &[
     (StageKind::Intersect, "brute"),
     (StageKind::Intersect, "bvh"),
     (StageKind::Hash, "thesis"),
+    (StageKind::Hash, "morton"),
     (StageKind::Sort, "radix"),
     (StageKind::Sort, "compress"),
     (StageKind::Hierarchy, "sphere_cone"),
@@ -121,6 +123,7 @@ pub fn build_stages(cfg: &PipelineConfig, scene: &Arc<GpuScene>) -> Result<Stage
     let hasher: Option<Box<dyn Hasher<Wgpu>>> = match &cfg.hash {
         None => None,
         Some(spec) if spec.kind == "thesis" => Some(Box::new(ThesisHasher::new(scene, spec)?)),
+        Some(spec) if spec.kind == "morton" => Some(Box::new(MortonOcta::new(scene, spec)?)),
         Some(spec) => return Err(unknown(StageKind::Hash, spec)),
     };
     let sorter: Option<Box<dyn Sorter<Wgpu>>> = match &cfg.sort {

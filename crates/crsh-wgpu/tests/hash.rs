@@ -133,6 +133,44 @@ fn thesis_keys_match_the_cpu_up_to_cell_boundaries() {
     }
 }
 
+/// The fields of an interleaved key (the inverse of `quantize::interleave`, MSB-first
+/// round-robin over the fields that still have bits).
+fn deinterleave(key: u64, widths: &[u32; 5]) -> [u64; 5] {
+    let total: u32 = widths.iter().sum();
+    let max = widths.iter().copied().max().unwrap_or(0);
+    let mut out = [0u64; 5];
+    let mut pos = total;
+    for level in 0..max {
+        for (f, &w) in widths.iter().enumerate() {
+            if level < w {
+                pos -= 1;
+                out[f] = (out[f] << 1) | ((key >> pos) & 1);
+            }
+        }
+    }
+    out
+}
+
+/// Fields wider than f32 can quantize are refused, with the reason.
+#[test]
+fn fields_wider_than_20_bits_are_refused() {
+    let Some(b) = crsh_wgpu::testing::shared_backend("fields_wider_than_20_bits_are_refused")
+    else {
+        return;
+    };
+    let s = Arc::new(crsh_scene::builtin::build("cornell-mirrors").unwrap());
+    let g = GpuScene::new(&b, &s).unwrap();
+    let mut sp = spec("interleave");
+    sp.params.insert("shadow_bits".into(), ParamValue::Int(64));
+    let e = ThesisHasher::new(&g, &sp).err().expect("refused");
+    assert!(e.to_string().contains("32-bit field"), "{e}");
+    let mut m = crsh_core::StageSpec::new("morton");
+    m.params.insert("origin_bits".into(), ParamValue::Int(0));
+    m.params
+        .insert("direction_bits".into(), ParamValue::Int(64));
+    assert!(crsh_wgpu::hash::morton_octa::MortonOcta::new(&g, &m).is_err());
+}
+
 #[test]
 fn bad_rays_are_errors() {
     let Some(b) = crsh_wgpu::testing::shared_backend("bad_rays_are_errors") else {
@@ -151,4 +189,67 @@ fn bad_rays_are_errors() {
         .hash(&b, &b.upload(&rays).unwrap(), &mut Stats::default())
         .unwrap_err();
     assert!(e.to_string().contains(&format!("ray {i}")), "{e}");
+}
+
+/// The Morton-octahedral keys, likewise: nearly all identical, every difference a cell
+/// boundary.
+#[test]
+fn morton_keys_match_the_cpu_up_to_cell_boundaries() {
+    use crsh_cpu::hash::morton_octa::MortonOcta as CpuMorton;
+    use crsh_wgpu::hash::morton_octa::MortonOcta;
+    let Some(b) =
+        crsh_wgpu::testing::shared_backend("morton_keys_match_the_cpu_up_to_cell_boundaries")
+    else {
+        return;
+    };
+    for name in ["cornell-mirrors", "office-boxes"] {
+        let s = Arc::new(crsh_scene::builtin::build(name).unwrap());
+        let g = GpuScene::new(&b, &s).unwrap();
+        let rays = rays_of(&s);
+        for (ob, db) in [(10i64, 20i64), (20, 1), (3, 7), (0, 40)] {
+            let mut sp = crsh_core::StageSpec::new("morton");
+            sp.params.insert("origin_bits".into(), ParamValue::Int(ob));
+            sp.params
+                .insert("direction_bits".into(), ParamValue::Int(db));
+            let cpu = CpuMorton::new(&s, &sp).unwrap();
+            let gpu = MortonOcta::new(&g, &sp).unwrap();
+            assert_eq!(
+                Hasher::<Cpu>::key_bits(&cpu),
+                Hasher::<crsh_wgpu::Wgpu>::key_bits(&gpu)
+            );
+            let want = cpu.hash(&Cpu, &rays, &mut Stats::default()).unwrap();
+            let got = b
+                .download(
+                    &gpu.hash(&b, &b.upload(&rays).unwrap(), &mut Stats::default())
+                        .unwrap(),
+                )
+                .unwrap();
+            let widths = cpu.widths();
+            let mut differ = 0;
+            for (i, (gk, wk)) in got.iter().zip(&want).enumerate() {
+                if gk == wk {
+                    continue;
+                }
+                differ += 1;
+                // Every field within one cell of the CPU's: a boundary rounding, not a bug.
+                let (gf, wf) = (deinterleave(*gk, &widths), deinterleave(*wk, &widths));
+                assert!(
+                    gf.iter().zip(&wf).all(|(a, b)| a.abs_diff(*b) <= 1),
+                    "{name} {ob}/{db}: ray {i}: gpu fields {gf:?} cpu {wf:?}"
+                );
+            }
+            println!(
+                "{name} morton {ob}/{db}: {differ} of {} keys differ",
+                rays.len()
+            );
+            // f32 quantization is off by up to ~2^(bits − 23) cells: wide fields (21-bit
+            // origin axes) move a few percent of the keys, narrow ones (≤ 16 bits) almost none.
+            let widest = ob.max((db + 1) / 2) as i32;
+            let allowed = 0.01 + 4.0 * 2f64.powi(widest - 24);
+            assert!(
+                differ as f64 <= allowed * rays.len() as f64,
+                "{name} {ob}/{db}: {differ} keys differ"
+            );
+        }
+    }
 }

@@ -1,3 +1,4 @@
 //! Ray hashing on the device.
 
+pub mod morton_octa;
 pub mod thesis;

@@ -14,7 +14,8 @@
 //! differing key differs in one field by one cell. Such a ray is still traced exactly (the
 //! hierarchy bounds whatever rays it is given); only its place in the sort order, hence the
 //! hierarchy's tightness, can change, so counts can differ slightly from the CPU's while the
-//! hits do not. A bit-identical hash needs integer quantization on both sides (threshold tables
+//! hits do not. Layouts with a field wider than [`MAX_FIELD_BITS`] (f32's significand) are
+//! refused. A bit-identical hash needs integer quantization on both sides (threshold tables
 //! for θ and φ, exact rational floors for the origin), which is the planned next step.
 
 use std::sync::Arc;
@@ -31,6 +32,9 @@ use crate::kernel::{chunks, encoder, submit, uniform, Kernel, Slot};
 use crate::scene::GpuScene;
 
 const SHADER: &str = include_str!("thesis.wgsl");
+
+/// The quantization helpers shared by the hashes (`quantize.wgsl`).
+pub(crate) const QUANTIZE_WGSL: &str = include_str!("quantize.wgsl");
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
@@ -62,7 +66,7 @@ impl ThesisKernels {
             kernel: Kernel::new(
                 ctx,
                 "crsh thesis hash",
-                SHADER,
+                &format!("{QUANTIZE_WGSL}\n{SHADER}"),
                 &["hash"],
                 &[
                     Slot::Uniform,
@@ -73,6 +77,25 @@ impl ThesisKernels {
                 ],
             )?,
         })
+    }
+}
+
+/// The widest field the device quantizes (f32 has a 24-bit significand: wider cells would be
+/// decided by rounding, not by the ray; 20 bits keep that error below a tenth of a cell).
+pub const MAX_FIELD_BITS: u32 = 20;
+
+/// Refuses a layout with a field wider than [`MAX_FIELD_BITS`].
+pub(crate) fn check_field_width(variant: &str, widths: &[u32]) -> Result<()> {
+    match widths.iter().find(|&&w| w > MAX_FIELD_BITS) {
+        Some(w) => Err(CoreError::Unsupported {
+            stage: "hash",
+            variant: variant.into(),
+            what: format!(
+                "a {w}-bit field on the wgpu backend (it quantizes in f32: at most \
+                 {MAX_FIELD_BITS} bits per field; use fewer bits or --backend cpu)"
+            ),
+        }),
+        None => Ok(()),
     }
 }
 
@@ -90,6 +113,16 @@ impl ThesisHasher {
         let cpu = CpuThesis::new(&scene.scene, spec)?;
         let s = cpu.shadow_layout();
         let b = cpu.bounce_layout();
+        check_field_width(
+            "thesis",
+            &[
+                s.theta_bits,
+                s.phi_bits,
+                b.origin_bits,
+                b.theta_bits,
+                b.phi_bits,
+            ],
+        )?;
         let interleave = u32::from(s.order == FieldOrder::Interleaved);
         Ok(ThesisHasher {
             scene: Arc::clone(scene),

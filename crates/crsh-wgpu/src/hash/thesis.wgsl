@@ -1,7 +1,6 @@
 // `thesis` hashing on the device: the twin of crsh_cpu::hash::thesis (thesis_shadow,
-// thesis_bounce, quantize), in f32 (see thesis.rs for what differs). Prepended: common.wgsl.
-
-const PI: f32 = 3.14159265358979;
+// thesis_bounce), in f32 (see thesis.rs for what differs). Prepended: common.wgsl,
+// quantize.wgsl.
 
 struct Params {
     n: u32,
@@ -29,109 +28,6 @@ struct Params {
 @group(0) @binding(3) var<storage, read_write> keys: array<vec2<u32>>;
 // [bad ray report (0xffffffff - index)]
 @group(0) @binding(4) var<storage, read_write> report: array<atomic<u32>>;
-
-fn shl64(v: vec2<u32>, s: u32) -> vec2<u32> {
-    if (s == 0u) { return v; }
-    if (s >= 64u) { return vec2<u32>(0u); }
-    if (s >= 32u) { return vec2<u32>(0u, v.x << (s - 32u)); }
-    return vec2<u32>(v.x << s, (v.y << s) | (v.x >> (32u - s)));
-}
-
-fn mask_width(v: u32, w: u32) -> u32 {
-    if (w >= 32u) { return v; }
-    return v & ((1u << w) - 1u);
-}
-
-// quantize::combine: concatenated (first field highest) or interleaved MSB-first.
-fn combine(vals: array<u32, 3>, widths: array<u32, 3>, count: u32) -> vec2<u32> {
-    var out = vec2<u32>(0u);
-    if (p.interleave == 0u) {
-        for (var f = 0u; f < count; f++) {
-            out = shl64(out, widths[f]) | vec2<u32>(mask_width(vals[f], widths[f]), 0u);
-        }
-        return out;
-    }
-    var max_w = 0u;
-    for (var f = 0u; f < count; f++) { max_w = max(max_w, widths[f]); }
-    for (var level = 0u; level < max_w; level++) {
-        for (var f = 0u; f < count; f++) {
-            if (level < widths[f]) {
-                let bit = (vals[f] >> (widths[f] - 1u - level)) & 1u;
-                out = shl64(out, 1u) | vec2<u32>(bit, 0u);
-            }
-        }
-    }
-    return out;
-}
-
-fn quantize(x: f32, lo: f32, hi: f32, bits: u32) -> u32 {
-    if (bits == 0u) { return 0u; }
-    let cells = exp2(f32(bits));
-    let span = hi - lo;
-    if (!(span > 0.0 && span < inf())) { return 0u; }
-    let f = floor((x - lo) / span * cells);
-    if (!(f >= 0.0)) { return 0u; }
-    if (f >= cells) {
-        if (bits >= 32u) { return 0xffffffffu; }
-        return (1u << bits) - 1u;
-    }
-    return u32(f);
-}
-
-// atan(x) for x >= 0 by Cephes' atanf (range reduction at tan(π/8), tan(3π/8), then a degree-9
-// odd polynomial): within a few 1e-8 rad, where WGSL's own atan / atan2 / acos may be off by
-// thousands of ULPs (measured on lavapipe: acos off by 2e-5 rad).
-fn atan_pos(x0: f32) -> f32 {
-    var x = x0;
-    var y0 = 0.0;
-    if (x > 2.414213562373095) {
-        y0 = 0.5 * PI;
-        x = -1.0 / x;
-    } else if (x > 0.4142135623730950) {
-        y0 = 0.25 * PI;
-        x = (x - 1.0) / (x + 1.0);
-    }
-    let z = x * x;
-    let y = (((8.05374449538e-2 * z - 1.38776856032e-1) * z + 1.99777106478e-1) * z
-        - 3.33329491539e-1) * z * x + x;
-    return y0 + y;
-}
-
-// atan2(y, x) in [-π, π] from atan_pos, with Rust's (IEEE's) signed zeros: atan2(±0, +0) =
-// ±0 and atan2(±0, −0) = ±π.
-fn atan2_accurate(y: f32, x: f32) -> f32 {
-    let ax = abs(x);
-    let ay = abs(y);
-    var a: f32;
-    if (ay == 0.0 && ax == 0.0) {
-        a = 0.0;
-    } else if (ay <= ax) {
-        a = atan_pos(ay / ax);
-    } else {
-        a = 0.5 * PI - atan_pos(ax / ay);
-    }
-    if (x < 0.0 || (x == 0.0 && (bitcast<u32>(x) & 0x80000000u) != 0u)) {
-        a = PI - a;
-    }
-    if (y < 0.0 || (y == 0.0 && (bitcast<u32>(y) & 0x80000000u) != 0u)) {
-        a = -a;
-    }
-    return a;
-}
-
-fn spherical_cells(d: vec3<f32>, tb: u32, pb: u32) -> vec2<u32> {
-    let l = length(d);
-    if (!(l > 0.0 && l < inf())) {
-        return vec2<u32>(quantize(0.0, 0.0, PI, tb), quantize(0.0, -PI, PI, pb));
-    }
-    let n = d / l;
-    // θ = acos(n.z) as Kahan's 2·atan2(|n − z|, |n + z|), accurate at both poles.
-    let below = vec3<f32>(n.x, n.y, n.z - 1.0);
-    let above = vec3<f32>(n.x, n.y, n.z + 1.0);
-    let theta = 2.0 * atan2_accurate(length(below), length(above));
-    let phi = atan2_accurate(n.y, n.x);
-    return vec2<u32>(quantize(theta, 0.0, PI, tb), quantize(phi, -PI, PI, pb));
-}
 
 @compute @workgroup_size(WG)
 fn hash(@builtin(global_invocation_id) gid: vec3<u32>,
@@ -163,8 +59,9 @@ fn hash(@builtin(global_invocation_id) gid: vec3<u32>,
             dir = -d;
         }
         let c = spherical_cells(dir, p.shadow_theta_bits, p.shadow_phi_bits);
-        let dkey = combine(array<u32, 3>(c.x, c.y, 0u),
-                           array<u32, 3>(p.shadow_theta_bits, p.shadow_phi_bits, 0u), 2u);
+        let dkey = combine(array<u32, 5>(c.x, c.y, 0u, 0u, 0u),
+                           array<u32, 5>(p.shadow_theta_bits, p.shadow_phi_bits, 0u, 0u, 0u), 2u,
+                           p.interleave != 0u);
         var light = r.light;
         if (p.light_bits < 32u) {
             light = min(light, (1u << p.light_bits) - 1u);
@@ -176,10 +73,12 @@ fn hash(@builtin(global_invocation_id) gid: vec3<u32>,
         let cx = quantize(o.x, p.lo.x, p.hi.x, ob);
         let cy = quantize(o.y, p.lo.y, p.hi.y, ob);
         let cz = quantize(o.z, p.lo.z, p.hi.z, ob);
-        let okey = combine(array<u32, 3>(cx, cy, cz), array<u32, 3>(ob, ob, ob), 3u);
+        let okey = combine(array<u32, 5>(cx, cy, cz, 0u, 0u), array<u32, 5>(ob, ob, ob, 0u, 0u), 3u,
+                           p.interleave != 0u);
         let c = spherical_cells(ray_dir(r), p.bounce_theta_bits, p.bounce_phi_bits);
-        let dkey = combine(array<u32, 3>(c.x, c.y, 0u),
-                           array<u32, 3>(p.bounce_theta_bits, p.bounce_phi_bits, 0u), 2u);
+        let dkey = combine(array<u32, 5>(c.x, c.y, 0u, 0u, 0u),
+                           array<u32, 5>(p.bounce_theta_bits, p.bounce_phi_bits, 0u, 0u, 0u), 2u,
+                           p.interleave != 0u);
         key = shl64(okey, p.bounce_theta_bits + p.bounce_phi_bits) | dkey;
     } else {
         atomicMax(&report[0], 0xffffffffu - (p.first + i));

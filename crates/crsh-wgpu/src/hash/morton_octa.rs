@@ -1,0 +1,135 @@
+//! `morton` on the wgpu backend: the 5-D Morton key of the quantized origin and the
+//! octahedral direction, one invocation per ray. The twin is
+//! [`crsh_cpu::hash::morton_octa::MortonOcta`] (same parameters and field widths, the same
+//! interleaving); like the thesis hash on the device ([`super::thesis`]) it quantizes in `f32`
+//! where the CPU uses `f64`, so a coordinate within rounding of a cell boundary can land in the
+//! neighbouring cell (the tests check that every differing key is such a case). Fields wider
+//! than [`super::thesis::MAX_FIELD_BITS`] are refused.
+
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+use crsh_core::{Hasher, Ray, Result, StageSpec, Stats};
+use crsh_cpu::hash::morton_octa::MortonOcta as CpuMorton;
+
+use crate::adapter::GpuContext;
+use crate::backend::{GpuBuffer, Wgpu};
+use crate::error::GpuResult;
+use crate::kernel::{chunks, encoder, submit, uniform, Kernel, Slot};
+use crate::scene::GpuScene;
+
+const SHADER: &str = include_str!("morton_octa.wgsl");
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct Params {
+    n: u32,
+    origin_bits: u32,
+    u_bits: u32,
+    v_bits: u32,
+    lo: [f32; 3],
+    a: f32,
+    hi: [f32; 3],
+    b: f32,
+}
+
+struct MortonKernels {
+    kernel: Kernel,
+}
+
+impl MortonKernels {
+    fn new(ctx: &GpuContext) -> GpuResult<MortonKernels> {
+        Ok(MortonKernels {
+            kernel: Kernel::new(
+                ctx,
+                "crsh morton hash",
+                &format!("{}\n{SHADER}", super::thesis::QUANTIZE_WGSL),
+                &["hash"],
+                &[Slot::Uniform, Slot::Read, Slot::ReadWrite],
+            )?,
+        })
+    }
+}
+
+/// The GPU Morton-octahedral hasher.
+pub struct MortonOcta {
+    scene: Arc<GpuScene>,
+    params: Params,
+    key_bits: u32,
+}
+
+impl MortonOcta {
+    /// The hasher for `scene` with a resolved `spec` (validated and sized by the CPU twin).
+    pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<MortonOcta> {
+        let cpu = CpuMorton::new(&scene.scene, spec)?;
+        let [o, _, _, u, v] = cpu.widths();
+        super::thesis::check_field_width("morton", &[o, u, v])?;
+        let b = scene.scene.bounds;
+        Ok(MortonOcta {
+            scene: Arc::clone(scene),
+            params: Params {
+                n: 0,
+                origin_bits: o,
+                u_bits: u,
+                v_bits: v,
+                lo: b.min.to_array(),
+                a: 0.0,
+                hi: b.max.to_array(),
+                b: 0.0,
+            },
+            key_bits: crsh_core::Hasher::<crsh_cpu::Cpu>::key_bits(&cpu),
+        })
+    }
+}
+
+impl Hasher<Wgpu> for MortonOcta {
+    fn name(&self) -> &str {
+        "morton"
+    }
+
+    fn key_bits(&self) -> u32 {
+        self.key_bits
+    }
+
+    fn hash(
+        &self,
+        backend: &Wgpu,
+        rays: &GpuBuffer<Ray>,
+        _stats: &mut Stats,
+    ) -> Result<GpuBuffer<u64>> {
+        let ctx = backend.context();
+        let n = rays.len();
+        let keys = GpuBuffer::<u64>::zeroed(ctx, "crsh ray keys", n)?;
+        if n == 0 {
+            return Ok(keys);
+        }
+        let k = ctx.kernel(MortonKernels::new)?;
+        let mut groups = Vec::new();
+        for range in chunks::<Ray>(ctx, n) {
+            let params = Params {
+                n: range.len() as u32,
+                ..self.params
+            };
+            let u = uniform(ctx, "crsh morton params", &params);
+            let bg = k.kernel.bind_group(
+                ctx,
+                &[
+                    u.as_entire_binding(),
+                    rays.slice_binding(range.clone()),
+                    keys.slice_binding(range.clone()),
+                ],
+            );
+            groups.push((bg, range.len() as u32));
+        }
+        let mut enc = encoder(ctx, "crsh morton hash");
+        {
+            let mut pass = ctx.compute_pass(&mut enc, "crsh morton hash");
+            for (bg, n) in &groups {
+                k.kernel.dispatch(ctx, &mut pass, "hash", bg, *n)?;
+            }
+        }
+        submit(ctx, "crsh morton hash", enc)?;
+        let _ = &self.scene;
+        Ok(keys)
+    }
+}
