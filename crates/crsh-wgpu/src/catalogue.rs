@@ -56,7 +56,7 @@ pub fn catalogue() -> Vec<StageVariantInfo> {
 
 /// Checks that every stage of `cfg` (resolved or not) has a wgpu implementation: a variant
 /// the CPU has but the GPU lacks is [`CoreError::Unsupported`] naming the GPU variants of that
-/// stage. Unknown variants and parameters are left to [`PipelineConfig::resolve`].
+/// stage, and so is a ray-triangle test other than `mt`. Unknown variants and parameters are left to [`PipelineConfig::resolve`].
 pub fn check_supported(cfg: &PipelineConfig) -> Result<()> {
     for &slot in StageKind::ALL.iter() {
         let Some(spec) = cfg.slot(slot) else {
@@ -85,6 +85,20 @@ pub fn check_supported(cfg: &PipelineConfig) -> Result<()> {
                     } else {
                         gpu.join(", ")
                     }
+                ),
+            });
+        }
+    }
+    // Parameter values only the CPU implements.
+    if let Some(test) = cfg.intersect.params.get("test") {
+        let name = test.to_string();
+        if name != "mt" {
+            return Err(CoreError::Unsupported {
+                stage: "intersect",
+                variant: cfg.intersect.kind.clone(),
+                what: format!(
+                    "test `{name}` on the wgpu backend (only `mt` has a WGSL twin); run it with \
+                     --backend cpu"
                 ),
             });
         }
