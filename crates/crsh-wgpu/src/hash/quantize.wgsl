@@ -52,47 +52,6 @@ fn quantize(x: f32, lo: f32, hi: f32, bits: u32) -> u32 {
     return u32(f);
 }
 
-// atan(x) for x >= 0 by Cephes' atanf (range reduction at tan(π/8), tan(3π/8), then a degree-9
-// odd polynomial): within a few 1e-8 rad, where WGSL's own atan / atan2 / acos may be off by
-// thousands of ULPs (measured on lavapipe: acos off by 2e-5 rad).
-fn atan_pos(x0: f32) -> f32 {
-    var x = x0;
-    var y0 = 0.0;
-    if (x > 2.414213562373095) {
-        y0 = 0.5 * PI;
-        x = -1.0 / x;
-    } else if (x > 0.4142135623730950) {
-        y0 = 0.25 * PI;
-        x = (x - 1.0) / (x + 1.0);
-    }
-    let z = x * x;
-    let y = (((8.05374449538e-2 * z - 1.38776856032e-1) * z + 1.99777106478e-1) * z
-        - 3.33329491539e-1) * z * x + x;
-    return y0 + y;
-}
-
-// atan2(y, x) in [-π, π] from atan_pos, with Rust's (IEEE's) signed zeros: atan2(±0, +0) =
-// ±0 and atan2(±0, −0) = ±π.
-fn atan2_accurate(y: f32, x: f32) -> f32 {
-    let ax = abs(x);
-    let ay = abs(y);
-    var a: f32;
-    if (ay == 0.0 && ax == 0.0) {
-        a = 0.0;
-    } else if (ay <= ax) {
-        a = atan_pos(ay / ax);
-    } else {
-        a = 0.5 * PI - atan_pos(ax / ay);
-    }
-    if (x < 0.0 || (x == 0.0 && (bitcast<u32>(x) & 0x80000000u) != 0u)) {
-        a = PI - a;
-    }
-    if (y < 0.0 || (y == 0.0 && (bitcast<u32>(y) & 0x80000000u) != 0u)) {
-        a = -a;
-    }
-    return a;
-}
-
 fn spherical_cells(d: vec3<f32>, tb: u32, pb: u32) -> vec2<u32> {
     let l = length(d);
     if (!(l > 0.0 && l < inf())) {

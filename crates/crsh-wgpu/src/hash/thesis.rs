@@ -34,7 +34,11 @@ use crate::scene::GpuScene;
 const SHADER: &str = include_str!("thesis.wgsl");
 
 /// The quantization helpers shared by the hashes (`quantize.wgsl`).
-pub(crate) const QUANTIZE_WGSL: &str = include_str!("quantize.wgsl");
+pub(crate) const QUANTIZE_WGSL: &str = concat!(
+    include_str!("quantize.wgsl"),
+    "\n",
+    include_str!("../kernels/trig.wgsl")
+);
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]

@@ -54,7 +54,7 @@ impl SphereConeKernels {
             kernel: Kernel::new(
                 ctx,
                 "crsh sphere-cone",
-                SHADER,
+                &format!("{SHADER}\n{}", include_str!("../kernels/trig.wgsl")),
                 &["leaves", "inner"],
                 &slots,
             )?,

@@ -1,5 +1,5 @@
 // `sphere_cone` on the device: the twin of crsh_cpu::hierarchy::sphere_cone in f32 (see
-// sphere_cone.rs for what differs). Prepended: common.wgsl.
+// sphere_cone.rs for what differs). Prepended: common.wgsl; trig.wgsl is appended.
 
 const PI: f32 = 3.14159265358979;
 const MAX_SUB: u32 = 64u;
@@ -38,7 +38,7 @@ fn unit3(v: vec3<f32>) -> vec3<f32> {
 
 // The angle between two non-zero vectors (atan2 form: accurate for small and large angles).
 fn angle_between(a: vec3<f32>, b: vec3<f32>) -> f32 {
-    return atan2(length(cross(a, b)), dot(a, b));
+    return atan2_accurate(length(cross(a, b)), dot(a, b));
 }
 
 // A unit vector orthogonal to the unit `v`.
@@ -75,7 +75,7 @@ fn cone_union(a: vec3<f32>, fa: f32, b: vec3<f32>, fb: f32) -> vec4<f32> {
     } else {
         u = any_orthonormal(a);
     }
-    return vec4<f32>(unit3(a * cos(alpha) + u * sin(alpha)), phi);
+    return vec4<f32>(unit3(a * cos_accurate(alpha) + u * sin_accurate(alpha)), phi);
 }
 
 // Smallest ball with `a`, `b` on its boundary.
@@ -193,7 +193,7 @@ fn leaves(@builtin(global_invocation_id) gid: vec3<u32>,
             let c = cone_union(axis, phi, d, 0.0);
             axis = c.xyz;
             phi = c.w;
-            cos_phi = cos(phi);
+            cos_phi = cos_accurate(phi);
         }
     }
     // Stored cone: re-measured against the stored axis, widened.

@@ -18,10 +18,12 @@
 //!    go to the intersector's candidate query already sorted.
 //!
 //! What differs: the node-sphere test runs in `f32` (the CPU's in `f64`) with the CPU's
-//! margins plus an acceptance of 1e-3 × the centre distance that covers the rounding of the
-//! cone test's `√(D² − ρ²)`, so the device keeps every pair the CPU keeps and a few more (a
-//! superset of the CPU's candidates, which the tests check, and never a missed intersection);
-//! level counts are therefore close to the CPU's, not equal. `peak_candidate_bytes` counts the
+//! margins plus an acceptance that bounds the test's own rounding (the radicand of
+//! `√(D² − ρ²)` off by at most `8ε(D² + ρ²)`, the products and sums by a few `ε`), with `sin`
+//! and `cos` from `kernels/trig.wgsl` (WGSL's may be off by 2⁻¹¹), so the device keeps every
+//! pair the CPU keeps and a few more (a superset of the CPU's candidates, which the tests
+//! check, and never a missed intersection); level counts are therefore close to the CPU's,
+//! not equal. `peak_candidate_bytes` counts the
 //! input and output pair arrays of a level (the device needs no final concatenation); the
 //! survivor flags (4 bytes per tested pair) come on top and must fit one storage binding.
 
@@ -84,7 +86,7 @@ impl CrshKernels {
             kernel: Kernel::new(
                 ctx,
                 "crsh traversal",
-                SHADER,
+                &format!("{SHADER}\n{}", include_str!("../kernels/trig.wgsl")),
                 &[
                     "prepare",
                     "mesh_cull",

@@ -6,9 +6,11 @@ const PI: f32 = 3.14159265358979;
 const REL_MARGIN: f32 = 1e-4;
 const ABS_MARGIN: f32 = 1e-5;
 const ANGLE_MARGIN: f32 = 1e-4;
-// Extra acceptance, times the centre distance, for f32 rounding of the cone test (the CPU
-// evaluates it in f64): sqrt(d² − ρ²) is off by up to 2·sqrt(ε)·D ≈ 5e-4·D.
-const F32_SLACK: f32 = 1e-3;
+// f32's unit roundoff (2⁻²³), for the rounding bound of the cone test (the CPU evaluates it in
+// f64).
+const EPS: f32 = 1.1920929e-7;
+// Relative widening of the reach test for f32 rounding.
+const F32_SLACK: f32 = 1e-5;
 
 // A node prepared for may_hit (crsh_cpu's NodeBound), 48 bytes.
 struct Bound {
@@ -108,8 +110,8 @@ fn prepare(@builtin(global_invocation_id) gid: vec3<u32>,
             bad = true;
         } else {
             b.axis = node.axis / len;
-            b.cos_a = cos(alpha);
-            b.sin_a = sin(alpha);
+            b.cos_a = cos_accurate(alpha);
+            b.sin_a = sin_accurate(alpha);
             b.all_dirs = 0u;
         }
     }
@@ -142,8 +144,19 @@ fn may_hit(b: Bound, sphere: vec4<f32>) -> bool {
     if (b.cos_a < 0.0 && rho2 >= d2 * b.sin_a * b.sin_a * (1.0 - F32_SLACK)) {
         return true;
     }
+    // a·v ≥ cos α·√(D² − ρ²) − sin α·ρ, accepting the worst rounding of both sides: the
+    // radicand is off by at most e = 8ε(D² + ρ²), so its root by min(√e, e / (2√(D² − ρ²)));
+    // the products and sums by a few ε of their magnitudes.
     let dist = sqrt(d2);
-    return dot(b.axis, v) >= b.cos_a * sqrt(max(d2 - rho2, 0.0)) - b.sin_a * rho - F32_SLACK * dist;
+    let s2 = max(d2 - rho2, 0.0);
+    let s = sqrt(s2);
+    let e = 8.0 * EPS * (d2 + rho2);
+    var root_err = sqrt(e);
+    if (s > 0.0) {
+        root_err = min(root_err, e / (2.0 * s));
+    }
+    let slack = abs(b.cos_a) * root_err + 16.0 * EPS * (dist + rho) + 4e-7 * (s + rho);
+    return dot(b.axis, v) >= b.cos_a * s - b.sin_a * rho - slack;
 }
 
 // Mesh culling: keep[node * meshes + m] for every top node and mesh.
