@@ -9,11 +9,11 @@
 //! re-measured against the stored axis and centre, and `reach` per node (the farthest point a
 //! ray of the node reaches, infinite for unbounded rays).
 //!
-//! What differs: the CPU constructs in `f64`, the device in `f32` (WGSL has no portable `f64`,
-//! and its `atan2`, `cos`, `sqrt` need not be correctly rounded), so the margins that make every
-//! ray certainly inside its node are wider: half-angles grow by 1e-5 relative + 2e-5 rad (CPU:
-//! 1e-6 + 1e-6), radii by 1e-5 relative + 1e-6 × the coordinates' magnitude (CPU: 1e-6
-//! relative). Nodes therefore agree with the CPU's within those margins plus rounding, and the
+//! What differs: the CPU constructs in `f64`, the device in `f32` (WGSL has no portable `f64`;
+//! angles come from the accurate `atan2` / `sin` / `cos` of `kernels/trig.wgsl`, since WGSL's
+//! own need not be accurate), so the margins that make every ray certainly inside its node
+//! are a little wider: half-angles grow by 2e-6 relative + 1e-6 rad (CPU: 1e-6 + 1e-6), radii
+//! by 2e-6 relative + 1e-6 × the coordinates' magnitude (CPU: 1e-6 relative). Nodes therefore agree with the CPU's within those margins plus rounding, and the
 //! tests check both that and containment of every ray in f64.
 
 use std::sync::Arc;

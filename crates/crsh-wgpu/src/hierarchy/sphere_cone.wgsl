@@ -3,11 +3,11 @@
 
 const PI: f32 = 3.14159265358979;
 const MAX_SUB: u32 = 64u;
-// Stored-node margins (wider than the CPU's 1e-6: f32 construction, and WGSL's atan2 / sqrt
-// need not be correctly rounded).
-const CONE_REL: f32 = 1e-5;
-const CONE_ABS: f32 = 2e-5;
-const SPHERE_REL: f32 = 1e-5;
+// Stored-node margins, a little wider than the CPU's 1e-6: the construction is f32, with angles
+// from trig.wgsl's atan2 (a few 1e-8 rad) and f32 cross / dot products (about 1e-7 rad).
+const CONE_REL: f32 = 2e-6;
+const CONE_ABS: f32 = 1e-6;
+const SPHERE_REL: f32 = 2e-6;
 // Times max(1, |centre|∞, |point|∞): the rounding of distances between f32 points.
 const SPHERE_ABS: f32 = 1e-6;
 const REACH_REL: f32 = 1e-5;
