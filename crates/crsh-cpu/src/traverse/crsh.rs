@@ -261,6 +261,46 @@ impl NodeBound {
     }
 }
 
+/// Checks a hierarchy's shape for a traversal of `n_rays` rays (shared by the backends): a
+/// non-zero `subdivision`, at least one level, `order_len == n_rays`, level `i` holding
+/// `⌈below / subdivision⌉` nodes, and reach bounds either absent or shaped like the levels.
+pub fn check_shape(
+    n_rays: usize,
+    subdivision: u32,
+    order_len: usize,
+    level_lens: &[usize],
+    reach_lens: &[usize],
+) -> Result<()> {
+    let sub = subdivision as usize;
+    if sub == 0 {
+        return Err(CoreError::InvalidInput("hierarchy subdivision is 0".into()));
+    }
+    if level_lens.is_empty() {
+        return Err(CoreError::InvalidInput("hierarchy has no levels".into()));
+    }
+    if order_len != n_rays {
+        return Err(CoreError::InvalidInput(format!(
+            "hierarchy order has {order_len} entries for {n_rays} rays"
+        )));
+    }
+    let mut below = n_rays;
+    for (i, &len) in level_lens.iter().enumerate() {
+        let want = below.div_ceil(sub);
+        if len != want {
+            return Err(CoreError::InvalidInput(format!(
+                "hierarchy level {i} has {len} nodes, expected {want} (⌈{below} / {sub}⌉)"
+            )));
+        }
+        below = want;
+    }
+    if !reach_lens.is_empty() && reach_lens != level_lens {
+        return Err(CoreError::InvalidInput(
+            "hierarchy reach bounds do not match its levels".into(),
+        ));
+    }
+    Ok(())
+}
+
 /// What one traversal did, for tests and tuning.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct TraversalReport {
@@ -344,42 +384,15 @@ impl Crsh {
 
     /// Checks the hierarchy's shape and prepares its nodes, lowest level first.
     fn prepare(&self, n_rays: usize, h: &RayHierarchy<Cpu>) -> Result<Vec<Vec<NodeBound>>> {
-        let sub = h.subdivision as usize;
-        if sub == 0 {
-            return Err(CoreError::InvalidInput("hierarchy subdivision is 0".into()));
-        }
-        if h.levels.is_empty() {
-            return Err(CoreError::InvalidInput("hierarchy has no levels".into()));
-        }
-        if h.order.len() != n_rays {
-            return Err(CoreError::InvalidInput(format!(
-                "hierarchy order has {} entries for {n_rays} rays",
-                h.order.len()
-            )));
-        }
-        let mut below = n_rays;
-        for (i, level) in h.levels.iter().enumerate() {
-            let want = below.div_ceil(sub);
-            if level.len() != want {
-                return Err(CoreError::InvalidInput(format!(
-                    "hierarchy level {i} has {} nodes, expected {want} (⌈{below} / {sub}⌉)",
-                    level.len()
-                )));
-            }
-            below = want;
-        }
-        if !h.reach.is_empty() {
-            let shapes_match = h.reach.len() == h.levels.len()
-                && h.reach
-                    .iter()
-                    .zip(&h.levels)
-                    .all(|(r, l)| r.len() == l.len());
-            if !shapes_match {
-                return Err(CoreError::InvalidInput(
-                    "hierarchy reach bounds do not match its levels".into(),
-                ));
-            }
-        }
+        let level_lens: Vec<usize> = h.levels.iter().map(Vec::len).collect();
+        let reach_lens: Vec<usize> = h.reach.iter().map(Vec::len).collect();
+        check_shape(
+            n_rays,
+            h.subdivision,
+            h.order.len(),
+            &level_lens,
+            &reach_lens,
+        )?;
         h.levels
             .iter()
             .enumerate()

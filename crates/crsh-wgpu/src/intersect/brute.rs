@@ -94,14 +94,7 @@ pub struct BruteForce {
 impl BruteForce {
     /// Prepares `scene`'s triangles for the Möller-Trumbore test on the host and uploads them.
     pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<BruteForce> {
-        let test = spec.str("test")?;
-        if test != "mt" {
-            return Err(CoreError::Unsupported {
-                stage: "intersect",
-                variant: "brute".into(),
-                what: format!("test `{test}` on the wgpu backend (only `mt` has a WGSL twin)"),
-            });
-        }
+        super::require_mt(spec, "brute")?;
         let set: TriangleSet = TriangleSet::new(&scene.scene);
         let n_tris = u32::try_from(set.len()).map_err(|_| {
             CoreError::InvalidInput(format!("{} triangles exceed u32 ids", set.len()))

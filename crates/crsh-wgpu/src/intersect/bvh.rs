@@ -69,14 +69,7 @@ pub struct CwBvh {
 impl CwBvh {
     /// Builds the tree on the host (the CPU twin's build) and uploads it.
     pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<CwBvh> {
-        let test = spec.str("test")?;
-        if test != "mt" {
-            return Err(CoreError::Unsupported {
-                stage: "intersect",
-                variant: "bvh".into(),
-                what: format!("test `{test}` on the wgpu backend (only `mt` has a WGSL twin)"),
-            });
-        }
+        super::require_mt(spec, "bvh")?;
         let cpu = CpuBvh::new(&scene.scene, spec)?;
         let ctx = scene.ctx();
         let words: Vec<NodeWords> = cpu

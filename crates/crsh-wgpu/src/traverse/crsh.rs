@@ -109,7 +109,7 @@ pub struct Crsh {
 }
 
 /// The buffers one dispatch binds (unused slots get placeholders).
-#[derive(Default)]
+#[derive(Clone, Copy, Default)]
 struct Binds<'a> {
     level_nodes: Option<&'a GpuBuffer<crsh_core::SphereCone>>,
     level_reach: Option<&'a GpuBuffer<f32>>,
@@ -206,7 +206,7 @@ impl Crsh {
             &Binds {
                 flags: Some(&flags),
                 counters: Some(&counters),
-                ..binds_ref(&binds)
+                ..binds
             },
         )?;
         let mut enc = encoder(ctx, test);
@@ -337,20 +337,6 @@ impl Crsh {
     }
 }
 
-fn binds_ref<'a>(b: &Binds<'a>) -> Binds<'a> {
-    Binds {
-        level_nodes: b.level_nodes,
-        level_reach: b.level_reach,
-        bounds: b.bounds,
-        child_bounds: b.child_bounds,
-        keep: b.keep,
-        pairs_in: b.pairs_in,
-        flags: b.flags,
-        pairs_out: b.pairs_out,
-        counters: b.counters,
-    }
-}
-
 impl Traverser<Wgpu> for Crsh {
     fn name(&self) -> &str {
         "crsh"
@@ -372,41 +358,16 @@ impl Traverser<Wgpu> for Crsh {
             return Ok(());
         }
         let sub = h.subdivision;
-        if sub == 0 {
-            return Err(CoreError::InvalidInput("hierarchy subdivision is 0".into()));
-        }
-        if h.levels.is_empty() {
-            return Err(CoreError::InvalidInput("hierarchy has no levels".into()));
-        }
-        if h.order.len() != n_rays {
-            return Err(CoreError::InvalidInput(format!(
-                "hierarchy order has {} entries for {n_rays} rays",
-                h.order.len()
-            )));
-        }
-        let mut below = n_rays;
-        for (i, level) in h.levels.iter().enumerate() {
-            let want = below.div_ceil(sub as usize);
-            if level.len() != want {
-                return Err(CoreError::InvalidInput(format!(
-                    "hierarchy level {i} has {} nodes, expected {want} (⌈{below} / {sub}⌉)",
-                    level.len()
-                )));
-            }
-            below = want;
-        }
+        let level_lens: Vec<usize> = h.levels.iter().map(|l| l.len()).collect();
+        let reach_lens: Vec<usize> = h.reach.iter().map(|r| r.len()).collect();
+        crsh_cpu::traverse::crsh::check_shape(
+            n_rays,
+            sub,
+            h.order.len(),
+            &level_lens,
+            &reach_lens,
+        )?;
         let has_reach = !h.reach.is_empty();
-        if has_reach
-            && (h.reach.len() != h.levels.len()
-                || h.reach
-                    .iter()
-                    .zip(&h.levels)
-                    .any(|(r, l)| r.len() != l.len()))
-        {
-            return Err(CoreError::InvalidInput(
-                "hierarchy reach bounds do not match its levels".into(),
-            ));
-        }
         let k = ctx.kernel(CrshKernels::new)?;
         // Prepare every level's bounds.
         let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh traversal counters", 4)?;
