@@ -54,11 +54,12 @@ fn point_light(position: Vec3, attenuation: [f32; 3]) -> Light {
 
 /// The brute-force preset resolved with the `--set` overrides `sets`.
 fn config(sets: &[&str]) -> PipelineConfig {
-    let mut cfg = crsh_cpu::preset("brute").unwrap();
+    let registry = crsh_core::Registry::<crsh_cpu::Cpu>::builtin();
+    let mut cfg = registry.preset("brute").unwrap();
     for s in sets {
         cfg.set(s).unwrap();
     }
-    cfg.resolve(&crsh_cpu::catalogue()).unwrap();
+    registry.resolve(&mut cfg).unwrap();
     cfg
 }
 
@@ -289,9 +290,12 @@ fn epsilon_scales_with_the_scene() {
     let scene = quad_scene(Material::default(), &[]);
     let g = whitted(&scene, &["raygen.epsilon=0.001"]);
     assert!((g.offset() - 0.001 * SQRT_8).abs() < 1e-8);
-    let mut bad = crsh_cpu::preset("bvh").unwrap();
+    // A negative epsilon is refused by the catalogue's range, and by the stage itself when a
+    // spec reaches it unchecked.
+    let registry = crsh_core::Registry::<crsh_cpu::Cpu>::builtin();
+    let mut bad = registry.preset("bvh").unwrap();
     bad.set("raygen.epsilon=-1").unwrap();
-    bad.resolve(&crsh_cpu::catalogue()).unwrap();
+    assert!(registry.resolve(&mut bad.clone()).is_err());
     assert!(Whitted::new(&scene, &bad.raygen).is_err());
 }
 
@@ -438,7 +442,9 @@ fn shading_weights_by_throughput_and_local_weight() {
     }
     // With ambient 0.1 the fill light is added under the same weights.
     cfg.set("shade.ambient=0.1").unwrap();
-    cfg.resolve(&crsh_cpu::catalogue()).unwrap();
+    crsh_core::Registry::<crsh_cpu::Cpu>::builtin()
+        .resolve(&mut cfg)
+        .unwrap();
     let sh = Phong::new(&scene, &cfg.shade).unwrap();
     let mut img2 = vec![[0.0f32; 4]; 8];
     sh.shade(&s, &rays, &[Hit::MISS, blocked], &mut img2)

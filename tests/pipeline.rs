@@ -8,25 +8,61 @@ use std::sync::Arc;
 
 use crsh_core::glam::{DVec3, Vec3};
 use crsh_core::metrics::{psnr_rgba8, to_rgba8};
-use crsh_core::{CoreError, Frame, FrameOptions, PipelineConfig, StageSpec};
-use crsh_cpu::Cpu;
-use crsh_cpu::{render, with_threads};
+use crsh_core::{
+    CoreError, Frame, FrameOptions, FrameSize, PipelineConfig, Progress, Registry, StageContext,
+    StageSpec,
+};
+use crsh_cpu::{with_threads, Cpu};
 use crsh_scene::{Camera, Light, Material, Scene, SceneBuilder};
 
 const SIZE: u32 = 64;
 
-fn opts(width: u32, height: u32, max_depth: u32) -> FrameOptions {
-    FrameOptions {
+/// Image size and bounce depth of a frame.
+struct Opts {
+    width: u32,
+    height: u32,
+    max_depth: u32,
+}
+
+fn opts(width: u32, height: u32, max_depth: u32) -> Opts {
+    Opts {
         width,
         height,
         max_depth,
-        triangles: 0,
     }
+}
+
+/// The CPU backend's built-in registry, built once.
+fn registry() -> &'static Registry<Cpu> {
+    static REGISTRY: std::sync::OnceLock<Registry<Cpu>> = std::sync::OnceLock::new();
+    REGISTRY.get_or_init(Registry::<Cpu>::builtin)
+}
+
+/// The names of the built-in presets.
+fn presets() -> Vec<String> {
+    registry()
+        .presets()
+        .iter()
+        .map(|p| p.name.clone())
+        .collect()
+}
+
+/// One frame of `scene` with `cfg` through the registry (`reference` traces every batch again).
+fn render(
+    scene: &Arc<Scene>,
+    cfg: &PipelineConfig,
+    o: &Opts,
+    reference: Option<&StageSpec>,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<Frame<Cpu>, CoreError> {
+    let ctx = StageContext::new(&Cpu, scene, FrameSize::new(o.width, o.height)?);
+    let fo = FrameOptions::default().with_max_depth(o.max_depth);
+    registry().render(&ctx, cfg, &fo, reference, progress)
 }
 
 /// The preset `name` with the `--set` overrides `sets`.
 fn config(name: &str, sets: &[&str]) -> PipelineConfig {
-    let mut cfg = crsh_cpu::preset(name).expect("preset exists");
+    let mut cfg = registry().preset(name).expect("preset exists");
     for s in sets {
         cfg.set(s).unwrap();
     }
@@ -36,7 +72,7 @@ fn config(name: &str, sets: &[&str]) -> PipelineConfig {
 fn frame(
     scene: &Arc<Scene>,
     cfg: &PipelineConfig,
-    o: &FrameOptions,
+    o: &Opts,
     reference: Option<&str>,
 ) -> Frame<Cpu> {
     let reference = reference.map(StageSpec::new);
@@ -375,8 +411,8 @@ fn counters_add_up_for_raster_and_raycast_primaries() {
 fn output_does_not_depend_on_the_thread_count() {
     for name in crsh_scene::builtin::NAMES {
         let scene = builtin(name);
-        for preset in crsh_cpu::PRESETS {
-            let cfg = config(preset, &[]);
+        for preset in presets() {
+            let cfg = config(&preset, &[]);
             let run = |threads| {
                 with_threads(threads, || frame(&scene, &cfg, &opts(SIZE, 48, 3), None)).unwrap()
             };
@@ -467,10 +503,10 @@ fn lit_quad_has_the_radiance_of_eq_3_19() {
     b.camera(camera.clone());
     let scene = Arc::new(b.build("lit-quad").unwrap());
     let (w, h) = (48u32, 40u32);
-    for preset in crsh_cpu::PRESETS {
+    for preset in presets() {
         let f = frame(
             &scene,
-            &config(preset, &["shade.ambient=0"]),
+            &config(&preset, &["shade.ambient=0"]),
             &opts(w, h, 3),
             None,
         );
@@ -546,25 +582,49 @@ fn bad_pipelines_are_errors_not_panics() {
         err.to_string().contains("thesis"),
         "lists the known hashers: {err}"
     );
-    // Sorting only orders the rays of a hierarchy; without one it is a configuration error.
+    // Sorting only orders the rays of a hierarchy; without one it is a configuration error,
+    // found when the pipeline is built and naming the slots.
     let hash_without_hierarchy = config("bvh", &["hash.kind=morton", "sort.kind=radix"]);
-    assert!(matches!(
-        run(&hash_without_hierarchy, None),
-        Err(CoreError::InvalidInput(_))
-    ));
-    // The object BVH answers whole-scene queries only, not a hierarchy's candidate pairs.
+    let err = run(&hash_without_hierarchy, None).unwrap_err();
+    assert!(
+        matches!(&err, CoreError::Incompatible { slots, .. } if slots == "hash, sort, hierarchy"),
+        "{err}"
+    );
     // The object BVH and the f64 reference answer whole-scene queries only, not a
-    // hierarchy's candidate pairs: the pipeline is rejected when its stages are built.
+    // hierarchy's candidate pairs: the pipeline is rejected when it is built, from the
+    // catalogue, before any stage (a BVH build) is constructed.
+    let ctx = StageContext::new(&Cpu, &scene, FrameSize::new(8, 8).unwrap());
     for kind in ["intersect.kind=bvh", "intersect.kind=brute64"] {
         let under_hierarchy = config("crsh", &[kind]);
+        let err = run(&under_hierarchy, None).unwrap_err();
+        assert!(
+            matches!(&err, CoreError::Incompatible { slots, .. } if slots == "hierarchy, intersect"),
+            "{err}"
+        );
         assert!(matches!(
-            run(&under_hierarchy, None),
-            Err(CoreError::Unsupported { .. })
+            registry().build(&ctx, &under_hierarchy),
+            Err(CoreError::Incompatible { .. })
         ));
-        assert!(matches!(
-            crsh_cpu::build_stages(&under_hierarchy, &scene),
-            Err(CoreError::Unsupported { .. })
-        ));
+    }
+    // A hash without a sorter, a hierarchy without a traverser.
+    for sets in [&["sort=off"][..], &["traverse=off"]] {
+        let err = run(&config("crsh", sets), None).unwrap_err();
+        assert!(
+            matches!(err, CoreError::Incompatible { .. }),
+            "{sets:?}: {err}"
+        );
+    }
+    // Values outside a parameter's range are refused before any stage is built.
+    for bad in [
+        "shade.ambient=nan",
+        "hierarchy.subdivision=1",
+        "raygen.epsilon=0.5",
+    ] {
+        let err = run(&config("crsh", &[bad]), None).unwrap_err();
+        assert!(
+            matches!(err, CoreError::InvalidParam { .. }),
+            "{bad}: {err}"
+        );
     }
     let bad_param = config("bvh", &["raygen.epsilon=bright"]);
     assert!(matches!(

@@ -9,10 +9,11 @@
 use std::path::Path;
 use std::sync::Arc;
 
+use crsh::{BackendKind, Registries, RenderRequest, Renderer};
 use crsh_core::metrics::{psnr_rgba8, to_rgba8};
-use crsh_core::{Backend, FrameOptions, PipelineConfig, StageSpec, Stats, STAGE_TIMINGS};
+use crsh_core::{PipelineConfig, Stats, STAGE_TIMINGS};
 use crsh_scene::Scene;
-use crsh_wgpu::{GpuScene, Wgpu};
+use crsh_wgpu::Wgpu;
 
 /// The presets whose every stage has a WGSL implementation: all of them.
 const GPU_PRESETS: [&str; 4] = ["brute", "bvh", "crsh", "rah"];
@@ -20,17 +21,20 @@ const GPU_PRESETS: [&str; 4] = ["brute", "bvh", "crsh", "rah"];
 const W: u32 = 48;
 const H: u32 = 36;
 
-fn opts(max_depth: u32) -> FrameOptions {
-    FrameOptions {
-        width: W,
-        height: H,
-        max_depth,
-        triangles: 0,
-    }
+fn opts(max_depth: u32) -> RenderRequest {
+    RenderRequest::new()
+        .with_width(W)
+        .with_height(H)
+        .with_max_depth(max_depth)
+}
+
+fn registries() -> &'static Registries {
+    static R: std::sync::OnceLock<Registries> = std::sync::OnceLock::new();
+    R.get_or_init(Registries::builtin)
 }
 
 fn config(name: &str, sets: &[&str]) -> PipelineConfig {
-    let mut cfg = crsh_cpu::preset(name).expect("preset exists");
+    let mut cfg = registries().preset(name).expect("preset exists");
     for s in sets {
         cfg.set(s).unwrap();
     }
@@ -50,19 +54,26 @@ fn gpu_frame(
     b: &Wgpu,
     scene: &Arc<Scene>,
     cfg: &PipelineConfig,
-    o: &FrameOptions,
+    o: &RenderRequest,
     reference: &str,
 ) -> (Vec<[f32; 4]>, Stats) {
-    let g = GpuScene::new(b, scene).unwrap();
-    let frame = crsh_wgpu::render(&g, cfg, o, Some(&StageSpec::new(reference)), &mut |_| {})
+    let renderer = Renderer::on_wgpu(registries(), Arc::clone(scene), b).unwrap();
+    let r = renderer
+        .render(cfg, &o.clone().with_reference(reference), &mut |_| {})
         .unwrap_or_else(|e| panic!("{} with {} on wgpu: {e}", scene.name, cfg.name));
-    (b.download(&frame.image).unwrap(), frame.stats)
+    assert_eq!(r.backend, BackendKind::Wgpu);
+    (r.image, r.stats)
 }
 
-fn cpu_frame(scene: &Arc<Scene>, cfg: &PipelineConfig, o: &FrameOptions) -> (Vec<[f32; 4]>, Stats) {
-    let f = crsh_cpu::render(scene, cfg, o, None, &mut |_| {})
+fn cpu_frame(
+    scene: &Arc<Scene>,
+    cfg: &PipelineConfig,
+    o: &RenderRequest,
+) -> (Vec<[f32; 4]>, Stats) {
+    let r = Renderer::new(registries(), Arc::clone(scene))
+        .render(cfg, o, &mut |_| {})
         .unwrap_or_else(|e| panic!("{} with {} on cpu: {e}", scene.name, cfg.name));
-    (f.image, f.stats)
+    (r.image, r.stats)
 }
 
 /// Every preset on `scene`: GPU vs CPU rays, agreement and image.
@@ -137,19 +148,27 @@ fn every_preset_agrees_with_the_cpu_on_the_shared_cornell_boxes() {
 /// device work.
 #[test]
 fn variants_the_gpu_lacks_are_clear_errors() {
-    for name in crsh_cpu::PRESETS {
+    for name in registries().preset_names() {
         assert!(
-            GPU_PRESETS.contains(name),
+            GPU_PRESETS.contains(&name.as_str()),
             "{name} is not checked on the GPU"
         );
-        crsh_wgpu::check_supported(&config(name, &[])).unwrap();
+        registries()
+            .resolve(&config(&name, &[]), BackendKind::Wgpu)
+            .unwrap();
     }
     for (preset, set) in [
         ("bvh", "intersect.kind=brute64"),
         ("crsh", "intersect.test=watertight"),
         ("bvh", "primary.kind=raycast"),
     ] {
-        let e = crsh_wgpu::check_supported(&config(preset, &[set])).unwrap_err();
+        let e = registries()
+            .resolve(&config(preset, &[set]), BackendKind::Wgpu)
+            .unwrap_err();
+        assert!(
+            matches!(e, crsh_core::CoreError::Unsupported { .. }),
+            "{set}: {e}"
+        );
         assert!(e.to_string().contains("wgpu backend"), "{set}: {e}");
     }
 }

@@ -6,7 +6,7 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 use crsh_core::pipeline::MAX_IMAGE_SIDE;
 
 /// Largest `--depth` accepted: deeper Whitted trees only add rays that carry no light.
-pub const MAX_DEPTH: u32 = 64;
+pub const MAX_DEPTH: u32 = crsh_core::MAX_DEPTH;
 
 /// Largest `--threads` accepted.
 pub const MAX_THREADS: usize = 1024;
@@ -49,16 +49,16 @@ pub enum Command {
 pub enum BackendChoice {
     /// The CPU backend (rayon).
     Cpu,
-    /// The wgpu backend (adapter discovery only in this version).
+    /// The wgpu backend (a GPU, or Mesa's lavapipe without one).
     Wgpu,
 }
 
 impl BackendChoice {
-    /// Name as it appears in stats.
-    pub fn name(self) -> &'static str {
+    /// The library's backend.
+    pub fn kind(self) -> crsh::BackendKind {
         match self {
-            BackendChoice::Cpu => "cpu",
-            BackendChoice::Wgpu => "wgpu",
+            BackendChoice::Cpu => crsh::BackendKind::Cpu,
+            BackendChoice::Wgpu => crsh::BackendKind::Wgpu,
         }
     }
 }

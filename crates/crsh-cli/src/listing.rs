@@ -3,13 +3,14 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
+use crsh::report::{count, stage_line};
+use crsh::{BackendKind, Registries};
 use crsh_core::{PipelineConfig, StageKind, StageVariantInfo};
 use serde::Serialize;
 
 use crate::args::{AdaptersArgs, PipelinesArgs, ScenesArgs};
 use crate::error::{CliError, CliResult};
 use crate::output;
-use crate::report::{count, stage_line};
 
 /// A built-in scene and its counts.
 #[derive(Debug, Serialize)]
@@ -126,27 +127,64 @@ fn scenes_text(l: &ScenesListing) -> String {
 #[derive(Debug, Serialize)]
 struct PresetEntry {
     name: String,
+    doc: String,
     config: PipelineConfig,
+}
+
+/// A variant with the backends that implement it.
+#[derive(Debug, Serialize)]
+struct VariantEntry {
+    #[serde(flatten)]
+    info: StageVariantInfo,
+    backends: Vec<BackendKind>,
 }
 
 #[derive(Debug, Serialize)]
 struct PipelinesListing {
     presets: Vec<PresetEntry>,
-    variants: Vec<StageVariantInfo>,
+    variants: Vec<VariantEntry>,
 }
 
-/// Runs `crsh pipelines`.
-pub fn pipelines(args: &PipelinesArgs) -> CliResult<()> {
-    let catalogue = crsh_cpu::catalogue();
+/// Runs `crsh pipelines`: the presets and every variant of the registries, CPU first, then
+/// the variants only the wgpu backend has.
+pub fn pipelines(args: &PipelinesArgs, registries: &Registries) -> CliResult<()> {
     let mut presets = Vec::new();
-    for name in crate::render::preset_names() {
-        let config = crate::render::pipeline_config(&name, &[], &catalogue)?;
-        presets.push(PresetEntry { name, config });
+    for name in registries.preset_names() {
+        let backend = if registries.cpu.preset(&name).is_some() {
+            BackendKind::Cpu
+        } else {
+            BackendKind::Wgpu
+        };
+        let config = crate::render::pipeline_config(registries, &name, &[], backend)?;
+        let doc = registries
+            .cpu
+            .presets()
+            .iter()
+            .chain(registries.wgpu.presets())
+            .find(|p| p.name == name)
+            .map(|p| p.doc.clone())
+            .unwrap_or_default();
+        presets.push(PresetEntry { name, doc, config });
     }
-    let listing = PipelinesListing {
-        presets,
-        variants: catalogue,
-    };
+    let mut variants: Vec<VariantEntry> = Vec::new();
+    for info in registries
+        .cpu
+        .variants()
+        .iter()
+        .chain(registries.wgpu.variants())
+    {
+        if variants
+            .iter()
+            .any(|v| v.info.stage == info.stage && v.info.name == info.name)
+        {
+            continue;
+        }
+        variants.push(VariantEntry {
+            info: info.clone(),
+            backends: registries.backends_of(info.stage, info.name),
+        });
+    }
+    let listing = PipelinesListing { presets, variants };
     if args.json {
         output::print_stdout(&(to_json(&listing)? + "\n"))?;
     } else {
@@ -160,33 +198,60 @@ fn pipelines_text(l: &PipelinesListing) -> String {
     let w = l.presets.iter().map(|p| p.name.len()).max().unwrap_or(0);
     for p in &l.presets {
         let _ = writeln!(s, "  {:w$}  {}", p.name, stage_line(&p.config));
+        if !p.doc.is_empty() {
+            let _ = writeln!(s, "  {:w$}  ({})", "", p.doc);
+        }
     }
     s.push_str(
-        "\nStage variants (--set STAGE.kind=VARIANT, --set STAGE.PARAM=VALUE, --set STAGE=off for optional stages):\n",
+        "\nStage variants (--set STAGE.kind=VARIANT, --set STAGE.PARAM=VALUE, --set STAGE=off for optional stages; [backends]):\n",
     );
     for stage in StageKind::ALL {
-        let variants: Vec<&StageVariantInfo> =
-            l.variants.iter().filter(|v| v.stage == stage).collect();
+        let variants: Vec<&VariantEntry> = l
+            .variants
+            .iter()
+            .filter(|v| v.info.stage == stage)
+            .collect();
         let _ = writeln!(
             s,
             "{stage}{}",
             if stage.optional() { " (optional)" } else { "" }
         );
         if variants.is_empty() {
-            s.push_str("  (no variant on this backend yet)\n");
+            s.push_str("  (no variant registered)\n");
         }
-        let w = variants.iter().map(|v| v.name.len()).max().unwrap_or(0);
+        let w = variants
+            .iter()
+            .map(|v| v.info.name.len())
+            .max()
+            .unwrap_or(0);
         for v in variants {
-            let _ = writeln!(s, "  {:w$}  {}", v.name, v.doc);
-            for p in &v.params {
+            let backends: Vec<&str> = v.backends.iter().map(|b| b.name()).collect();
+            let _ = writeln!(
+                s,
+                "  {:w$}  [{}] {}{}",
+                v.info.name,
+                backends.join(", "),
+                v.info.doc,
+                if v.info.scene_only {
+                    " (whole-scene queries only)"
+                } else {
+                    ""
+                }
+            );
+            for p in &v.info.params {
                 let choices = if p.choices.is_empty() {
                     String::new()
                 } else {
                     format!(" [{}]", p.choices.join("|"))
                 };
+                let range = if p.min.is_some() || p.max.is_some() {
+                    format!(" ({})", p.range_text())
+                } else {
+                    String::new()
+                };
                 let _ = writeln!(
                     s,
-                    "      {stage}.{} = {}{choices}  {}",
+                    "      {stage}.{} = {}{choices}{range}  {}",
                     p.name, p.default, p.doc
                 );
             }

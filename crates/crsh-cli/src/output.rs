@@ -1,9 +1,7 @@
-//! Output files: early checks of the paths (so a long render does not fail at the end) and
-//! PNG / JSON writing.
+//! Output files: early checks of the paths (so a long render does not fail at the end), text
+//! files and stdout. PNG writing is the library's (`crsh::output`).
 
 use std::path::Path;
-
-use image::{ExtendedColorType, ImageFormat};
 
 use crate::error::{CliError, CliResult};
 
@@ -42,25 +40,6 @@ pub fn check_png_path(path: &Path) -> CliResult<()> {
     }
 }
 
-/// Writes an 8-bit RGBA image (`width × height`, row-major, top row first) as PNG.
-pub fn write_png(path: &Path, width: u32, height: u32, rgba: &[u8]) -> CliResult<()> {
-    if rgba.len() != width as usize * height as usize * 4 {
-        return Err(CliError::runtime(format!(
-            "internal: image of {} bytes is not {width}x{height} RGBA",
-            rgba.len()
-        )));
-    }
-    image::save_buffer_with_format(
-        path,
-        rgba,
-        width,
-        height,
-        ExtendedColorType::Rgba8,
-        ImageFormat::Png,
-    )
-    .map_err(|e| CliError::runtime(format!("writing {}: {e}", path.display())))
-}
-
 /// Prints `text` on stdout. A closed pipe (`crsh pipelines | head`) is not an error; other
 /// write failures are (`println!` would panic on both).
 pub fn print_stdout(text: &str) -> CliResult<()> {
@@ -88,19 +67,6 @@ mod tests {
         let d = std::env::temp_dir().join(format!("crsh-cli-output-{}", std::process::id()));
         std::fs::create_dir_all(&d).unwrap();
         d.join(name)
-    }
-
-    #[test]
-    fn png_roundtrip() {
-        let p = tmp("a.png");
-        let px = [
-            255u8, 0, 0, 255, 0, 255, 0, 255, 0, 0, 255, 255, 10, 20, 30, 255,
-        ];
-        write_png(&p, 2, 2, &px).unwrap();
-        let img = image::open(&p).unwrap().to_rgba8();
-        assert_eq!(img.dimensions(), (2, 2));
-        assert_eq!(img.into_raw(), px.to_vec());
-        assert!(write_png(&p, 3, 2, &px).is_err());
     }
 
     #[test]

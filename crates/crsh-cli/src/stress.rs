@@ -19,6 +19,7 @@ use serde::Serialize;
 use crate::args::MAX_THREADS;
 use crate::error::{CliError, CliResult};
 use crate::render::{configure_threads, stage_error};
+use crsh::Registries;
 
 /// Arguments of `crsh stress`.
 #[derive(Debug, Args)]
@@ -81,21 +82,32 @@ fn pick(
 }
 
 /// Runs the command.
-pub fn run(args: &StressArgs) -> CliResult<()> {
+pub fn run(args: &StressArgs, registries: &Registries) -> CliResult<()> {
+    let registry = &registries.cpu;
     for p in &args.pipelines {
-        if crsh_cpu::preset(p).is_none() {
+        if registry.preset(p).is_none() {
             return Err(CliError::usage(format!(
                 "--pipelines: unknown pipeline `{p}` (presets: {})",
-                crsh_cpu::PRESETS.join(", ")
+                registry
+                    .presets()
+                    .iter()
+                    .map(|p| p.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
             )));
         }
     }
-    let tests = pick("--tests", "intersect.test", &args.tests, intersect_tests())?;
+    let tests = pick(
+        "--tests",
+        "intersect.test",
+        &args.tests,
+        intersect_tests(registry),
+    )?;
     let offsets = pick(
         "--offsets",
         "raygen.offset",
         &args.offsets,
-        offset_policies(),
+        offset_policies(registry),
     )?;
     let mut cases = crsh_scene::stress::cases();
     if let Some(filter) = &args.cases {
@@ -121,7 +133,7 @@ pub fn run(args: &StressArgs) -> CliResult<()> {
     }
     let threads = configure_threads(args.threads)?;
     let vs = variants(&args.pipelines, &tests, &offsets);
-    let rows = run_suite(&cases, &vs, &mut |i, n, name| {
+    let rows = run_suite(registry, &cases, &vs, &mut |i, n, name| {
         if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
             eprint!("\r[{}/{n}] {name:<40}", i + 1);
         }

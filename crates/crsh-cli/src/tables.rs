@@ -26,14 +26,15 @@ use std::fmt::Write as _;
 use std::sync::Arc;
 use std::time::Instant;
 
+use crsh::report::{group, mrays_per_s};
+use crsh::{BackendKind, Built, Registries, Renderer};
 use crsh_core::{FrameOptions, LevelStats, PipelineConfig, RayKind, Stats, STAGE_TIMINGS};
 use crsh_scene::Scene;
 
 use crate::args::TablesArgs;
 use crate::error::{CliError, CliResult};
 use crate::output;
-use crate::render::{configure_threads, pipeline_config, stage_error};
-use crate::report::{group, mrays_per_s};
+use crate::render::{configure_threads, library_error, pipeline_config, reference_config};
 
 /// One hierarchy configuration.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -75,7 +76,7 @@ impl SceneRuns {
 }
 
 /// Runs `crsh tables`.
-pub fn run(args: &TablesArgs) -> CliResult<()> {
+pub fn run(args: &TablesArgs, registries: &Registries) -> CliResult<()> {
     if let Some(path) = &args.out {
         output::check_writable(path, "--out")?;
     }
@@ -96,11 +97,11 @@ pub fn run(args: &TablesArgs) -> CliResult<()> {
                 .map(move |&depth| Config { subdivision, depth })
         })
         .collect();
-    let catalogue = crsh_cpu::catalogue();
     // Resolve every pipeline × configuration before any work, so a typo fails at once.
+    let cpu = BackendKind::Cpu;
     let mut plan: Vec<(String, Option<Config>, PipelineConfig)> = Vec::new();
     for name in &args.pipelines {
-        let base = pipeline_config(name, &args.set, &catalogue)?;
+        let base = pipeline_config(registries, name, &args.set, cpu)?;
         if base.hierarchy.is_none() {
             plan.push((name.clone(), None, base));
             continue;
@@ -112,7 +113,7 @@ pub fn run(args: &TablesArgs) -> CliResult<()> {
             plan.push((
                 name.clone(),
                 Some(c),
-                pipeline_config(name, &sets, &catalogue)?,
+                pipeline_config(registries, name, &sets, cpu)?,
             ));
         }
     }
@@ -131,35 +132,33 @@ pub fn run(args: &TablesArgs) -> CliResult<()> {
     let first = loaded
         .first()
         .ok_or_else(|| CliError::usage("--scene: name at least one scene"))?;
+    // The reference intersector (the same for every pipeline: only its spec is used).
+    let reference = match (&args.reference, plan.first()) {
+        (Some(name), Some((_, _, cfg))) => Some(reference_config(registries, cfg, name)?.intersect),
+        _ => None,
+    };
+    // Stage parameters a scene can refuse (e.g. too few hash bits for its lights) fail here,
+    // on the first scene, before the long part starts.
+    let probe = Renderer::new(registries, Arc::clone(first));
+    let probe_frame = probe
+        .frame_size(args.width, args.height)
+        .map_err(|e| CliError::usage(format!("--width {}: {e}", args.width)))?;
     for (name, config, cfg) in &plan {
         let what = config.map_or(format!("pipeline `{name}`"), |c| {
             format!("pipeline `{name}`, {}", c.label())
         });
-        crsh_cpu::build_stages(cfg, first).map_err(|e| stage_error(e, &what))?;
+        probe
+            .build(cfg, probe_frame)
+            .map_err(|e| library_error(e, &what))?;
     }
-    let reference = args
-        .reference
-        .as_deref()
-        .map(|name| {
-            let spec = crsh_core::StageSpec::new(name);
-            crsh_cpu::build_intersector(&spec, first)
-                .map(|_| spec)
-                .map_err(|e| stage_error(e, &format!("--reference {name}")))
-        })
-        .transpose()?;
 
     let mut scenes = Vec::new();
     for scene in &loaded {
-        let height = args
-            .height
-            .or_else(|| scene.camera.height_for(args.width))
-            .unwrap_or(args.width);
-        let opts = FrameOptions {
-            width: args.width,
-            height,
-            max_depth: args.bounces,
-            triangles: scene.triangle_count() as u64,
-        };
+        let renderer = Renderer::new(registries, Arc::clone(scene));
+        let frame = renderer.frame_size(args.width, args.height).map_err(|e| {
+            CliError::usage(format!("--width {} on {}: {e}", args.width, scene.name))
+        })?;
+        let opts = FrameOptions::default().with_max_depth(args.bounces);
         let mut runs = Vec::new();
         for (name, config, cfg) in &plan {
             let what = match config {
@@ -167,8 +166,10 @@ pub fn run(args: &TablesArgs) -> CliResult<()> {
                 None => format!("{} {name}", scene.name),
             };
             let t0 = Instant::now();
-            let stats = measure(scene, cfg, &opts, reference.as_ref(), args.repeat)
-                .map_err(|e| CliError::runtime(format!("{what}: {e}")))?;
+            let stats = renderer
+                .build(cfg, frame)
+                .and_then(|built| measure(&built, &opts, reference.as_ref(), args.repeat))
+                .map_err(|e| library_error(e, &what))?;
             if !args.quiet {
                 eprintln!(
                     "tables: {what}: {} tests, {:.0} ms",
@@ -185,8 +186,8 @@ pub fn run(args: &TablesArgs) -> CliResult<()> {
         scenes.push(SceneRuns {
             name: scene.name.clone(),
             triangles: scene.triangle_count() as u64,
-            width: args.width,
-            height,
+            width: frame.width,
+            height: frame.height,
             runs,
         });
     }
@@ -206,17 +207,16 @@ pub fn run(args: &TablesArgs) -> CliResult<()> {
 /// Renders `repeat` frames: counters (and accuracy) from the first, each stage's time the
 /// median over all of them.
 fn measure(
-    scene: &Arc<Scene>,
-    cfg: &PipelineConfig,
+    built: &Built<'_>,
     opts: &FrameOptions,
     reference: Option<&crsh_core::StageSpec>,
     repeat: u32,
-) -> crsh_core::Result<Stats> {
+) -> crsh::Result<Stats> {
     let mut first: Option<Stats> = None;
     let mut times: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let mut trace: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     for i in 0..repeat.max(1) {
-        let frame = crsh_cpu::render(scene, cfg, opts, reference.filter(|_| i == 0), &mut |_| {})?;
+        let frame = built.render(opts, reference.filter(|_| i == 0), &mut |_| {})?;
         for (k, v) in &frame.stats.timings_ms {
             times.entry(k.clone()).or_default().push(*v);
         }

@@ -4,6 +4,13 @@ use bytemuck::Pod;
 
 use crate::error::Result;
 
+/// What the frame driver and the registry need to know of a backend's scene.
+pub trait StageScene: Send + Sync + 'static {
+    /// Triangles in the scene, degenerate ones included: the `M` of brute force's `N × M`
+    /// tests, which the driver counts for every traced batch.
+    fn triangle_count(&self) -> usize;
+}
+
 /// A place where stage buffers live and stages run: host memory for `crsh-cpu`, a wgpu device
 /// for `crsh-wgpu`.
 ///
@@ -13,6 +20,11 @@ use crate::error::Result;
 pub trait Backend: Send + Sync + 'static {
     /// A typed buffer of `T`: `Vec<T>` on the CPU, a device buffer on the GPU.
     type Buffer<T: Pod + Send + Sync>: Send + Sync;
+
+    /// The scene as this backend's stages are built against: the host scene on the CPU, the
+    /// scene uploaded to the device on wgpu. Stage constructors find it in their
+    /// [`crate::StageContext`].
+    type Scene: StageScene;
 
     /// Short backend name as it appears in stats (`cpu`, `wgpu`).
     fn name(&self) -> &'static str;

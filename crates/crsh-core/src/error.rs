@@ -34,6 +34,15 @@ pub enum CoreError {
         /// What was asked.
         what: String,
     },
+    /// The filled slots of a pipeline do not fit together (a hash without a sorter, a
+    /// hierarchy without a traverser, a whole-scene intersector under a hierarchy, ...).
+    #[error("pipeline stages `{slots}` do not fit together: {reason}")]
+    Incompatible {
+        /// The slots involved, comma-separated in pipeline order.
+        slots: String,
+        /// What is wrong and how to fix it.
+        reason: String,
+    },
     /// Input that is out of range or inconsistent (sizes, NaN rays, ...).
     #[error("invalid input: {0}")]
     InvalidInput(String),

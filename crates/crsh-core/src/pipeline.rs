@@ -11,9 +11,13 @@
 //! [`Backend::sync`]), counts rays, attributes test counts to ray kinds, and, when a reference
 //! intersector is given, traces the very same rays with it to measure agreement.
 
+use std::collections::BTreeMap;
 use std::time::Instant;
 
+use serde::{Deserialize, Serialize};
+
 use crate::backend::Backend;
+use crate::config::{PipelineConfig, StageKind};
 use crate::error::{CoreError, Result};
 use crate::ray::{Hit, HitMode, Ray, RayKind, Surface};
 use crate::stage::{
@@ -23,6 +27,10 @@ use crate::stage::{
 use crate::stats::{AccuracyCounts, Stats};
 
 /// The stage objects of one pipeline on backend `B`.
+///
+/// Fields are public so a caller can swap a stage of a built [`Pipeline`]; the frame's
+/// [`Stats::stages`] records the names of the objects that actually ran, and [`Stages::check`]
+/// (run by [`render_frame`]) refuses combinations that do not fit.
 pub struct Stages<B: Backend> {
     /// Primary visibility.
     pub primary: Box<dyn PrimaryVisibility<B>>,
@@ -42,17 +50,192 @@ pub struct Stages<B: Backend> {
     pub shader: Box<dyn Shader<B>>,
 }
 
-/// Per-frame settings.
-#[derive(Clone, Debug)]
-pub struct FrameOptions {
-    /// Image width in pixels.
+impl<B: Backend> Stages<B> {
+    /// Checks that the stage objects fit together, naming the slots when they do not
+    /// ([`CoreError::Incompatible`]): a hasher comes with a sorter, both order the rays of a
+    /// hierarchy, a hierarchy comes with a traverser, and its intersector answers candidate
+    /// queries ([`Intersector::supports_candidates`]).
+    pub fn check(&self) -> Result<()> {
+        let incompatible = |slots: &str, reason: String| CoreError::Incompatible {
+            slots: slots.to_string(),
+            reason,
+        };
+        if self.hasher.is_some() != self.sorter.is_some() {
+            return Err(incompatible(
+                "hash, sort",
+                "a hasher needs a sorter and a sorter a hasher".into(),
+            ));
+        }
+        if self.hierarchy.is_some() != self.traverser.is_some() {
+            return Err(incompatible(
+                "hierarchy, traverse",
+                "a ray-space hierarchy needs a traverser and a traverser a hierarchy".into(),
+            ));
+        }
+        if self.hasher.is_some() && self.hierarchy.is_none() {
+            return Err(incompatible(
+                "hash, sort, hierarchy",
+                "hashing and sorting order the rays of a ray-space hierarchy; add one".into(),
+            ));
+        }
+        if let Some(h) = &self.hierarchy {
+            if !self.intersector.supports_candidates() {
+                return Err(incompatible(
+                    "hierarchy, intersect",
+                    format!(
+                        "intersect `{}` answers whole-scene queries only and cannot run the final tests of hierarchy `{}`",
+                        self.intersector.name(),
+                        h.name()
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The variant name of every filled slot (`slot key → name`), from the stage objects
+    /// themselves.
+    pub fn names(&self) -> BTreeMap<String, String> {
+        let mut m = BTreeMap::new();
+        let mut put = |slot: StageKind, name: Option<&str>| {
+            if let Some(n) = name {
+                m.insert(slot.key().to_string(), n.to_string());
+            }
+        };
+        put(StageKind::Primary, Some(self.primary.name()));
+        put(StageKind::Raygen, Some(self.raygen.name()));
+        put(StageKind::Hash, self.hasher.as_ref().map(|s| s.name()));
+        put(StageKind::Sort, self.sorter.as_ref().map(|s| s.name()));
+        put(
+            StageKind::Hierarchy,
+            self.hierarchy.as_ref().map(|s| s.name()),
+        );
+        put(
+            StageKind::Traverse,
+            self.traverser.as_ref().map(|s| s.name()),
+        );
+        put(StageKind::Intersect, Some(self.intersector.name()));
+        put(StageKind::Shade, Some(self.shader.name()));
+        m
+    }
+}
+
+/// The image a pipeline renders, `1..=`[`MAX_IMAGE_SIDE`] pixels per side.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct FrameSize {
+    /// Width in pixels.
     pub width: u32,
-    /// Image height in pixels.
+    /// Height in pixels.
     pub height: u32,
-    /// Reflection / refraction bounces after the primary hit (0: direct light only).
+}
+
+impl FrameSize {
+    /// A frame of `width × height` pixels.
+    ///
+    /// # Errors
+    /// [`CoreError::InvalidInput`] when a side is 0 or above [`MAX_IMAGE_SIDE`].
+    pub fn new(width: u32, height: u32) -> Result<FrameSize> {
+        if width == 0 || height == 0 || width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
+            return Err(CoreError::InvalidInput(format!(
+                "image size {width}x{height} is outside 1..={MAX_IMAGE_SIDE} per side"
+            )));
+        }
+        Ok(FrameSize { width, height })
+    }
+
+    /// A frame `width` pixels wide whose height follows `aspect` (width / height, e.g. a
+    /// scene camera's framing aspect), rounded to the nearest pixel and at least 1; square
+    /// without an aspect.
+    ///
+    /// # Errors
+    /// As [`FrameSize::new`], or a non-finite or non-positive aspect.
+    pub fn with_aspect(width: u32, aspect: Option<f32>) -> Result<FrameSize> {
+        let height = match aspect {
+            None => width,
+            Some(a) if a.is_finite() && a > 0.0 => {
+                ((width as f64 / a as f64).round() as u64).clamp(1, u32::MAX as u64) as u32
+            }
+            Some(a) => {
+                return Err(CoreError::InvalidInput(format!(
+                    "aspect {a} is not a positive number"
+                )))
+            }
+        };
+        FrameSize::new(width, height)
+    }
+
+    /// Pixels in the frame.
+    pub fn pixels(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+}
+
+impl std::fmt::Display for FrameSize {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}x{}", self.width, self.height)
+    }
+}
+
+/// Per-frame settings besides the frame size (which the [`Pipeline`] was built for).
+///
+/// ```
+/// use crsh_core::FrameOptions;
+/// let o = FrameOptions::default().with_max_depth(1);
+/// assert_eq!(o.max_depth, 1);
+/// assert_eq!(FrameOptions::default().max_depth, 3);
+/// ```
+#[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct FrameOptions {
+    /// Reflection / refraction bounces after the primary hit (0: direct light only),
+    /// `0..=`[`MAX_DEPTH`]; 3 by default.
     pub max_depth: u32,
-    /// Triangles in the scene, for the brute-force test count.
+}
+
+impl Default for FrameOptions {
+    fn default() -> Self {
+        FrameOptions { max_depth: 3 }
+    }
+}
+
+impl FrameOptions {
+    /// The defaults (3 bounces).
+    pub fn new() -> FrameOptions {
+        FrameOptions::default()
+    }
+
+    /// The same options with `max_depth` bounces.
+    pub fn with_max_depth(self, max_depth: u32) -> FrameOptions {
+        FrameOptions { max_depth }
+    }
+}
+
+/// A built pipeline: the resolved description, its stage objects, and what they were built
+/// for (the frame size and the scene's triangle count, so no caller has to repeat them).
+pub struct Pipeline<B: Backend> {
+    /// The pipeline description the stages were built from, resolved (every parameter
+    /// present). A stage swapped into [`Pipeline::stages`] afterwards is not reflected here;
+    /// the frame's [`Stats::stages`] names what actually ran.
+    pub config: PipelineConfig,
+    /// The stage objects.
+    pub stages: Stages<B>,
+    /// The frame the stages were built for.
+    pub frame: FrameSize,
+    /// Triangles in the scene the stages were built for: the `M` of brute force's `N × M`.
     pub triangles: u64,
+}
+
+impl<B: Backend> Pipeline<B> {
+    /// Renders one frame ([`render_frame`]).
+    pub fn render(
+        &self,
+        backend: &B,
+        opts: &FrameOptions,
+        reference: Option<&dyn Intersector<B>>,
+        progress: &mut dyn FnMut(Progress),
+    ) -> Result<Frame<B>> {
+        render_frame(backend, self, opts, reference, progress)
+    }
 }
 
 /// A progress report, sent before each batch.
@@ -77,46 +260,38 @@ pub struct Frame<B: Backend> {
 /// Maximum image side the driver accepts (guards absurd sizes before allocation).
 pub const MAX_IMAGE_SIDE: u32 = 16384;
 
-/// Renders one frame with `stages` on `backend`. With `reference`, every traced batch is also
-/// traced by the reference intersector (untimed) and [`Stats::accuracy`] is filled.
+/// Maximum bounce depth the driver accepts: deeper Whitted trees only add rays that carry no
+/// light.
+pub const MAX_DEPTH: u32 = 64;
+
+/// Renders one frame of `pipeline` on `backend`, at the frame size it was built for. With
+/// `reference`, every traced batch is also traced by the reference intersector (untimed) and
+/// [`Stats::accuracy`] is filled. [`Stats::stages`] records the name of every stage that ran.
 pub fn render_frame<B: Backend>(
     backend: &B,
-    stages: &Stages<B>,
+    pipeline: &Pipeline<B>,
     opts: &FrameOptions,
     reference: Option<&dyn Intersector<B>>,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Frame<B>> {
-    if opts.width == 0
-        || opts.height == 0
-        || opts.width > MAX_IMAGE_SIDE
-        || opts.height > MAX_IMAGE_SIDE
-    {
+    let stages = &pipeline.stages;
+    let size = FrameSize::new(pipeline.frame.width, pipeline.frame.height)?;
+    if opts.max_depth > MAX_DEPTH {
         return Err(CoreError::InvalidInput(format!(
-            "image size {}x{} is outside 1..={MAX_IMAGE_SIDE} per side",
-            opts.width, opts.height
+            "bounce depth {} is above {MAX_DEPTH}",
+            opts.max_depth
         )));
     }
-    if stages.hierarchy.is_some() != stages.traverser.is_some() {
-        return Err(CoreError::InvalidInput(
-            "a ray-space hierarchy needs a traverser and vice versa".into(),
-        ));
-    }
-    if stages.hasher.is_some() != stages.sorter.is_some() {
-        return Err(CoreError::InvalidInput(
-            "a hasher needs a sorter and vice versa".into(),
-        ));
-    }
-    if stages.hasher.is_some() && stages.hierarchy.is_none() {
-        return Err(CoreError::InvalidInput(
-            "hashing and sorting order the rays of a ray-space hierarchy; add one".into(),
-        ));
-    }
+    stages.check()?;
     let mut driver = Driver {
         backend,
         stages,
-        opts,
+        triangles: pipeline.triangles,
         reference,
-        stats: Stats::default(),
+        stats: Stats {
+            stages: stages.names(),
+            ..Stats::default()
+        },
         step: 0,
         total_steps: 1 + (opts.max_depth + 1) + 2 * opts.max_depth,
     };
@@ -124,21 +299,21 @@ pub fn render_frame<B: Backend>(
         driver.stats.accuracy = Some(AccuracyCounts::default());
     }
     let frame_start = Instant::now();
-    let pixels = opts.width as usize * opts.height as usize;
+    let pixels = size.pixels();
     let mut image = backend.filled(pixels, [0.0f32; 4])?;
 
     driver.report(progress, "primary visibility".into());
     let tests_before = driver.stats.tests;
     let t_primary = Instant::now();
     let mut surfaces = driver.timed("primary", |s| {
-        stages.primary.gbuffer(backend, opts.width, opts.height, s)
+        stages.primary.gbuffer(backend, size.width, size.height, s)
     })?;
     let primary_ms = t_primary.elapsed().as_secs_f64() * 1e3;
     driver.stats.rays.add(RayKind::Primary, pixels as u64);
     let casts = stages.primary.casts_rays();
     if casts {
         driver.stats.traced_rays += pixels as u64;
-        driver.stats.tests.brute_force += pixels as u64 * opts.triangles;
+        driver.stats.tests.brute_force += pixels as u64 * driver.triangles;
     }
     let after = driver.stats.tests;
     let ks = driver.stats.per_kind.entry("primary".into()).or_default();
@@ -205,7 +380,7 @@ pub fn render_frame<B: Backend>(
 struct Driver<'a, B: Backend> {
     backend: &'a B,
     stages: &'a Stages<B>,
-    opts: &'a FrameOptions,
+    triangles: u64,
     reference: Option<&'a dyn Intersector<B>>,
     stats: Stats,
     step: u32,
@@ -246,7 +421,7 @@ impl<B: Backend> Driver<'_, B> {
         let after = self.stats.tests;
         self.stats.rays.add(kind, n as u64);
         self.stats.traced_rays += n as u64;
-        self.stats.tests.brute_force += n as u64 * self.opts.triangles;
+        self.stats.tests.brute_force += n as u64 * self.triangles;
         let ks = self.stats.per_kind.entry(kind.name().into()).or_default();
         ks.rays += n as u64;
         ks.bounds += after.bounds - tests_before.bounds;
@@ -297,16 +472,7 @@ pub fn trace_batch<B: Backend>(
     rays: &B::Buffer<Ray>,
     stats: &mut Stats,
 ) -> Result<B::Buffer<Hit>> {
-    if stages.hierarchy.is_some() != stages.traverser.is_some() {
-        return Err(CoreError::InvalidInput(
-            "a ray-space hierarchy needs a traverser and vice versa".into(),
-        ));
-    }
-    if stages.hasher.is_some() != stages.sorter.is_some() {
-        return Err(CoreError::InvalidInput(
-            "a hasher needs a sorter and vice versa".into(),
-        ));
-    }
+    stages.check()?;
     let n = backend.len(rays);
     let mode = kind.hit_mode();
     let mut hits = backend.filled(n, Hit::MISS)?;
@@ -316,7 +482,9 @@ pub fn trace_batch<B: Backend>(
     if let (Some(builder), Some(traverser)) = (&stages.hierarchy, &stages.traverser) {
         let order = match (&stages.hasher, &stages.sorter) {
             (Some(hasher), Some(sorter)) => {
-                let keys = timed(backend, stats, "hashing", |s| hasher.hash(backend, rays, s))?;
+                let keys = timed(backend, stats, "hashing", |s| {
+                    hasher.hash(backend, rays, kind, s)
+                })?;
                 timed(backend, stats, "sorting", |s| {
                     sorter.sort(backend, &keys, hasher.key_bits(), s)
                 })?

@@ -2,9 +2,10 @@
 //!
 //! Each trait is generic over a [`Backend`] so a stage variant is written once per backend
 //! and the frame driver ([`crate::render_frame`]) never sees where the data lives. Stage
-//! objects are built by a backend from a [`crate::PipelineConfig`] and the scene they work on
-//! (a stage keeps what it needs of the scene: triangles, BVH, materials, camera, lights), so
-//! the methods take only the per-batch buffers. Every method feeds [`Stats`] with the work it
+//! objects are built by a [`crate::Registry`] from a [`crate::PipelineConfig`] and a
+//! [`crate::StageContext`] (the backend, the scene, the frame size); a stage keeps what it needs
+//! of them (triangles, BVH, materials, camera, lights, image width), so the methods take only
+//! the per-batch buffers. Every method feeds [`Stats`] with the work it
 //! did (tests, levels); the driver records wall time per stage.
 
 use bytemuck::{Pod, Zeroable};
@@ -61,9 +62,15 @@ pub trait Hasher<B: Backend>: Send + Sync {
     fn name(&self) -> &str;
     /// Significant low bits of the keys this hasher writes (≤ 64); sorters may sort only these.
     fn key_bits(&self) -> u32;
-    /// One key per ray, same order as `rays`.
-    fn hash(&self, backend: &B, rays: &B::Buffer<Ray>, stats: &mut Stats)
-        -> Result<B::Buffer<u64>>;
+    /// One key per ray of the batch `rays`, same order; every ray of a batch is of `kind`
+    /// (hashers with per-kind layouts, such as the thesis's, pick the layout by it).
+    fn hash(
+        &self,
+        backend: &B,
+        rays: &B::Buffer<Ray>,
+        kind: RayKind,
+        stats: &mut Stats,
+    ) -> Result<B::Buffer<u64>>;
 }
 
 /// Ray sorting (compress / sort / decompress, seed 000 §3.2.4-3.2.6).

@@ -180,6 +180,11 @@ impl AccuracyCounts {
 /// Everything a frame measured. Stages add to it; the driver times them.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Stats {
+    /// The variant that ran in each filled slot (`slot key → name`, e.g. `"hash" →
+    /// "thesis"`), as the stage objects name themselves ([`crate::Stages::names`]): a stage
+    /// swapped into a built pipeline is reported under its own name.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub stages: BTreeMap<String, String>,
     /// Rays per kind.
     pub rays: RayCounts,
     /// Test totals.

@@ -23,9 +23,10 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
 use crsh_core::{
-    CandidateBatch, Hit, PipelineConfig, Query, Ray, RayHierarchy, RayKind, Stages, Stats,
+    CandidateBatch, FrameSize, Hit, PipelineConfig, Query, Ray, RayHierarchy, RayKind, Registry,
+    StageContext, Stages, Stats,
 };
-use crsh_cpu::{build_stages, preset, Cpu};
+use crsh_cpu::Cpu;
 use crsh_scene::Scene;
 
 /// G-buffer size of the batch.
@@ -58,13 +59,22 @@ fn sponza() -> Option<PathBuf> {
     path.is_file().then_some(path)
 }
 
+/// The stage context of the batch: `scene` at `SIZE × SIZE`.
+fn context(scene: &Arc<Scene>) -> StageContext<'_, Cpu> {
+    StageContext::new(&Cpu, scene, FrameSize::new(SIZE, SIZE).expect("valid size"))
+}
+
 /// The `crsh` preset with `sets` applied (`stage.param=value`), built for `scene`.
 fn stages(scene: &Arc<Scene>, sets: &[&str]) -> Stages<Cpu> {
-    let mut cfg: PipelineConfig = preset("crsh").expect("the crsh preset exists");
+    let registry = Registry::<Cpu>::builtin();
+    let mut cfg: PipelineConfig = registry.preset("crsh").expect("the crsh preset exists");
     for s in sets {
         cfg.set(s).unwrap_or_else(|e| panic!("--set {s}: {e}"));
     }
-    build_stages(&cfg, scene).unwrap_or_else(|e| panic!("building {sets:?}: {e}"))
+    registry
+        .build(&context(scene), &cfg)
+        .unwrap_or_else(|e| panic!("building {sets:?}: {e}"))
+        .stages
 }
 
 fn prepare() -> Batch {
@@ -99,7 +109,9 @@ fn prepare() -> Batch {
         .expect("shadow rays");
     assert!(!rays.is_empty(), "the bench scene spawns no shadow rays");
     let hasher = st.hasher.as_ref().expect("crsh hashes");
-    let keys = hasher.hash(&Cpu, &rays, &mut stats).expect("keys");
+    let keys = hasher
+        .hash(&Cpu, &rays, RayKind::Shadow, &mut stats)
+        .expect("keys");
     let order = st
         .sorter
         .as_ref()
@@ -162,11 +174,15 @@ fn benches(c: &mut Criterion) {
         let st = stages(scene, sets);
         let h = st.hasher.expect("a hasher");
         g.bench_function(format!("{name}/{}", b.tag), |bench| {
-            bench.iter(|| h.hash(&Cpu, &b.rays, &mut Stats::default()).unwrap())
+            bench.iter(|| {
+                h.hash(&Cpu, &b.rays, RayKind::Shadow, &mut Stats::default())
+                    .unwrap()
+            })
         });
         keysets.push((
             *name,
-            h.hash(&Cpu, &b.rays, &mut Stats::default()).unwrap(),
+            h.hash(&Cpu, &b.rays, RayKind::Shadow, &mut Stats::default())
+                .unwrap(),
             h.key_bits(),
         ));
     }
@@ -260,7 +276,8 @@ fn benches(c: &mut Criterion) {
         let mut spec = crsh_core::StageSpec::new("bvh");
         spec.params
             .insert("test".into(), crsh_core::ParamValue::Str(test.to_string()));
-        let bvh = crsh_cpu::build_intersector(&spec, scene)
+        let bvh = Registry::<Cpu>::builtin()
+            .build_intersector(&context(scene), &spec)
             .unwrap_or_else(|e| panic!("building bvh with {test}: {e}"));
         g.bench_function(format!("whole_scene_any_hit_{test}/{}", b.tag), |bench| {
             bench.iter(|| {

@@ -10,6 +10,7 @@ pub struct Cpu;
 
 impl Backend for Cpu {
     type Buffer<T: Pod + Send + Sync> = Vec<T>;
+    type Scene = crsh_scene::Scene;
 
     fn name(&self) -> &'static str {
         "cpu"

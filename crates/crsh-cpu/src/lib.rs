@@ -1,14 +1,33 @@
 //! # crsh-cpu
 //!
 //! The CPU backend of crsh ([`Cpu`]): every stage variant as a rayon implementation of the
-//! `crsh-core` stage traits, and [`build_stages`], which turns a [`crsh_core::PipelineConfig`]
-//! and a scene into runnable [`crsh_core::Stages`].
+//! `crsh-core` stage traits, registered in the backend's [`crsh_core::Registry`]
+//! ([`Registry::<Cpu>::builtin`](crsh_core::Registry::builtin), see [`registry`]) with the
+//! presets `brute`, `bvh`, `crsh` and `rah`.
 //!
-//! Stage variants, one module each:
+//! ```
+//! use std::sync::Arc;
+//! use crsh_core::{FrameOptions, FrameSize, Registry, StageContext};
+//! use crsh_cpu::Cpu;
+//!
+//! let scene = Arc::new(crsh_scene::builtin::build("cornell-mirrors").unwrap());
+//! let registry = Registry::<Cpu>::builtin();
+//! let mut cfg = registry.preset("crsh").unwrap();
+//! cfg.set("hierarchy.subdivision=16").unwrap();
+//! let ctx = StageContext::new(&Cpu, &scene, FrameSize::new(32, 32).unwrap());
+//! let opts = FrameOptions::default().with_max_depth(1);
+//! let frame = registry.render(&ctx, &cfg, &opts, None, &mut |_| {}).unwrap();
+//! assert_eq!(frame.image.len(), 32 * 32);
+//! assert_eq!(frame.stats.stages["hash"], "thesis");
+//! ```
+//!
+//! Stage variants, one module each, each with its catalogue entry (`info`) and its
+//! registration (`register`) beside the stage:
 //! - [`primary::raster`]: z-buffer rasterizer writing the G-buffer (seed 000 §3.1);
 //!   [`primary::raycast`]: the same G-buffer by casting camera rays.
-//! - [`triangle`]: the ray-triangle test and its epsilon policy.
+//! - [`triangle`]: the ray-triangle tests and their epsilon policy.
 //! - [`intersect::brute`]: every ray against every triangle (the exact reference);
+//!   [`intersect::brute64`]: the same in f64 (the accuracy reference);
 //!   [`intersect::bvh`]: the obvhs CWBVH (closest and any hit).
 //! - [`raygen::whitted`]: shadow, reflection and refraction rays (eq. 3.1-3.7).
 //! - [`shade::phong`]: barycentric normals and Phong with attenuation (eq. 3.17-3.19).
@@ -19,12 +38,12 @@
 #![warn(missing_docs)]
 
 pub mod backend;
-pub mod catalogue;
 pub mod hash;
 pub mod hierarchy;
 pub mod intersect;
 pub mod primary;
 pub mod raygen;
+pub mod registry;
 pub mod shade;
 pub mod sort;
 pub mod stress;
@@ -34,6 +53,4 @@ pub mod triangle;
 pub mod trim;
 
 pub use backend::Cpu;
-pub use catalogue::{
-    build_intersector, build_stages, catalogue, preset, render, with_threads, PRESETS,
-};
+pub use registry::with_threads;

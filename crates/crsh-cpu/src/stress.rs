@@ -26,15 +26,14 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crsh_core::{
-    trace_batch, CoreError, Hit, HitMode, Intersector, PipelineConfig, Query, Ray, RayKind, Result,
-    StageKind, StageSpec, Stats, Surface,
+    trace_batch, CoreError, FrameSize, Hit, HitMode, Intersector, PipelineConfig, Query, Ray,
+    RayKind, Registry, Result, StageContext, StageKind, StageSpec, Stats, Surface,
 };
 use crsh_scene::stress::{Expect, FrameTruth, Probe, StressCase};
 use crsh_scene::Scene;
 use serde::{Deserialize, Serialize};
 
 use crate::backend::Cpu;
-use crate::catalogue::{build_intersector, build_stages, catalogue, preset};
 
 /// What one case did under one pipeline configuration.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -92,10 +91,10 @@ impl StressOutcome {
 }
 
 /// One pipeline configuration of the suite: a preset with an optional `intersect.test` and
-/// `raygen.offset` (`None`: the catalogue's default, or a build without that parameter).
+/// `raygen.offset` (`None`: the registry's default, or a registry without that parameter).
 #[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
 pub struct Variant {
-    /// Preset name ([`crate::PRESETS`]).
+    /// Preset name (one of the registry's presets).
     pub pipeline: String,
     /// `intersect.test` choice.
     pub test: Option<String>,
@@ -117,48 +116,59 @@ pub struct StressRow {
     pub outcome: StressOutcome,
 }
 
-fn choices(stage: StageKind, variant: &str, param: &str) -> Vec<String> {
-    catalogue()
+fn choices(registry: &Registry<Cpu>, stage: StageKind, variant: &str, param: &str) -> Vec<String> {
+    registry
+        .variant(stage, variant)
         .into_iter()
-        .filter(|v| v.stage == stage && v.name == variant)
-        .flat_map(|v| v.params)
+        .flat_map(|v| v.params.iter())
         .filter(|p| p.name == param)
-        .flat_map(|p| p.choices.iter().map(|c| c.to_string()).collect::<Vec<_>>())
+        .flat_map(|p| p.choices.iter().map(|c| c.to_string()))
         .collect()
 }
 
-/// The ray-triangle test policies the catalogue offers (choices of `intersect.test` on the
-/// `brute` intersector); empty in a build without that parameter.
-pub fn intersect_tests() -> Vec<String> {
-    choices(StageKind::Intersect, "brute", "test")
+/// The ray-triangle test policies `registry` offers (choices of `intersect.test` on the `brute`
+/// intersector); empty in a registry without that parameter.
+pub fn intersect_tests(registry: &Registry<Cpu>) -> Vec<String> {
+    choices(registry, StageKind::Intersect, "brute", "test")
 }
 
-/// The origin-offset policies the catalogue offers (choices of `raygen.offset` on `whitted`);
-/// empty in a build without that parameter.
-pub fn offset_policies() -> Vec<String> {
-    choices(StageKind::Raygen, "whitted", "offset")
+/// The origin-offset policies `registry` offers (choices of `raygen.offset` on `whitted`);
+/// empty in a registry without that parameter.
+pub fn offset_policies(registry: &Registry<Cpu>) -> Vec<String> {
+    choices(registry, StageKind::Raygen, "whitted", "offset")
 }
 
-/// The pipeline of `variant`: the preset with `intersect.test` and `raygen.offset` set the way
-/// `--set` does, resolved against the catalogue (unknown names are errors).
-pub fn configure(variant: &Variant) -> Result<PipelineConfig> {
-    let mut cfg = preset(&variant.pipeline).ok_or_else(|| CoreError::UnknownVariant {
-        stage: "pipeline".into(),
-        name: variant.pipeline.clone(),
-        known: crate::PRESETS.join(", "),
-    })?;
+/// The pipeline of `variant`: the registry's preset with `intersect.test` and `raygen.offset`
+/// set the way `--set` does, resolved against the registry (unknown names are errors).
+pub fn configure(registry: &Registry<Cpu>, variant: &Variant) -> Result<PipelineConfig> {
+    let mut cfg = registry
+        .preset(&variant.pipeline)
+        .ok_or_else(|| CoreError::UnknownVariant {
+            stage: "pipeline".into(),
+            name: variant.pipeline.clone(),
+            known: registry
+                .presets()
+                .iter()
+                .map(|p| p.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", "),
+        })?;
     if let Some(t) = &variant.test {
         cfg.set(&format!("intersect.test={t}"))?;
     }
     if let Some(o) = &variant.offset {
         cfg.set(&format!("raygen.offset={o}"))?;
     }
-    cfg.resolve(&catalogue())?;
+    registry.resolve(&mut cfg)?;
     Ok(cfg)
 }
 
-/// Runs `case` under pipeline `cfg`, catching panics.
-pub fn run_case(case: &StressCase, cfg: &PipelineConfig) -> StressOutcome {
+/// Runs `case` under pipeline `cfg` (built by `registry`), catching panics.
+pub fn run_case(
+    registry: &Registry<Cpu>,
+    case: &StressCase,
+    cfg: &PipelineConfig,
+) -> StressOutcome {
     let scene = match &case.scene {
         Ok(s) => s,
         Err(e) => {
@@ -168,7 +178,9 @@ pub fn run_case(case: &StressCase, cfg: &PipelineConfig) -> StressOutcome {
             }
         }
     };
-    match catch_unwind(AssertUnwindSafe(|| run_probe(scene, &case.probe, cfg))) {
+    match catch_unwind(AssertUnwindSafe(|| {
+        run_probe(registry, scene, &case.probe, cfg)
+    })) {
         Ok(Ok(outcome)) => outcome,
         Ok(Err((e, rays))) => StressOutcome {
             rays,
@@ -188,14 +200,29 @@ pub fn run_case(case: &StressCase, cfg: &PipelineConfig) -> StressOutcome {
 
 type ProbeResult = std::result::Result<StressOutcome, (CoreError, u64)>;
 
-fn run_probe(scene: &Arc<Scene>, probe: &Probe, cfg: &PipelineConfig) -> ProbeResult {
-    let stages = build_stages(cfg, scene).map_err(|e| (e, 0))?;
+/// The frame size stages are built for when a probe has no frame (explicit rays).
+const RAY_PROBE_FRAME: u32 = 64;
+
+fn run_probe(
+    registry: &Registry<Cpu>,
+    scene: &Arc<Scene>,
+    probe: &Probe,
+    cfg: &PipelineConfig,
+) -> ProbeResult {
+    let frame = match probe {
+        Probe::Frame { width, height, .. } => FrameSize::new(*width, *height),
+        Probe::Rays { .. } => FrameSize::new(RAY_PROBE_FRAME, RAY_PROBE_FRAME),
+    }
+    .map_err(|e| (e, 0))?;
+    let ctx = StageContext::new(&Cpu, scene, frame);
+    let pipeline = registry.build(&ctx, cfg).map_err(|e| (e, 0))?;
+    let stages = &pipeline.stages;
     // The f64 reference, prepared only for the probes whose truth it is (once per probe).
     let mut reference: Option<Box<dyn Intersector<Cpu>>> = None;
     let mut reference_hits = |rays: &[Ray], kind: RayKind| -> Result<Vec<Hit>> {
         let reference = match &mut reference {
             Some(r) => r,
-            none => none.insert(build_intersector(&StageSpec::new("brute64"), scene)?),
+            none => none.insert(registry.build_intersector(&ctx, &StageSpec::new("brute64"))?),
         };
         let mut hits = vec![Hit::MISS; rays.len()];
         reference.intersect(
@@ -215,7 +242,7 @@ fn run_probe(scene: &Arc<Scene>, probe: &Probe, cfg: &PipelineConfig) -> ProbeRe
         Probe::Rays { kind, rays, expect } => {
             out.rays = rays.len() as u64;
             let t0 = Instant::now();
-            let hits = trace_batch(&Cpu, &stages, *kind, rays, &mut stats)
+            let hits = trace_batch(&Cpu, stages, *kind, rays, &mut stats)
                 .map_err(|e| (e, rays.len() as u64))?;
             traced += t0.elapsed();
             let truth = if expect.contains(&Expect::Reference) {
@@ -246,7 +273,7 @@ fn run_probe(scene: &Arc<Scene>, probe: &Probe, cfg: &PipelineConfig) -> ProbeRe
                 }
                 out.rays += rays.len() as u64;
                 let t0 = Instant::now();
-                let hits = trace_batch(&Cpu, &stages, kind, &rays, &mut stats)
+                let hits = trace_batch(&Cpu, stages, kind, &rays, &mut stats)
                     .map_err(|e| (e, out.rays))?;
                 traced += t0.elapsed();
                 match truth {
@@ -357,6 +384,7 @@ pub fn variants(pipelines: &[String], tests: &[String], offsets: &[String]) -> V
 /// ignore the offset, so they run once per pipeline × test (with the default offset, shown as
 /// `offset: None`). `progress` is called before each row with (row, total, case name).
 pub fn run_suite(
+    registry: &Registry<Cpu>,
     cases: &[StressCase],
     variants: &[Variant],
     progress: &mut dyn FnMut(usize, usize, &str),
@@ -364,7 +392,7 @@ pub fn run_suite(
     // Configurations are checked up front, so a bad name fails before any work.
     let mut configs = Vec::with_capacity(variants.len());
     for v in variants {
-        configs.push((v.clone(), configure(v)?));
+        configs.push((v.clone(), configure(registry, v)?));
     }
     let mut plan = Vec::new();
     for case in cases {
@@ -384,7 +412,7 @@ pub fn run_suite(
             let cfg = if case.probe.is_frame() || v.offset.is_none() {
                 cfg.clone()
             } else {
-                configure(&shown)?
+                configure(registry, &shown)?
             };
             seen.push(shown.clone());
             plan.push((case, shown, cfg));
@@ -398,7 +426,7 @@ pub fn run_suite(
             case: case.name.clone(),
             family: case.family.to_string(),
             variant,
-            outcome: run_case(case, &cfg),
+            outcome: run_case(registry, case, &cfg),
         });
     }
     Ok(rows)

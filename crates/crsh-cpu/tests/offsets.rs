@@ -6,8 +6,8 @@
 use std::sync::Arc;
 
 use crsh_core::glam::Vec3;
-use crsh_core::{trace_batch, PipelineConfig, RayKind, Stats};
-use crsh_cpu::{build_stages, Cpu};
+use crsh_core::{trace_batch, FrameSize, PipelineConfig, RayKind, Registry, StageContext, Stats};
+use crsh_cpu::Cpu;
 use crsh_scene::{Camera, Light, Material, Scene, SceneBuilder};
 
 /// Quads per side of the plane.
@@ -84,7 +84,9 @@ fn acne_from(
     for s in sets {
         cfg.set(s).unwrap();
     }
-    let stages = build_stages(&cfg, scene).unwrap();
+    let ctx = StageContext::new(&Cpu, scene, FrameSize::new(WIDTH, WIDTH).unwrap());
+    let pipeline = Registry::<Cpu>::builtin().build(&ctx, &cfg).unwrap();
+    let stages = &pipeline.stages;
     let mut stats = Stats::default();
     let gbuffer = stages
         .primary
@@ -100,7 +102,7 @@ fn acne_from(
             r.t_min = 0.0;
         }
     }
-    let hits = trace_batch(&Cpu, &stages, RayKind::Shadow, &rays, &mut stats).unwrap();
+    let hits = trace_batch(&Cpu, stages, RayKind::Shadow, &rays, &mut stats).unwrap();
     (rays.len(), hits.iter().filter(|h| h.is_hit()).count())
 }
 

@@ -5,18 +5,24 @@
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
 
+use crsh_core::Registry;
 use crsh_cpu::stress::{intersect_tests, offset_policies, run_suite, variants, StressRow};
-use crsh_cpu::PRESETS;
+use crsh_cpu::Cpu;
 use crsh_scene::stress::cases;
 
 /// The whole default table, computed once for all the tests of this file.
 fn table() -> &'static [StressRow] {
     static ROWS: OnceLock<Vec<StressRow>> = OnceLock::new();
     ROWS.get_or_init(|| {
-        let pipelines: Vec<String> = PRESETS.iter().map(|p| p.to_string()).collect();
-        let vs = variants(&pipelines, &intersect_tests(), &offset_policies());
+        let registry = Registry::<Cpu>::builtin();
+        let pipelines: Vec<String> = registry.presets().iter().map(|p| p.name.clone()).collect();
+        let vs = variants(
+            &pipelines,
+            &intersect_tests(&registry),
+            &offset_policies(&registry),
+        );
         let t0 = std::time::Instant::now();
-        let rows = run_suite(&cases(), &vs, &mut |_, _, _| {}).expect("suite runs");
+        let rows = run_suite(&registry, &cases(), &vs, &mut |_, _, _| {}).expect("suite runs");
         eprintln!(
             "suite: {} rows in {:.1} s",
             rows.len(),
@@ -174,7 +180,9 @@ fn default_offset_has_no_acne_on_a_plane_lit_at_1_to_89_degrees() {
     // by 1e5 or 1e7 (the offset falls below the coordinates' ulp) or when the light is 1000
     // plane sizes away (long shadow rays): those rows are reported, and are what the other
     // offset policies are for.
-    let default_offset = offset_policies().first().cloned();
+    let default_offset = offset_policies(&Registry::<Cpu>::builtin())
+        .first()
+        .cloned();
     let rows: Vec<_> = table()
         .iter()
         .filter(|r| {
@@ -184,7 +192,11 @@ fn default_offset_has_no_acne_on_a_plane_lit_at_1_to_89_degrees() {
                 && r.variant.offset == default_offset
         })
         .collect();
-    assert!(rows.len() >= 8 * PRESETS.len() * intersect_tests().len().max(1));
+    assert!(
+        rows.len()
+            >= 8 * Registry::<Cpu>::builtin().presets().len()
+                * intersect_tests(&Registry::<Cpu>::builtin()).len().max(1)
+    );
     for r in rows {
         let o = &r.outcome;
         assert!(o.rays > 1000, "{}: {o:?}", label(r));
@@ -213,7 +225,10 @@ fn frames_with_a_reference_agree_under_the_default_offset() {
 #[test]
 fn watertight_test_closes_every_mesh() {
     // Checks only once the catalogue offers `intersect.test=watertight` (another branch).
-    if !intersect_tests().iter().any(|t| t == "watertight") {
+    if !intersect_tests(&Registry::<Cpu>::builtin())
+        .iter()
+        .any(|t| t == "watertight")
+    {
         eprintln!("SKIP: this build has no intersect.test=watertight");
         return;
     }
@@ -231,7 +246,10 @@ fn watertight_test_closes_every_mesh() {
 #[test]
 fn wachter_offset_has_no_self_intersections_at_any_translation() {
     // Checks only once the catalogue offers `raygen.offset=wachter` (another branch).
-    if !offset_policies().iter().any(|t| t == "wachter") {
+    if !offset_policies(&Registry::<Cpu>::builtin())
+        .iter()
+        .any(|t| t == "wachter")
+    {
         eprintln!("SKIP: this build has no raygen.offset=wachter");
         return;
     }
@@ -250,9 +268,9 @@ fn the_expectations_hold_for_the_f64_reference() {
     // Möller-Trumbore test is not watertight either: measured, 3 of the 2936 rays aimed at the
     // icosphere's vertices and edges, none elsewhere), so what the table counts against the f32
     // pipelines is theirs, not the case's. Needles and grazing rays the f32 test drops are hit.
-    use crsh_core::{Hit, Query, Stats};
-    use crsh_cpu::{build_intersector, Cpu};
+    use crsh_core::{FrameSize, Hit, Query, StageContext, Stats};
     use crsh_scene::stress::{Expect, Probe};
+    let registry = Registry::<Cpu>::builtin();
     for case in cases() {
         let (Ok(scene), Probe::Rays { kind, rays, expect }) = (&case.scene, &case.probe) else {
             continue;
@@ -260,8 +278,10 @@ fn the_expectations_hold_for_the_f64_reference() {
         if expect.contains(&Expect::Invalid) {
             continue;
         }
-        let reference =
-            build_intersector(&crsh_core::StageSpec::new("brute64"), scene).expect("brute64");
+        let ctx = StageContext::new(&Cpu, scene, FrameSize::new(64, 64).unwrap());
+        let reference = registry
+            .build_intersector(&ctx, &crsh_core::StageSpec::new("brute64"))
+            .expect("brute64");
         let mut hits = vec![Hit::MISS; rays.len()];
         reference
             .intersect(

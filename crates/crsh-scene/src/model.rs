@@ -299,6 +299,12 @@ pub struct Scene {
     pub degenerate_triangles: usize,
 }
 
+impl crsh_core::StageScene for Scene {
+    fn triangle_count(&self) -> usize {
+        Scene::triangle_count(self)
+    }
+}
+
 impl Scene {
     /// Number of triangles.
     pub fn triangle_count(&self) -> usize {

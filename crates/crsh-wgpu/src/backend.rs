@@ -375,6 +375,7 @@ impl Wgpu {
 
 impl Backend for Wgpu {
     type Buffer<T: Pod + Send + Sync> = GpuBuffer<T>;
+    type Scene = crate::scene::GpuScene;
 
     fn name(&self) -> &'static str {
         "wgpu"

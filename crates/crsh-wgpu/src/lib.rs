@@ -24,7 +24,6 @@
 
 pub mod adapter;
 pub mod backend;
-pub mod catalogue;
 pub mod error;
 pub mod hash;
 pub mod hierarchy;
@@ -33,6 +32,7 @@ pub mod kernel;
 pub mod kernels;
 pub mod primary;
 pub mod raygen;
+pub mod registry;
 pub mod scene;
 pub mod shade;
 pub mod sort;
@@ -41,10 +41,8 @@ pub mod traverse;
 
 pub use adapter::{enumerate_adapters, AdapterInfo, GpuContext};
 pub use backend::{GpuBuffer, Wgpu};
-pub use catalogue::{
-    build_stages, catalogue, check_supported, render, HostIntersector, GPU_VARIANTS,
-};
 pub use error::{GpuError, GpuResult};
 pub use kernel::{Kernel, Slot};
 pub use kernels::scan::{exclusive_scan, exclusive_scan_cpu, exclusive_scan_in_place, ScanKernel};
+pub use registry::{HostIntersector, GPU_TRIANGLE_TESTS};
 pub use scene::GpuScene;

@@ -121,6 +121,12 @@ fn v4(v: glam::Vec3) -> [f32; 4] {
     [v.x, v.y, v.z, 0.0]
 }
 
+impl crsh_core::StageScene for GpuScene {
+    fn triangle_count(&self) -> usize {
+        self.scene.triangle_count()
+    }
+}
+
 impl GpuScene {
     /// Uploads `scene` to `backend`'s device.
     pub fn new(backend: &Wgpu, scene: &Arc<Scene>) -> GpuResult<Arc<GpuScene>> {

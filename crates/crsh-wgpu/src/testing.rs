@@ -3,8 +3,49 @@
 
 use std::sync::{Arc, OnceLock};
 
+use crsh_core::{
+    FrameSize, Intersector, PipelineConfig, Registry, StageContext, StageSpec, Stages,
+};
+use crsh_cpu::Cpu;
+use crsh_scene::Scene;
+
 use crate::adapter::GpuContext;
 use crate::backend::Wgpu;
+
+/// The CPU twins' registry, built once.
+pub fn cpu_registry() -> &'static Registry<Cpu> {
+    static REGISTRY: OnceLock<Registry<Cpu>> = OnceLock::new();
+    REGISTRY.get_or_init(Registry::<Cpu>::builtin)
+}
+
+/// The CPU preset `name`, resolved. Panics when there is none (a test bug).
+pub fn cpu_preset(name: &str) -> PipelineConfig {
+    cpu_registry()
+        .preset(name)
+        .unwrap_or_else(|| panic!("no preset `{name}`"))
+}
+
+/// The stages of `cfg` built by the CPU registry for `scene` at `width × height`.
+pub fn cpu_stages(
+    cfg: &PipelineConfig,
+    scene: &Arc<Scene>,
+    width: u32,
+    height: u32,
+) -> Stages<Cpu> {
+    let frame = FrameSize::new(width, height).expect("valid test frame");
+    cpu_registry()
+        .build(&StageContext::new(&Cpu, scene, frame), cfg)
+        .unwrap_or_else(|e| panic!("building {}: {e}", cfg.name))
+        .stages
+}
+
+/// The CPU intersector `spec` for `scene`.
+pub fn cpu_intersector(spec: &StageSpec, scene: &Arc<Scene>) -> Box<dyn Intersector<Cpu>> {
+    let frame = FrameSize::new(1, 1).expect("valid frame");
+    cpu_registry()
+        .build_intersector(&StageContext::new(&Cpu, scene, frame), spec)
+        .unwrap_or_else(|e| panic!("building intersector {}: {e}", spec.kind))
+}
 
 /// Whether `CRSH_REQUIRE_GPU=1`: a missing adapter is then a failure rather than a skip.
 pub fn gpu_required() -> bool {

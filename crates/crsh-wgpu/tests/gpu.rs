@@ -539,7 +539,7 @@ fn host_intersector_matches_the_cpu_intersector() {
         .collect();
     for mode in [HitMode::Closest, HitMode::Any] {
         let spec = StageSpec::new("brute");
-        let cpu = crsh_cpu::build_intersector(&spec, &scene).unwrap();
+        let cpu = crsh_wgpu::testing::cpu_intersector(&spec, &scene);
         let mut want = start.clone();
         cpu.intersect(
             &crsh_cpu::Cpu,
@@ -550,7 +550,7 @@ fn host_intersector_matches_the_cpu_intersector() {
             &mut Stats::default(),
         )
         .unwrap();
-        let host = HostIntersector::build(&spec, &gscene).unwrap();
+        let host = HostIntersector::new(crsh_wgpu::testing::cpu_intersector(&spec, &gscene.scene));
         assert!(!host.supports_candidates());
         let gpu_rays = b.upload(&rays).unwrap();
         let mut hits = b.upload(&start).unwrap();

@@ -15,19 +15,21 @@ use crsh_wgpu::hash::thesis::ThesisHasher;
 use crsh_wgpu::GpuScene;
 
 fn spec(layout: &str) -> crsh_core::StageSpec {
-    let mut cfg = crsh_cpu::preset("crsh").unwrap();
+    let mut cfg = crsh_wgpu::testing::cpu_preset("crsh");
     cfg.hash
         .as_mut()
         .unwrap()
         .params
         .insert("layout".into(), ParamValue::Str(layout.into()));
-    cfg.resolve(&crsh_cpu::catalogue()).unwrap();
+    crsh_wgpu::testing::cpu_registry()
+        .resolve(&mut cfg)
+        .unwrap();
     cfg.hash.unwrap()
 }
 
 fn rays_of(s: &Arc<Scene>) -> Vec<Ray> {
-    let cfg: PipelineConfig = crsh_cpu::preset("crsh").unwrap();
-    let stages = crsh_cpu::build_stages(&cfg, s).unwrap();
+    let cfg: PipelineConfig = crsh_wgpu::testing::cpu_preset("crsh");
+    let stages = crsh_wgpu::testing::cpu_stages(&cfg, s, 48, 36);
     let mut st = Stats::default();
     let g = stages.primary.gbuffer(&Cpu, 48, 36, &mut st).unwrap();
     let mut rays = Vec::new();
@@ -105,11 +107,18 @@ fn thesis_keys_match_the_cpu_up_to_cell_boundaries() {
                 Hasher::<Cpu>::key_bits(&cpu),
                 Hasher::<crsh_wgpu::Wgpu>::key_bits(&gpu)
             );
-            let want = cpu.hash(&Cpu, &rays, &mut Stats::default()).unwrap();
+            let want = cpu
+                .hash(&Cpu, &rays, RayKind::Shadow, &mut Stats::default())
+                .unwrap();
             let got = b
                 .download(
-                    &gpu.hash(&b, &b.upload(&rays).unwrap(), &mut Stats::default())
-                        .unwrap(),
+                    &gpu.hash(
+                        &b,
+                        &b.upload(&rays).unwrap(),
+                        RayKind::Shadow,
+                        &mut Stats::default(),
+                    )
+                    .unwrap(),
                 )
                 .unwrap();
             let mut differ = 0;
@@ -186,7 +195,12 @@ fn bad_rays_are_errors() {
         .unwrap();
     rays[i].light = 99;
     let e = gpu
-        .hash(&b, &b.upload(&rays).unwrap(), &mut Stats::default())
+        .hash(
+            &b,
+            &b.upload(&rays).unwrap(),
+            RayKind::Shadow,
+            &mut Stats::default(),
+        )
         .unwrap_err();
     assert!(e.to_string().contains(&format!("ray {i}")), "{e}");
 }
@@ -217,11 +231,18 @@ fn morton_keys_match_the_cpu_up_to_cell_boundaries() {
                 Hasher::<Cpu>::key_bits(&cpu),
                 Hasher::<crsh_wgpu::Wgpu>::key_bits(&gpu)
             );
-            let want = cpu.hash(&Cpu, &rays, &mut Stats::default()).unwrap();
+            let want = cpu
+                .hash(&Cpu, &rays, RayKind::Shadow, &mut Stats::default())
+                .unwrap();
             let got = b
                 .download(
-                    &gpu.hash(&b, &b.upload(&rays).unwrap(), &mut Stats::default())
-                        .unwrap(),
+                    &gpu.hash(
+                        &b,
+                        &b.upload(&rays).unwrap(),
+                        RayKind::Shadow,
+                        &mut Stats::default(),
+                    )
+                    .unwrap(),
                 )
                 .unwrap();
             let widths = cpu.widths();

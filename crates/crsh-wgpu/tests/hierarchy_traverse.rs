@@ -21,8 +21,8 @@ fn scene(name: &str) -> Arc<Scene> {
 /// Rays of `kind` from the CPU pipeline's G-buffer (primary bounce), and the CPU crsh preset's
 /// order for them (thesis hash, compress sort).
 fn cpu_rays(s: &Arc<Scene>, kind: RayKind) -> (Vec<Ray>, Vec<u32>) {
-    let cfg = crsh_cpu::preset("crsh").unwrap();
-    let stages = crsh_cpu::build_stages(&cfg, s).unwrap();
+    let cfg = crsh_wgpu::testing::cpu_preset("crsh");
+    let stages = crsh_wgpu::testing::cpu_stages(&cfg, s, 40, 30);
     let mut st = Stats::default();
     let g: Vec<Surface> = stages.primary.gbuffer(&Cpu, 40, 30, &mut st).unwrap();
     let rays = stages.raygen.generate(&Cpu, &g, kind, &mut st).unwrap();
@@ -30,7 +30,7 @@ fn cpu_rays(s: &Arc<Scene>, kind: RayKind) -> (Vec<Ray>, Vec<u32>) {
         .hasher
         .as_ref()
         .unwrap()
-        .hash(&Cpu, &rays, &mut st)
+        .hash(&Cpu, &rays, kind, &mut st)
         .unwrap();
     let bits = stages.hasher.as_ref().unwrap().key_bits();
     let order = stages

@@ -138,7 +138,7 @@ fn brute_scene_queries_match_the_cpu() {
         let g = gpu_scene(&b, &s);
         let spec = brute_spec("mt");
         let gpu = BruteForce::new(&g, &spec).unwrap();
-        let cpu = crsh_cpu::build_intersector(&StageSpec::new("brute"), &s).unwrap();
+        let cpu = crsh_wgpu::testing::cpu_intersector(&StageSpec::new("brute"), &s);
         let rays = rays(&s, 5, 700, RayKind::Reflection);
         // Start from a mix of misses and existing hits (merging), as candidate batches do.
         let start: Vec<Hit> = (0..rays.len())
@@ -222,7 +222,7 @@ fn brute_candidate_queries_match_the_cpu() {
             )
             .unwrap();
             assert!(batches.len() > 1, "{name}: one batch only");
-            let cpu = crsh_cpu::build_intersector(&StageSpec::new("brute"), &s).unwrap();
+            let cpu = crsh_wgpu::testing::cpu_intersector(&StageSpec::new("brute"), &s);
             let gpu = BruteForce::new(&g, &brute_spec("mt")).unwrap();
             let h_gpu: RayHierarchy<Wgpu> = RayHierarchy {
                 order: b.upload(&h_cpu.order).unwrap(),

@@ -161,11 +161,13 @@ fn phong_matches_the_cpu_shader() {
     };
     for scene in scenes() {
         let (w, h) = (48, 36);
-        let mut cfg = crsh_cpu::preset("brute").unwrap();
-        cfg.resolve(&crsh_cpu::catalogue()).unwrap();
+        let mut cfg = crsh_wgpu::testing::cpu_preset("brute");
+        crsh_wgpu::testing::cpu_registry()
+            .resolve(&mut cfg)
+            .unwrap();
         let cpu_shader = crsh_cpu::shade::phong::Phong::new(&scene, &cfg.shade).unwrap();
         let raygen = crsh_cpu::raygen::whitted::Whitted::new(&scene, &cfg.raygen).unwrap();
-        let brute = crsh_cpu::build_intersector(&StageSpec::new("brute"), &scene).unwrap();
+        let brute = crsh_wgpu::testing::cpu_intersector(&StageSpec::new("brute"), &scene);
         let trace = |rays: &Vec<crsh_core::Ray>, mode| {
             let mut hits = vec![Hit::MISS; rays.len()];
             brute
@@ -258,8 +260,10 @@ fn phong_accumulation_is_deterministic_and_rejects_bad_records() {
     };
     let scene = Arc::new(crsh_scene::builtin::build("cornell-mirrors").unwrap());
     let g = GpuScene::new(&b, &scene).unwrap();
-    let mut cfg = crsh_cpu::preset("brute").unwrap();
-    cfg.resolve(&crsh_cpu::catalogue()).unwrap();
+    let mut cfg = crsh_wgpu::testing::cpu_preset("brute");
+    crsh_wgpu::testing::cpu_registry()
+        .resolve(&mut cfg)
+        .unwrap();
     let shader = Phong::new(&g, &cfg.shade).unwrap();
     let gen = crsh_wgpu::raygen::whitted::Whitted::new(&g, &cfg.raygen).unwrap();
     let raster = Raster::new(&g, &StageSpec::new("raster")).unwrap();

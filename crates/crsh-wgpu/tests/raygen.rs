@@ -20,13 +20,15 @@ fn spec(sets: &[(&str, ParamValue)]) -> crsh_core::StageSpec {
     for (k, v) in sets {
         cfg.raygen.params.insert((*k).into(), v.clone());
     }
-    cfg.resolve(&crsh_cpu::catalogue()).unwrap();
+    crsh_wgpu::testing::cpu_registry()
+        .resolve(&mut cfg)
+        .unwrap();
     cfg.raygen
 }
 
 fn gbuffer(scene: &Arc<Scene>, w: u32, h: u32) -> Vec<Surface> {
-    let cfg = crsh_cpu::preset("brute").unwrap();
-    let stages = crsh_cpu::build_stages(&cfg, scene).unwrap();
+    let cfg = crsh_wgpu::testing::cpu_preset("brute");
+    let stages = crsh_wgpu::testing::cpu_stages(&cfg, scene, w, h);
     stages
         .primary
         .gbuffer(&Cpu, w, h, &mut Stats::default())

@@ -32,9 +32,8 @@ figure{margin:1.5em 0}figure svg{max-width:100%;height:auto}
 figcaption{font-size:.9em;color:#555}pre{background:#f6f6f6;padding:1em;overflow-x:auto;white-space:pre-wrap}
 .note{color:#555;font-size:.9em}";
 
-/// The report page. `charts` holds, per scene, the charts written (possibly none);
-/// `plan_text` is the plan as given (TOML).
-pub fn report(results: &Results, charts: &[(String, Vec<ChartFile>)], plan_text: &str) -> String {
+/// The report page. `charts` holds, per scene, the charts written (possibly none).
+pub fn report(results: &Results, charts: &[(String, Vec<ChartFile>)]) -> String {
     let mut h = String::new();
     let title = escape(&results.title);
     let _ = write!(
@@ -52,6 +51,37 @@ pub fn report(results: &Results, charts: &[(String, Vec<ChartFile>)], plan_text:
         results.plan.warmup,
         escape(&results.plan.reference),
     );
+    if let Some(shard) = &results.shard {
+        let _ = writeln!(
+            h,
+            "<p class=\"note\" id=\"shard\">This is shard {shard} of an ablation of {} cells: it holds the cells whose index <i>i</i> (in the plan's expansion) has <i>i</i> mod {} = {}. Merge the shards' directories with <code>crsh ablate --merge DIR... --out DIR</code>.</p>",
+            results.expansion.cells,
+            shard.count,
+            shard.index - 1,
+        );
+    }
+    if !results.merged_from.is_empty() {
+        let _ = writeln!(
+            h,
+            "<h2 id=\"shards\">Shards</h2>\n<p class=\"note\">Merged from {} shards; the wall time above is the longest shard's. Cells that ran on different machines are not comparable in time.</p>\n<table id=\"shards-table\"><tr><th>shard</th><th class=\"l\">from</th><th class=\"l\">CPU</th><th>cores</th><th>threads</th><th class=\"l\">started (UTC)</th><th>cells</th><th>wall s</th></tr>",
+            results.merged_from.len()
+        );
+        for r in &results.merged_from {
+            let _ = writeln!(
+                h,
+                "<tr><td>{}</td><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{}</td><td class=\"l\">{}</td><td>{}</td><td>{:.1}</td></tr>",
+                r.shard,
+                escape(&r.source),
+                escape(&r.machine.cpu_model),
+                r.machine.cores,
+                r.machine.threads,
+                escape(&r.machine.started_utc),
+                r.cells,
+                r.wall_s
+            );
+        }
+        let _ = writeln!(h, "</table>");
+    }
 
     let _ = writeln!(
         h,
@@ -132,7 +162,7 @@ pub fn report(results: &Results, charts: &[(String, Vec<ChartFile>)], plan_text:
         h,
         "<p class=\"note\">From {}.</p>\n<pre id=\"plan-text\">{}</pre>",
         escape(&results.plan_source),
-        escape(plan_text)
+        escape(&results.plan_text)
     );
     let _ = writeln!(h, "</body>\n</html>");
     h

@@ -1,11 +1,14 @@
 //! `crsh ablate`: runs a matrix of scenes × pipelines × parameters × backends, measures each
 //! cell (warm-up, timed repeats, counters, accuracy against a reference), and writes
 //! `results.csv`, `results.json`, charts (PNG and SVG) and `report.html` into a directory.
-//! `crsh ablate --compare OLD.json NEW.json` prints per-cell ratios of two runs.
+//! `--shard K/N` runs one share of the cells (for N processes on any scheduler), `--merge`
+//! joins the shards' directories, `--redraw` rebuilds charts and report from a `results.json`,
+//! and `--compare OLD.json NEW.json` prints per-cell ratios of two runs.
 //!
 //! - [`plan`] — the plan (TOML or the command line's quick form) and its expansion into cells;
 //! - [`run`] — running the cells;
-//! - [`results`] — what was measured, `results.json` and `results.csv`;
+//! - [`results`] — what was measured, `results.json` and `results.csv`, shards;
+//! - [`merge`] — `--merge`;
 //! - [`charts`] — the three charts per scene;
 //! - [`html`] — `report.html`;
 //! - [`headline`] — the per-scene headline numbers printed at the end;
@@ -15,18 +18,21 @@ pub mod charts;
 pub mod compare;
 pub mod headline;
 pub mod html;
+pub mod merge;
 pub mod plan;
 pub mod results;
 pub mod run;
 
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use clap::Args;
+use crsh::Registries;
 
 use crate::error::{CliError, CliResult};
-use plan::{split_list, Plan, QuickPlan};
-use results::{CellResult, Machine, Results};
+use plan::{split_list, Cell, Plan, QuickPlan};
+use results::{CellResult, Expansion, Machine, Results, ShardInfo};
 
 /// `crsh ablate`.
 #[derive(Debug, Args)]
@@ -91,8 +97,25 @@ pub struct AblateArgs {
     pub quiet: bool,
 
     /// Compare two results.json files: per-cell ratios new/old of time, tests and hit agreement.
-    #[arg(long, num_args = 2, value_names = ["OLD.json", "NEW.json"], conflicts_with_all = ["plan", "out", "scenes", "pipelines", "set"])]
+    #[arg(long, num_args = 2, value_names = ["OLD.json", "NEW.json"], conflicts_with_all = ["plan", "out", "scenes", "pipelines", "set", "shard", "merge", "redraw"])]
     pub compare: Option<Vec<PathBuf>>,
+
+    /// Run only shard K of N: the cells whose index i (in the plan's expansion) has
+    /// i mod N = K-1. Start N processes with K = 1..N (Slurm array jobs, Kubernetes indexed
+    /// Jobs, GNU parallel, ...), each with its own --out, then --merge their directories.
+    #[arg(long, value_name = "K/N")]
+    pub shard: Option<String>,
+
+    /// Merge the directories of the shards of one run (`--shard K/N`) into --out: one
+    /// results.csv / results.json, charts and report. Shards of different plans, expansions,
+    /// revisions or versions, and missing or repeated shards, are refused.
+    #[arg(long, num_args = 1.., value_name = "DIR", conflicts_with_all = ["plan", "scenes", "pipelines", "set", "backends", "width", "height", "depth", "repeat", "reference", "threads", "shard", "redraw"])]
+    pub merge: Option<Vec<PathBuf>>,
+
+    /// Rebuild the charts, results.csv and report.html from DIR/results.json (into --out, by
+    /// default DIR itself), without running anything.
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["plan", "scenes", "pipelines", "set", "backends", "width", "height", "depth", "repeat", "reference", "threads", "shard"])]
+    pub redraw: Option<PathBuf>,
 }
 
 fn parse_u32_list(s: &str, what: &str) -> CliResult<Vec<u32>> {
@@ -220,8 +243,100 @@ fn cell_line(c: &CellResult, n: usize) -> String {
     }
 }
 
-/// Runs `crsh ablate`.
-pub fn run(args: &AblateArgs) -> CliResult<()> {
+/// FNV-1a, 64 bits: a digest that is the same on every machine and build.
+fn fnv1a(bytes: impl IntoIterator<Item = u8>, mut h: u64) -> u64 {
+    for b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+/// What `cells` (a whole expansion) are, for checking that shards belong together.
+fn expansion_of(cells: &[Cell]) -> Expansion {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for c in cells {
+        let line = serde_json::json!([
+            c.index,
+            c.scene_spec,
+            c.label(),
+            c.backend,
+            c.width,
+            c.height,
+            c.depth,
+            c.config,
+            c.reference,
+            c.unsupported,
+        ])
+        .to_string();
+        h = fnv1a(line.bytes().chain([b'\n']), h);
+    }
+    Expansion {
+        cells: cells.len(),
+        digest: format!("{h:016x}"),
+    }
+}
+
+/// Writes `results.json`, `results.csv`, the charts and `report.html` of `results` into
+/// `out` (created if missing), removing chart files of an earlier run that this one does not
+/// draw. Returns the number of chart files.
+fn write_outputs(results: &Results, out: &Path, write_json: bool) -> CliResult<usize> {
+    let charts_dir = prepare_out(out)?;
+    let charts = charts::write_all(results, &charts_dir)
+        .map_err(|e| CliError::runtime(format!("drawing charts: {e}")))?;
+    let drawn: BTreeSet<String> = charts
+        .iter()
+        .flat_map(|(_, files)| files.iter())
+        .flat_map(|f| [format!("{}.png", f.stem), format!("{}.svg", f.stem)])
+        .collect();
+    remove_stale_charts(&charts_dir, &drawn)?;
+    let w = |name: &str, text: &str| crate::output::write_text(&out.join(name), text);
+    if write_json {
+        w("results.json", &(results.to_json() + "\n"))?;
+    }
+    w("results.csv", &results.to_csv())?;
+    w("report.html", &html::report(results, &charts))?;
+    Ok(drawn.len())
+}
+
+/// Removes the `.png` and `.svg` files in `dir` that are not in `keep` (charts of scenes or
+/// axes an earlier run into the same directory drew and this one does not).
+fn remove_stale_charts(dir: &Path, keep: &BTreeSet<String>) -> CliResult<()> {
+    let entries = std::fs::read_dir(dir)
+        .map_err(|e| CliError::runtime(format!("listing {}: {e}", dir.display())))?;
+    for entry in entries.flatten() {
+        let path = entry.path();
+        let name = entry.file_name().to_string_lossy().to_string();
+        let chart = path.extension().is_some_and(|e| e == "png" || e == "svg");
+        if chart && path.is_file() && !keep.contains(&name) {
+            std::fs::remove_file(&path).map_err(|e| {
+                CliError::runtime(format!("removing stale {}: {e}", path.display()))
+            })?;
+        }
+    }
+    Ok(())
+}
+
+/// The closing summary: headline, cell counts, what was written.
+fn summary(results: &Results, out: &Path, charts: usize) -> String {
+    let ok = results.cells.iter().filter(|c| c.ok()).count();
+    let scope = match (&results.shard, results.merged_from.len()) {
+        (Some(s), _) => format!(" (shard {s} of {} cells)", results.expansion.cells),
+        (None, n) if n > 0 => format!(" (merged from {n} shards)"),
+        _ => String::new(),
+    };
+    format!(
+        "{}{} cells{scope}: {ok} ran, {} failed, in {:.1} s\nwrote     {}/results.csv, results.json, report.html and {charts} charts in charts/\n",
+        headline::headline(results),
+        results.cells.len(),
+        results.cells.len() - ok,
+        results.wall_s,
+        out.display(),
+    )
+}
+
+/// Runs `crsh ablate` with `registries` (plans resolve their pipelines and variants there).
+pub fn run(args: &AblateArgs, registries: &Registries) -> CliResult<()> {
     if let Some(files) = &args.compare {
         return match files.as_slice() {
             [old, new] => compare::run(old, new),
@@ -230,21 +345,47 @@ pub fn run(args: &AblateArgs) -> CliResult<()> {
             )),
         };
     }
-    let out = args
-        .out
-        .as_ref()
-        .ok_or_else(|| CliError::usage("--out DIR is required (or --compare OLD.json NEW.json)"))?;
+    if let Some(dirs) = &args.merge {
+        let out = args
+            .out
+            .as_ref()
+            .ok_or_else(|| CliError::usage("--merge needs --out DIR for the merged results"))?;
+        let results = merge::merge(dirs)?;
+        let charts = write_outputs(&results, out, true)?;
+        return crate::output::print_stdout(&summary(&results, out, charts));
+    }
+    if let Some(dir) = &args.redraw {
+        let results = merge::read_results(dir)?;
+        let out = args.out.as_deref().unwrap_or(dir);
+        let charts = write_outputs(&results, out, out != dir.as_path())?;
+        return crate::output::print_stdout(&summary(&results, out, charts));
+    }
+    let out = args.out.as_ref().ok_or_else(|| {
+        CliError::usage(
+            "--out DIR is required (or --compare OLD.json NEW.json, --merge DIR..., --redraw DIR)",
+        )
+    })?;
+    let shard = args
+        .shard
+        .as_deref()
+        .map(ShardInfo::parse)
+        .transpose()
+        .map_err(CliError::usage)?;
     let (plan, plan_text, plan_source, plan_dir) = plan_of(args)?;
-    let catalogue = crsh_cpu::catalogue();
-    let cells = plan::expand(&plan, plan_dir.as_deref(), &catalogue)?;
-    let charts_dir = prepare_out(out)?;
+    let all_cells = plan::expand(&plan, plan_dir.as_deref(), registries)?;
+    let expansion = expansion_of(&all_cells);
+    let cells: Vec<&Cell> = all_cells
+        .iter()
+        .filter(|c| shard.is_none_or(|s| s.holds(c.index)))
+        .collect();
+    prepare_out(out)?;
 
     let started = Instant::now();
     let threads = plan.threads.unwrap_or_else(rayon::current_num_threads);
     let machine = Machine::gather(threads, cells.iter().any(|c| c.backend == "wgpu"));
-    let n = cells.len();
+    let n = all_cells.len();
     let quiet = args.quiet;
-    let results_cells = run::run_cells(&plan, &cells, quiet, &mut |c, bar| {
+    let results_cells = run::run_cells(&plan, &cells, registries, quiet, &mut |c, bar| {
         if quiet {
             return;
         }
@@ -267,30 +408,19 @@ pub fn run(args: &AblateArgs) -> CliResult<()> {
         title,
         plan_source,
         plan,
+        plan_text,
         machine,
         wall_s: 0.0,
+        expansion,
+        shard,
+        merged_from: Vec::new(),
         cells: results_cells,
     };
-    let charts = charts::write_all(&results, &charts_dir)
-        .map_err(|e| CliError::runtime(format!("drawing charts: {e}")))?;
     results.wall_s = started.elapsed().as_secs_f64();
-    let w = |name: &str, text: &str| crate::output::write_text(&out.join(name), text);
-    w("results.json", &(results.to_json() + "\n"))?;
-    w("results.csv", &results.to_csv())?;
-    w("report.html", &html::report(&results, &charts, &plan_text))?;
-
+    let charts = write_outputs(&results, out, true)?;
+    crate::output::print_stdout(&summary(&results, out, charts))?;
     let ok = results.cells.iter().filter(|c| c.ok()).count();
-    let summary = format!(
-        "{}{} cells: {ok} ran, {} failed, in {:.1} s\nwrote     {}/results.csv, results.json, report.html and {} charts in charts/\n",
-        headline::headline(&results),
-        results.cells.len(),
-        results.cells.len() - ok,
-        results.wall_s,
-        out.display(),
-        charts.iter().map(|(_, f)| f.len()).sum::<usize>(),
-    );
-    crate::output::print_stdout(&summary)?;
-    if ok == 0 {
+    if ok == 0 && !results.cells.is_empty() {
         return Err(CliError::runtime(format!(
             "every cell failed (first reason: {})",
             results.cells.first().map_or("", |c| c.reason.as_str())

@@ -12,11 +12,12 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use crsh_core::{PipelineConfig, StageKind, StageVariantInfo};
+use crsh::{BackendKind, Registries};
+use crsh_core::{PipelineConfig, StageKind};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{CliError, CliResult};
-use crate::render::{pipeline_config, reference_config};
+use crate::render::{pipeline_unresolved, reference_config};
 
 /// Default `repeat`: timed runs per cell.
 pub const DEFAULT_REPEAT: u32 = 5;
@@ -337,10 +338,15 @@ pub struct Cell {
     pub height: Option<u32>,
     /// Bounce depth.
     pub depth: u32,
-    /// The resolved pipeline.
+    /// The pipeline, resolved against the cell's backend (or, when that backend lacks one of
+    /// its stages, against the backend that has them: see `unsupported`).
     pub config: PipelineConfig,
     /// The resolved reference pipeline (`None`: no accuracy run).
     pub reference: Option<PipelineConfig>,
+    /// Why the cell's backend cannot run the pipeline (a stage or parameter only another
+    /// backend has): the cell is recorded as failed with this reason, as a cell whose scene is
+    /// missing is.
+    pub unsupported: Option<String>,
 }
 
 impl Cell {
@@ -443,7 +449,7 @@ fn variant_choices_first(sets: &mut [String]) {
 fn with_reference_params(
     mut r: PipelineConfig,
     sets: &[String],
-    catalogue: &[StageVariantInfo],
+    registries: &Registries,
 ) -> CliResult<PipelineConfig> {
     if sets.is_empty() {
         return Ok(r);
@@ -454,9 +460,9 @@ fn with_reference_params(
         r.set(s)
             .map_err(|e| CliError::usage(format!("reference_params {s}: {e}")))?;
     }
-    r.resolve(catalogue)
-        .map_err(|e| CliError::usage(format!("reference_params: {e}")))?;
-    Ok(r)
+    registries
+        .resolve(&r, BackendKind::Cpu)
+        .map_err(|e| CliError::usage(format!("reference_params: {e}")))
 }
 
 /// Every combination of the grid's values, keys in order.
@@ -477,13 +483,14 @@ fn combinations(grid: &[(String, Vec<GridValue>)]) -> Vec<Vec<(String, String)>>
 }
 
 /// Expands `plan` into cells, in order scene × width × depth × pipeline × grid × backend.
-/// Checks every cell's pipeline and reference against `catalogue`: any error (unknown
-/// pipeline, variant or parameter, bad value) is a usage error naming the cell. Scenes are not
-/// loaded here; a missing one makes failed cells.
+/// Resolves every cell's pipeline against its backend's registry and the reference against the
+/// CPU's: an unknown pipeline, variant or parameter or a bad value is a usage error naming the
+/// cell; a pipeline that only another backend can run makes a failed cell (its reason says
+/// which backend has the stage). Scenes are not loaded here; a missing one makes failed cells.
 pub fn expand(
     plan: &Plan,
     plan_dir: Option<&Path>,
-    catalogue: &[StageVariantInfo],
+    registries: &Registries,
 ) -> CliResult<Vec<Cell>> {
     if plan.scenes.is_empty() {
         return Err(CliError::usage("the plan names no scenes"));
@@ -530,13 +537,11 @@ pub fn expand(
             )));
         }
     }
-    for b in &plan.backends {
-        if !["cpu", "wgpu"].contains(&b.as_str()) {
-            return Err(CliError::usage(format!(
-                "unknown backend `{b}` (backends: cpu, wgpu)"
-            )));
-        }
-    }
+    let backends: Vec<BackendKind> = plan
+        .backends
+        .iter()
+        .map(|b| b.parse::<BackendKind>().map_err(CliError::usage))
+        .collect::<CliResult<_>>()?;
     for (k, v) in plan
         .grid
         .iter()
@@ -580,7 +585,7 @@ pub fn expand(
         // A pipeline file is relative to the plan's directory; preset names stay as they are.
         let pipeline = match plan_dir {
             Some(d)
-                if crsh_cpu::preset(&p.pipeline).is_none()
+                if registries.preset(&p.pipeline).is_none()
                     && !Path::new(&p.pipeline).is_absolute()
                     && (p.pipeline.ends_with(".toml") || d.join(&p.pipeline).is_file()) =>
             {
@@ -588,7 +593,7 @@ pub fn expand(
             }
             _ => p.pipeline.clone(),
         };
-        let base = pipeline_config(&pipeline, &[], catalogue)
+        let base = pipeline_unresolved(registries, &pipeline, &[])
             .map_err(|e| CliError::usage(format!("pipeline `{}`: {e}", p.pipeline)))?;
         let mut merged: BTreeMap<String, Vec<GridValue>> = BTreeMap::new();
         for (k, v) in plan.grid.iter().chain(p.grid.iter()) {
@@ -641,36 +646,59 @@ pub fn expand(
                                 params.iter().map(|(k, v)| format!("{k}={v}")).collect();
                             format!("cell {} {}", e.label, p.join(" "))
                         };
-                        let mut config =
-                            pipeline_config(&e.pipeline, &sets, catalogue).map_err(|err| {
+                        let mut unresolved = pipeline_unresolved(registries, &e.pipeline, &sets)
+                            .map_err(|err| {
                                 CliError::usage(format!("{}: {err}", describe().trim_end()))
                             })?;
-                        config.name = e.label.clone();
-                        let reference = reference_name
-                            .as_deref()
-                            .map(|r| reference_config(&config, r, catalogue))
-                            .transpose()
-                            .map_err(|err| CliError::usage(format!("reference: {err}")))?
-                            .map(|r| with_reference_params(r, &reference_sets, catalogue))
-                            .transpose()?;
-                        for backend in &plan.backends {
+                        unresolved.name = e.label.clone();
+                        for &backend in &backends {
                             if cells.len() >= MAX_CELLS {
                                 return Err(CliError::usage(format!(
                                     "the plan expands to more than {MAX_CELLS} cells"
                                 )));
                             }
+                            let (config, unsupported) = match registries
+                                .resolve(&unresolved, backend)
+                            {
+                                Ok(c) => (c, None),
+                                Err(err) => {
+                                    // Runnable elsewhere: this cell fails with the reason;
+                                    // runnable nowhere: the plan is wrong.
+                                    let elsewhere = BackendKind::ALL
+                                        .into_iter()
+                                        .find_map(|b| registries.resolve(&unresolved, b).ok());
+                                    match elsewhere {
+                                        Some(c) => (c, Some(format!("building pipeline: {err}"))),
+                                        None => {
+                                            return Err(CliError::usage(format!(
+                                                "{}: pipeline `{}`: {err}",
+                                                describe().trim_end(),
+                                                e.label
+                                            )))
+                                        }
+                                    }
+                                }
+                            };
+                            let reference = reference_name
+                                .as_deref()
+                                .map(|r| reference_config(registries, &config, r))
+                                .transpose()
+                                .map_err(|err| CliError::usage(format!("reference: {err}")))?
+                                .map(|r| with_reference_params(r, &reference_sets, registries))
+                                .transpose()?;
                             cells.push(Cell {
                                 index: cells.len(),
                                 scene_spec: scene_spec.clone(),
                                 scene: scene.clone(),
                                 pipeline: e.label.clone(),
-                                backend: backend.clone(),
+                                backend: backend.name().to_string(),
                                 params: params.clone(),
                                 width,
                                 height: plan.height,
                                 depth,
-                                config: config.clone(),
-                                reference: reference.clone(),
+                                config,
+                                reference,
+                                unsupported,
                             });
                         }
                     }
@@ -702,7 +730,7 @@ mod tests {
             "crsh,rah,bvh",
             &["hierarchy.subdivision=8,16", "hierarchy.depth=2,3"],
         );
-        let cells = expand(&plan, None, &crsh_cpu::catalogue()).unwrap();
+        let cells = expand(&plan, None, &Registries::builtin()).unwrap();
         // crsh and rah: 2 × 2 each; bvh has no hierarchy: one cell.
         assert_eq!(cells.len(), 9);
         let bvh: Vec<_> = cells.iter().filter(|c| c.pipeline == "bvh").collect();
@@ -757,7 +785,7 @@ mod tests {
             "crsh,rah,bvh",
             &["hierarchy.subdivision=8,16", "hierarchy.depth=2,3"],
         );
-        let cat = crsh_cpu::catalogue();
+        let cat = Registries::builtin();
         let a = expand(&from_file, None, &cat).unwrap();
         let b = expand(&from_cli, None, &cat).unwrap();
         assert_eq!(a.len(), b.len());
@@ -769,7 +797,7 @@ mod tests {
 
     #[test]
     fn bad_plans_are_usage_errors() {
-        let cat = crsh_cpu::catalogue();
+        let cat = Registries::builtin();
         assert!(parse_plan("scenes = 3").is_err());
         assert!(parse_plan("scenes = [\"a\"]\npipelines = []\nbogus = 1").is_err());
         let mut p = quick("crsh", &["hierarchy.nonsense=1"]);
@@ -799,7 +827,7 @@ mod tests {
             "sort.kind" = ["radix"]
         "#;
         let plan = parse_plan(toml).unwrap();
-        let cells = expand(&plan, None, &crsh_cpu::catalogue()).unwrap();
+        let cells = expand(&plan, None, &Registries::builtin()).unwrap();
         assert_eq!(cells.len(), 1);
         let h = cells[0].config.hash.as_ref().unwrap();
         assert_eq!(h.kind, "morton");
@@ -823,7 +851,7 @@ mod tests {
             "hash.kind" = "morton"
             "sort.kind" = "radix"
         "#;
-        let cells = expand(&parse_plan(toml).unwrap(), None, &crsh_cpu::catalogue()).unwrap();
+        let cells = expand(&parse_plan(toml).unwrap(), None, &Registries::builtin()).unwrap();
         let by = |p: &str| cells.iter().filter(|c| c.pipeline == p).count();
         assert_eq!((by("crsh"), by("rah"), by("rah-sorted")), (2, 1, 1));
         let rah = cells.iter().find(|c| c.pipeline == "rah").unwrap();
@@ -834,7 +862,7 @@ mod tests {
         let e = expand(
             &quick("rah,bvh", &["hash.kind=thesis,morton"]),
             None,
-            &crsh_cpu::catalogue(),
+            &Registries::builtin(),
         )
         .unwrap_err();
         assert_eq!(e.exit_code(), 2);
@@ -854,7 +882,7 @@ mod tests {
             pipeline = "bvh"
         "#;
         let plan = parse_plan(toml).unwrap();
-        let cat = crsh_cpu::catalogue();
+        let cat = Registries::builtin();
         let cells = expand(&plan, None, &cat).unwrap();
         assert_eq!(cells.len(), 2);
         for c in &cells {

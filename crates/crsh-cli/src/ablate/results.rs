@@ -5,12 +5,12 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 
 use crsh_core::{KindStats, LevelStats, PipelineConfig, RayKind, STAGE_TIMINGS};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::plan::Plan;
 
 /// Median, minimum and maximum of a set of timed runs, ms.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct TimeSummary {
     /// Median (the mean of the two middle values for an even count).
     pub median: f64,
@@ -43,7 +43,7 @@ impl TimeSummary {
 }
 
 /// Rays per kind of one frame.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct CellRays {
     /// Camera rays.
     pub primary: u64,
@@ -58,7 +58,7 @@ pub struct CellRays {
 }
 
 /// Intersection tests of one frame.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct CellTests {
     /// Bounding-volume tests.
     pub bounds: u64,
@@ -75,7 +75,7 @@ pub struct CellTests {
 }
 
 /// Agreement with the plan's reference.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct CellAccuracy {
     /// The reference intersector.
     pub reference: String,
@@ -103,7 +103,7 @@ pub struct CellAccuracy {
 }
 
 /// The measurements of a cell that ran.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Measures {
     /// Triangles in the scene.
     pub triangles: u64,
@@ -137,7 +137,7 @@ pub struct Measures {
 }
 
 /// One cell's outcome.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CellResult {
     /// Position in the plan's expansion.
     pub index: usize,
@@ -190,7 +190,7 @@ impl CellResult {
 }
 
 /// Facts about the machine and build that ran the ablation.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Machine {
     /// CPU model (`/proc/cpuinfo`'s `model name`), or `unknown`.
     pub cpu_model: String,
@@ -285,8 +285,74 @@ pub fn utc_from_unix(secs: u64) -> String {
     )
 }
 
+/// Which share of an ablation's cells a run holds (`crsh ablate --shard K/N`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ShardInfo {
+    /// The shard, `1..=count`.
+    pub index: usize,
+    /// How many shards the cells are dealt to.
+    pub count: usize,
+}
+
+impl ShardInfo {
+    /// Parses `K/N` (`1 <= K <= N`).
+    pub fn parse(s: &str) -> Result<ShardInfo, String> {
+        let (k, n) = s
+            .split_once('/')
+            .ok_or_else(|| format!("--shard {s}: expected K/N, e.g. 2/8"))?;
+        let parse = |v: &str| {
+            v.trim()
+                .parse::<usize>()
+                .map_err(|_| format!("--shard {s}: `{v}` is not a whole number"))
+        };
+        let (index, count) = (parse(k)?, parse(n)?);
+        if count == 0 || index == 0 || index > count {
+            return Err(format!("--shard {s}: K must be in 1..=N and N at least 1"));
+        }
+        Ok(ShardInfo { index, count })
+    }
+
+    /// Whether the cell at `index` (0-based, in the plan's expansion) belongs to this shard:
+    /// cells are dealt round robin, cell `i` to shard `i mod N + 1`, so every shard gets a
+    /// share of every scene and pipeline and the shards take similar times.
+    pub fn holds(&self, index: usize) -> bool {
+        index % self.count == self.index - 1
+    }
+}
+
+impl std::fmt::Display for ShardInfo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+/// What the plan expanded to, for checking that shards belong together.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Expansion {
+    /// Cells in the whole expansion (every shard's).
+    pub cells: usize,
+    /// FNV-1a (64-bit, hex) of every cell's scene, label, backend, size, depth and resolved
+    /// pipeline and reference, in order: equal exactly when two runs expanded the same cells.
+    pub digest: String,
+}
+
+/// A shard merged into a results document: where it ran and how long it took.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ShardRecord {
+    /// Which shard.
+    pub shard: ShardInfo,
+    /// The directory it was read from.
+    pub source: String,
+    /// The machine that ran it.
+    pub machine: Machine,
+    /// Its wall time, seconds.
+    pub wall_s: f64,
+    /// Its cells.
+    pub cells: usize,
+}
+
 /// The whole `results.json` document.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Results {
     /// crsh version that wrote it.
     pub version: String,
@@ -296,10 +362,23 @@ pub struct Results {
     pub plan_source: String,
     /// The plan, as parsed (defaults filled in).
     pub plan: Plan,
-    /// The machine and build.
+    /// The plan's text as given (shown in the report).
+    #[serde(default)]
+    pub plan_text: String,
+    /// The machine and build (of the first shard, for merged results).
     pub machine: Machine,
-    /// Wall time of the whole ablation, seconds.
+    /// Wall time of the whole ablation, seconds (merged results: the longest shard's, the
+    /// elapsed time when the shards run side by side).
     pub wall_s: f64,
+    /// What the plan expanded to.
+    #[serde(default)]
+    pub expansion: Expansion,
+    /// The shard this run holds (`--shard K/N`); absent for a whole run or merged results.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shard: Option<ShardInfo>,
+    /// The shards merged into this document (`--merge`), in shard order.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub merged_from: Vec<ShardRecord>,
     /// One entry per cell, in plan order.
     pub cells: Vec<CellResult>,
 }
@@ -595,6 +674,22 @@ mod tests {
         assert_eq!(csv_field("plain"), "plain");
         assert_eq!(csv_field("a,b"), "\"a,b\"");
         assert_eq!(csv_field("say \"hi\""), "\"say \"\"hi\"\"\"");
+    }
+
+    #[test]
+    fn shards_deal_cells_round_robin() {
+        assert_eq!(
+            ShardInfo::parse("2/3").unwrap(),
+            ShardInfo { index: 2, count: 3 }
+        );
+        for bad in ["0/3", "4/3", "1/0", "x/3", "3", "1/2/3"] {
+            assert!(ShardInfo::parse(bad).is_err(), "{bad}");
+        }
+        let shards: Vec<ShardInfo> = (1..=3).map(|k| ShardInfo { index: k, count: 3 }).collect();
+        for i in 0..20 {
+            assert_eq!(shards.iter().filter(|s| s.holds(i)).count(), 1, "cell {i}");
+        }
+        assert!(shards[0].holds(0) && shards[1].holds(1) && shards[2].holds(5));
     }
 
     #[test]

@@ -15,84 +15,70 @@ use std::collections::{BTreeMap, HashMap};
 use std::io::IsTerminal;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
+use crsh::report::{compare_images, mrays_per_s};
+use crsh::{Registries, Renderer};
 use crsh_core::metrics::to_rgba8;
-use crsh_core::{render_frame, Backend, FrameOptions, Intersector, KindStats, Stages, Stats};
-use crsh_cpu::Cpu;
+use crsh_core::{FrameOptions, KindStats, Stats};
 use crsh_scene::Scene;
-use crsh_wgpu::{GpuScene, HostIntersector, Wgpu};
+use crsh_wgpu::Wgpu;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::plan::{Cell, Plan};
 use super::results::{CellAccuracy, CellRays, CellResult, CellTests, Measures, TimeSummary};
-use crate::report::mrays_per_s;
 
 /// A loaded scene (or why it did not load).
 type LoadedScene = Result<Arc<Scene>, String>;
 
-/// The wgpu device of a run (opened by the first wgpu cell, or why it could not be) and the
-/// current scene on it.
-#[derive(Default)]
-struct GpuState {
-    device: Option<Result<Wgpu, String>>,
-    scene: Option<(String, Arc<GpuScene>)>,
+/// The reference images of the current scene, by reference configuration and size.
+type ReferenceImages = HashMap<String, Result<Arc<Vec<u8>>, String>>;
+
+/// What the cells of one scene share: the scene, its renderers (the wgpu one uploads the scene
+/// once) and the reference images.
+struct SceneState<'r> {
+    spec: String,
+    scene: LoadedScene,
+    cpu: Option<Renderer<'r>>,
+    gpu: Option<Result<Renderer<'r>, String>>,
+    ref_images: ReferenceImages,
 }
 
-impl GpuState {
-    /// The scene `spec` on the device, uploading it on first use.
-    fn scene(&mut self, spec: &str, scene: &Arc<Scene>) -> Result<Arc<GpuScene>, String> {
-        let device = self
-            .device
-            .get_or_insert_with(|| {
-                Wgpu::new().map_err(|e| format!("backend wgpu: cannot open a device: {e}"))
-            })
-            .clone()?;
-        match &self.scene {
-            Some((s, g)) if s == spec => Ok(Arc::clone(g)),
-            _ => {
-                self.scene = None;
-                let g = GpuScene::new(&device, scene)
-                    .map_err(|e| format!("uploading the scene to the device: {e}"))?;
-                self.scene = Some((spec.to_string(), Arc::clone(&g)));
-                Ok(g)
-            }
-        }
-    }
-}
-
-/// Runs every cell in order. `on_done` receives each result as it completes (for the
-/// per-cell summary line); `quiet` hides the progress bar.
+/// Runs `cells` (the plan's, or one shard's) in order with `registries`. `on_done` receives
+/// each result as it completes (for the per-cell summary line); `quiet` hides the progress bar.
 pub fn run_cells(
     plan: &Plan,
-    cells: &[Cell],
+    cells: &[&Cell],
+    registries: &Registries,
     quiet: bool,
     on_done: &mut dyn FnMut(&CellResult, &ProgressBar),
 ) -> Vec<CellResult> {
     let bar = progress_bar(cells.len() as u64, quiet);
     let threads = plan.threads.unwrap_or_else(rayon::current_num_threads);
-    let mut scenes: HashMap<String, LoadedScene> = HashMap::new();
-    let mut ref_images: HashMap<String, Result<Arc<Vec<u8>>, String>> = HashMap::new();
-    let mut gpu = GpuState::default();
+    // The wgpu device of the run: opened by the first wgpu cell (or why it could not be).
+    let mut device: Option<Result<Wgpu, String>> = None;
+    let mut state: Option<SceneState<'_>> = None;
     let mut out = Vec::with_capacity(cells.len());
-    for (i, cell) in cells.iter().enumerate() {
+    for cell in cells {
         bar.set_message(format!("{} | {}", cell.scene_spec, cell.label()));
-        // Free the previous scene (and its reference images) once its cells are done.
-        if i > 0 && cells[i - 1].scene_spec != cell.scene_spec {
-            scenes.clear();
-            ref_images.clear();
-            gpu.scene = None;
+        // One scene at a time: the previous one (and its reference images) is freed here.
+        if state.as_ref().is_none_or(|s| s.spec != cell.scene_spec) {
+            drop(state.take()); // before the next scene loads: one scene in memory at a time
+            state = Some(SceneState {
+                spec: cell.scene_spec.clone(),
+                scene: load_scene(cell),
+                cpu: None,
+                gpu: None,
+                ref_images: HashMap::new(),
+            });
         }
-        let scene = scenes
-            .entry(cell.scene_spec.clone())
-            .or_insert_with(|| load_scene(cell))
-            .clone();
+        let st = state.as_mut().expect("scene state set above");
+        let mut run = || run_cell(plan, cell, registries, st, &mut device, threads);
         let result = match plan.threads {
-            Some(n) => crsh_cpu::with_threads(n, || {
-                run_cell(plan, cell, &scene, threads, &mut ref_images, &mut gpu)
-            })
-            .unwrap_or_else(|e| failed(cell, &scene, threads, plan, e.to_string())),
-            None => run_cell(plan, cell, &scene, threads, &mut ref_images, &mut gpu),
+            Some(n) => crsh_cpu::with_threads(n, run).unwrap_or_else(|e| {
+                failed(cell, &Err(e.to_string()), threads, plan, e.to_string())
+            }),
+            None => run(),
         };
         on_done(&result, &bar);
         out.push(result);
@@ -153,28 +139,52 @@ fn height_of(cell: &Cell, scene: &Scene) -> u32 {
         .clamp(1, crsh_core::pipeline::MAX_IMAGE_SIDE)
 }
 
-fn run_cell(
+fn run_cell<'r>(
     plan: &Plan,
     cell: &Cell,
-    scene: &LoadedScene,
+    registries: &'r Registries,
+    st: &mut SceneState<'r>,
+    device: &mut Option<Result<Wgpu, String>>,
     threads: usize,
-    ref_images: &mut HashMap<String, Result<Arc<Vec<u8>>, String>>,
-    gpu: &mut GpuState,
 ) -> CellResult {
-    let s = match scene {
-        Ok(s) => s,
-        Err(reason) => return failed(cell, scene, threads, plan, reason.clone()),
+    let scene = match &st.scene {
+        Ok(s) => Arc::clone(s),
+        Err(reason) => return failed(cell, &st.scene, threads, plan, reason.clone()),
     };
-    match catch_unwind(AssertUnwindSafe(|| measure(plan, cell, s, ref_images, gpu))) {
+    if let Some(reason) = &cell.unsupported {
+        return failed(cell, &st.scene, threads, plan, reason.clone());
+    }
+    let measured = catch_unwind(AssertUnwindSafe(|| {
+        let renderer: &Renderer<'r> = match cell.backend.as_str() {
+            "wgpu" => {
+                let gpu = st.gpu.get_or_insert_with(|| {
+                    let device = device
+                        .get_or_insert_with(|| {
+                            Wgpu::new()
+                                .map_err(|e| format!("backend wgpu: cannot open a device: {e}"))
+                        })
+                        .clone()?;
+                    Renderer::on_wgpu(registries, Arc::clone(&scene), &device)
+                        .map_err(|e| format!("uploading the scene to the device: {e}"))
+                });
+                gpu.as_ref().map_err(|e| e.clone())?
+            }
+            _ => st
+                .cpu
+                .get_or_insert_with(|| Renderer::new(registries, Arc::clone(&scene))),
+        };
+        measure(plan, cell, renderer, &mut st.ref_images)
+    }));
+    match measured {
         Ok(Ok(m)) => CellResult {
             status: "ok".to_string(),
             measures: Some(m),
-            ..failed(cell, scene, threads, plan, String::new())
+            ..failed(cell, &st.scene, threads, plan, String::new())
         },
-        Ok(Err(reason)) => failed(cell, scene, threads, plan, reason),
+        Ok(Err(reason)) => failed(cell, &st.scene, threads, plan, reason),
         Err(p) => failed(
             cell,
-            scene,
+            &st.scene,
             threads,
             plan,
             format!("panicked: {}", crsh_core::panic_message(p.as_ref())),
@@ -194,76 +204,27 @@ fn counters(s: &Stats) -> Stats {
     c
 }
 
+/// Runs a cell's frames with `renderer`: builds the stages, renders the warm-up and the timed
+/// repeats, then the accuracy frame with the reference intersector (its image compared with
+/// the CPU reference pipeline's, rendered once per configuration and size).
 fn measure(
     plan: &Plan,
     cell: &Cell,
-    scene: &Arc<Scene>,
-    ref_images: &mut HashMap<String, Result<Arc<Vec<u8>>, String>>,
-    gpu: &mut GpuState,
+    renderer: &Renderer<'_>,
+    ref_images: &mut ReferenceImages,
 ) -> Result<Measures, String> {
-    match cell.backend.as_str() {
-        "wgpu" => {
-            // A stage the GPU lacks is this cell's reason, adapter or not.
-            crsh_wgpu::check_supported(&cell.config)
-                .map_err(|e| format!("building pipeline: {e}"))?;
-            let gscene = gpu.scene(&cell.scene_spec, scene)?;
-            let t_build = Instant::now();
-            let stages = crsh_wgpu::build_stages(&cell.config, &gscene)
-                .map_err(|e| format!("building pipeline: {e}"))?;
-            let build_ms = t_build.elapsed().as_secs_f64() * 1e3;
-            let reference = |spec: &crsh_core::StageSpec| {
-                HostIntersector::build(spec, &gscene)
-                    .map(|r| Box::new(r) as Box<dyn Intersector<Wgpu>>)
-            };
-            measure_on(
-                &gscene.backend,
-                &stages,
-                build_ms,
-                &reference,
-                plan,
-                cell,
-                scene,
-                ref_images,
-            )
-        }
-        _ => {
-            let t_build = Instant::now();
-            let stages = crsh_cpu::build_stages(&cell.config, scene)
-                .map_err(|e| format!("building pipeline: {e}"))?;
-            let build_ms = t_build.elapsed().as_secs_f64() * 1e3;
-            let reference = |spec: &crsh_core::StageSpec| crsh_cpu::build_intersector(spec, scene);
-            measure_on(
-                &Cpu, &stages, build_ms, &reference, plan, cell, scene, ref_images,
-            )
-        }
-    }
-}
-
-/// Builds a cell's reference intersector on backend `B`.
-type ReferenceBuilder<'a, B> =
-    dyn Fn(&crsh_core::StageSpec) -> crsh_core::Result<Box<dyn Intersector<B>>> + 'a;
-
-/// Runs a cell's frames on `backend`: warm-up, timed repeats, and the accuracy frame with the
-/// reference intersector (its image compared with the CPU reference pipeline's).
-#[allow(clippy::too_many_arguments)]
-fn measure_on<B: Backend>(
-    backend: &B,
-    stages: &Stages<B>,
-    build_stages_ms: f64,
-    build_reference: &ReferenceBuilder<'_, B>,
-    plan: &Plan,
-    cell: &Cell,
-    scene: &Arc<Scene>,
-    ref_images: &mut HashMap<String, Result<Arc<Vec<u8>>, String>>,
-) -> Result<Measures, String> {
-    let opts = FrameOptions {
-        width: cell.width,
-        height: height_of(cell, scene),
-        max_depth: cell.depth,
-        triangles: scene.triangle_count() as u64,
-    };
-    let frame = |reference: Option<&dyn Intersector<B>>| {
-        render_frame(backend, stages, &opts, reference, &mut |_| {})
+    let scene = renderer.scene();
+    let frame_size = renderer
+        .frame_size(cell.width, Some(height_of(cell, scene)))
+        .map_err(|e| e.to_string())?;
+    let built = renderer
+        .build(&cell.config, frame_size)
+        .map_err(|e| format!("building pipeline: {e}"))?;
+    let build_stages_ms = built.build_ms();
+    let opts = FrameOptions::default().with_max_depth(cell.depth);
+    let frame = |reference: Option<&crsh_core::StageSpec>| {
+        built
+            .render(&opts, reference, &mut |_| {})
             .map_err(|e| format!("render failed: {e}"))
     };
     for _ in 0..plan.warmup {
@@ -310,17 +271,12 @@ fn measure_on<B: Backend>(
     let accuracy = match &cell.reference {
         None => None,
         Some(ref_cfg) => {
-            let reference = build_reference(&ref_cfg.intersect)
-                .map_err(|e| format!("building the reference intersector: {e}"))?;
-            let checked = frame(Some(reference.as_ref()))?;
-            let image = backend
-                .download(&checked.image)
-                .map_err(|e| format!("reading the image back: {e}"))?;
-            let rgba = to_rgba8(&image);
+            let checked = frame(Some(&ref_cfg.intersect))?;
+            let rgba = to_rgba8(&checked.image);
             let key = serde_json::json!([
                 cell.scene_spec,
-                opts.width,
-                opts.height,
+                frame_size.width,
+                frame_size.height,
                 opts.max_depth,
                 ref_cfg.primary,
                 ref_cfg.raygen,
@@ -331,19 +287,14 @@ fn measure_on<B: Backend>(
             let ref_rgba = ref_images
                 .entry(key)
                 .or_insert_with(|| {
-                    crsh_cpu::render(scene, ref_cfg, &opts, None, &mut |_| {})
-                        .map(|f| Arc::new(to_rgba8(&f.image)))
+                    renderer
+                        .reference_image(ref_cfg, frame_size, &opts, &mut |_| {})
+                        .map(Arc::new)
                         .map_err(|e| format!("reference render failed: {e}"))
                 })
                 .clone()?;
             let counts = checked.stats.accuracy.clone().unwrap_or_default();
-            let a = crate::render::accuracy_report(
-                &ref_cfg.intersect.kind,
-                &counts,
-                &rgba,
-                &ref_rgba,
-                0.0,
-            );
+            let a = compare_images(&ref_cfg.intersect.kind, &counts, &rgba, &ref_rgba, 0.0);
             Some(CellAccuracy {
                 reference: a.reference,
                 hit_agreement: a.hit_agreement,

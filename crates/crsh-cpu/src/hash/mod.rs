@@ -5,10 +5,10 @@
 //!   origin, then the spherical direction) for reflection and refraction rays.
 //! - [`morton_octa`]: the variant `morton` (ours): a 5-D Morton code of the quantized origin
 //!   and the octahedral direction.
-//! - [`quantize`]: the quantizers and bit interleaving the hashers share.
+//! - The quantizers and bit interleaving the hashers share live in [`crsh_core::quantize`], so
+//!   the wgpu backend and third-party hashers use the same ones.
 
 pub mod morton_octa;
-pub mod quantize;
 pub mod thesis;
 pub mod thesis_bounce;
 pub mod thesis_shadow;

@@ -5,9 +5,9 @@
 //!
 //! The origin is quantized in the scene bounds to `O = origin_bits` per axis (cells
 //! `x, y, z`); the direction is mapped to the octahedral square `[−1, 1]²`
-//! ([`crate::hash::quantize::octahedral`]) and quantized to `U = ⌈D/2⌉` and `V = ⌊D/2⌋` bits
+//! ([`crsh_core::quantize::octahedral`]) and quantized to `U = ⌈D/2⌉` and `V = ⌊D/2⌋` bits
 //! for `D = direction_bits` (cells `u, v`). The five fields are interleaved MSB-first, round
-//! robin ([`crate::hash::quantize::interleave`]):
+//! robin ([`crsh_core::quantize::interleave`]):
 //!
 //! ```text
 //!  high → low:  x₁ y₁ z₁ u₁ v₁ | x₂ y₂ z₂ u₂ v₂ | …   (k: k-th most significant bit)
@@ -37,7 +37,7 @@
 use std::sync::Arc;
 
 use crsh_core::{
-    Aabb, CoreError, Hasher, ParamInfo, ParamValue, Ray, Result, StageKind, StageSpec,
+    Aabb, CoreError, Hasher, ParamInfo, Ray, RayKind, Registry, Result, StageKind, StageSpec,
     StageVariantInfo, Stats,
 };
 use crsh_scene::Scene;
@@ -45,8 +45,8 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::backend::Cpu;
-use crate::hash::quantize::{interleave, octahedral, quantize};
 use crate::hash::thesis_bounce::MAX_ORIGIN_BITS;
+use crsh_core::quantize::{interleave, octahedral, quantize};
 
 /// Default bits per origin axis.
 pub const DEFAULT_ORIGIN_BITS: u32 = 10;
@@ -64,27 +64,35 @@ pub struct MortonOcta {
 
 /// The catalogue entry of the `morton` hasher.
 pub fn info() -> StageVariantInfo {
-    StageVariantInfo {
-        stage: StageKind::Hash,
-        name: "morton",
-        doc: "5-D Morton key interleaving the quantized origin and the octahedral direction, \
-              coarse position and direction bits leading (ours; cf. seed 000 §3.2.3)",
-        params: vec![
-            ParamInfo {
-                name: "origin_bits",
-                default: ParamValue::Int(DEFAULT_ORIGIN_BITS as i64),
-                choices: &[],
-                doc: "bits per origin axis in the scene bounds (0-21)",
-            },
-            ParamInfo {
-                name: "direction_bits",
-                default: ParamValue::Int(DEFAULT_DIRECTION_BITS as i64),
-                choices: &[],
-                doc: "bits of the octahedral direction (u gets the odd bit); clamped so the key \
-                      fits 64 bits (0-64)",
-            },
-        ],
-    }
+    StageVariantInfo::new(
+        StageKind::Hash,
+        "morton",
+        "5-D Morton key interleaving the quantized origin and the octahedral direction, \
+         coarse position and direction bits leading (ours; cf. seed 000 §3.2.3)",
+    )
+    .param(ParamInfo::int(
+        "origin_bits",
+        DEFAULT_ORIGIN_BITS as i64,
+        0,
+        MAX_ORIGIN_BITS as i64,
+        "bits per origin axis in the scene bounds",
+    ))
+    .param(ParamInfo::int(
+        "direction_bits",
+        DEFAULT_DIRECTION_BITS as i64,
+        0,
+        64,
+        "bits of the octahedral direction (u gets the odd bit); clamped so the key fits \
+         64 bits",
+    ))
+}
+
+/// Registers `morton` ([`info`], [`MortonOcta::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_hasher(info(), |ctx, spec| {
+        Ok(Box::new(MortonOcta::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl MortonOcta {
@@ -158,7 +166,13 @@ impl Hasher<Cpu> for MortonOcta {
         self.widths().iter().sum()
     }
 
-    fn hash(&self, _backend: &Cpu, rays: &Vec<Ray>, _stats: &mut Stats) -> Result<Vec<u64>> {
+    fn hash(
+        &self,
+        _backend: &Cpu,
+        rays: &Vec<Ray>,
+        _kind: RayKind,
+        _stats: &mut Stats,
+    ) -> Result<Vec<u64>> {
         Ok(rays.par_iter().map(|r| self.key(r.origin, r.dir)).collect())
     }
 }
@@ -168,6 +182,7 @@ mod tests {
     use super::*;
     use crate::hash::test_util::scene_with_lights;
     use crate::with_threads;
+    use crsh_core::ParamValue;
     use crsh_core::RayKind;
 
     fn cube() -> Aabb {
@@ -275,12 +290,16 @@ mod tests {
                 }
             })
             .collect();
-        let one = with_threads(1, || h.hash(&Cpu, &rays, &mut Stats::default()))
-            .unwrap()
-            .unwrap();
-        let three = with_threads(3, || h.hash(&Cpu, &rays, &mut Stats::default()))
-            .unwrap()
-            .unwrap();
+        let one = with_threads(1, || {
+            h.hash(&Cpu, &rays, RayKind::Reflection, &mut Stats::default())
+        })
+        .unwrap()
+        .unwrap();
+        let three = with_threads(3, || {
+            h.hash(&Cpu, &rays, RayKind::Reflection, &mut Stats::default())
+        })
+        .unwrap()
+        .unwrap();
         assert_eq!(one, three);
         assert!(one.iter().all(|&k| k < 1 << 50));
     }

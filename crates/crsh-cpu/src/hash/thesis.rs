@@ -24,8 +24,9 @@
 //!
 //! Both keep the thesis's field priority (light, then origin, then direction) and bit budgets.
 //!
-//! A batch holds one kind; each ray is hashed by its own [`Ray::kind`], so a mixed batch is
-//! hashed consistently too. [`Hasher::key_bits`] is the wider of the two layouts. Keys depend
+//! A batch holds one kind, which the driver passes to [`Hasher::hash`]; each ray is keyed by
+//! its own [`Ray::kind`] all the same, so a mixed batch (the stability suite's, the wgpu
+//! twin's tests) is hashed consistently too. [`Hasher::key_bits`] is the wider of the two layouts. Keys depend
 //! only on the ray and the scene, so they do not depend on the thread count.
 //!
 //! # Errors
@@ -35,7 +36,7 @@
 use std::sync::Arc;
 
 use crsh_core::{
-    CoreError, Hasher, ParamInfo, ParamValue, Ray, RayKind, Result, StageKind, StageSpec,
+    CoreError, Hasher, ParamInfo, Ray, RayKind, Registry, Result, StageKind, StageSpec,
     StageVariantInfo, Stats,
 };
 use crsh_scene::Scene;
@@ -43,9 +44,9 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::backend::Cpu;
-use crate::hash::quantize::FieldOrder;
 use crate::hash::thesis_bounce::{BounceLayout, MAX_ORIGIN_BITS};
 use crate::hash::thesis_shadow::{light_to_point_direction, ShadowLayout};
+use crsh_core::quantize::FieldOrder;
 
 /// Default bits per origin axis of the bounce hash (`3·6 + 14 = 32`).
 pub const DEFAULT_ORIGIN_BITS: u32 = 6;
@@ -64,42 +65,51 @@ pub struct ThesisHasher {
 
 /// The catalogue entry of the `thesis` hasher.
 pub fn info() -> StageVariantInfo {
-    StageVariantInfo {
-        stage: StageKind::Hash,
-        name: "thesis",
-        doc: "per-kind ray hash of seed 000 §3.2.3 (figs 3.8-3.9): shadow = light index + \
-              spherical direction, reflection/refraction = quantized origin + spherical direction",
-        params: vec![
-            ParamInfo {
-                name: "origin_bits",
-                default: ParamValue::Int(DEFAULT_ORIGIN_BITS as i64),
-                choices: &[],
-                doc: "bits per origin axis in the scene bounds, reflection/refraction rays (0-21)",
-            },
-            ParamInfo {
-                name: "direction_bits",
-                default: ParamValue::Int(DEFAULT_DIRECTION_BITS as i64),
-                choices: &[],
-                doc: "bits of the spherical direction (θ gets the odd bit), reflection/refraction \
-                      rays; clamped so the key fits 64 bits (0-64)",
-            },
-            ParamInfo {
-                name: "layout",
-                default: ParamValue::Str("interleave".into()),
-                choices: &["interleave", "concat"],
-                doc: "field layout within the origin (x, y, z) and direction (θ, φ) groups: \
-                      interleaved bits (Morton order) or concatenated (figs 3.8-3.9 read \
-                      literally); see the module docs",
-            },
-            ParamInfo {
-                name: "shadow_bits",
-                default: ParamValue::Int(DEFAULT_SHADOW_BITS as i64),
-                choices: &[],
-                doc: "total bits of a shadow key: light index (sized to the scene's lights) + \
-                      spherical direction (2-64)",
-            },
-        ],
-    }
+    StageVariantInfo::new(
+        StageKind::Hash,
+        "thesis",
+        "per-kind ray hash of seed 000 §3.2.3 (figs 3.8-3.9): shadow = light index + \
+         spherical direction, reflection/refraction = quantized origin + spherical direction",
+    )
+    .param(ParamInfo::int(
+        "origin_bits",
+        DEFAULT_ORIGIN_BITS as i64,
+        0,
+        MAX_ORIGIN_BITS as i64,
+        "bits per origin axis in the scene bounds, reflection/refraction rays",
+    ))
+    .param(ParamInfo::int(
+        "direction_bits",
+        DEFAULT_DIRECTION_BITS as i64,
+        0,
+        64,
+        "bits of the spherical direction (θ gets the odd bit), reflection/refraction rays; \
+         clamped so the key fits 64 bits",
+    ))
+    .param(ParamInfo::choice(
+        "layout",
+        "interleave",
+        &["interleave", "concat"],
+        "field layout within the origin (x, y, z) and direction (θ, φ) groups: interleaved \
+         bits (Morton order) or concatenated (figs 3.8-3.9 read literally); see the module \
+         docs",
+    ))
+    .param(ParamInfo::int(
+        "shadow_bits",
+        DEFAULT_SHADOW_BITS as i64,
+        2,
+        64,
+        "total bits of a shadow key: light index (sized to the scene's lights) + spherical \
+         direction",
+    ))
+}
+
+/// Registers `thesis` ([`info`], [`ThesisHasher::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_hasher(info(), |ctx, spec| {
+        Ok(Box::new(ThesisHasher::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl ThesisHasher {
@@ -195,7 +205,15 @@ impl Hasher<Cpu> for ThesisHasher {
         self.shadow.key_bits().max(self.bounce.key_bits())
     }
 
-    fn hash(&self, _backend: &Cpu, rays: &Vec<Ray>, _stats: &mut Stats) -> Result<Vec<u64>> {
+    /// Keys each ray by its own [`Ray::kind`] (the driver's batches hold one kind, `_kind`;
+    /// the wgpu twin reads the kind per ray too, so mixed batches hash alike on both).
+    fn hash(
+        &self,
+        _backend: &Cpu,
+        rays: &Vec<Ray>,
+        _kind: RayKind,
+        _stats: &mut Stats,
+    ) -> Result<Vec<u64>> {
         rays.par_iter().map(|r| self.key(r)).collect()
     }
 }
@@ -204,6 +222,7 @@ impl Hasher<Cpu> for ThesisHasher {
 mod tests {
     use super::*;
     use crate::with_threads;
+    use crsh_core::ParamValue;
 
     fn test_scene(lights: usize) -> Arc<Scene> {
         crate::hash::test_util::scene_with_lights(lights)
@@ -265,7 +284,7 @@ mod tests {
     /// interleaved is the MSB-first interleaving of the same cells.
     #[test]
     fn layouts_hold_the_same_cells() {
-        use crate::hash::quantize::{interleave, spherical_cells};
+        use crsh_core::quantize::{interleave, spherical_cells};
         let scene = test_scene(2);
         let concat = ThesisHasher::new(&scene, &spec(6, 14, 32)).unwrap();
         let inter = concat.clone().with_order(FieldOrder::Interleaved);
@@ -365,7 +384,16 @@ mod tests {
         bad_kind.kind = 9;
         assert!(h.key(&bad_kind).is_err());
         let mut stats = Stats::default();
-        assert!(h.hash(&Cpu, &vec![s, bad_kind], &mut stats).is_err());
+        assert!(h
+            .hash(&Cpu, &vec![s, bad_kind], RayKind::Shadow, &mut stats)
+            .is_err());
+        // Each ray is keyed by its own kind, whatever the batch's.
+        let reflection = ray(RayKind::Reflection, o, d, u32::MAX);
+        assert_eq!(
+            h.hash(&Cpu, &vec![s, reflection], RayKind::Shadow, &mut stats)
+                .unwrap(),
+            vec![h.key(&s).unwrap(), h.key(&reflection).unwrap()]
+        );
     }
 
     #[test]
@@ -390,16 +418,23 @@ mod tests {
                 }
             })
             .collect();
-        let one = with_threads(1, || h.hash(&Cpu, &rays, &mut Stats::default()))
-            .unwrap()
-            .unwrap();
-        let three = with_threads(3, || h.hash(&Cpu, &rays, &mut Stats::default()))
-            .unwrap()
-            .unwrap();
-        assert_eq!(one, three);
-        assert_eq!(one.len(), rays.len());
-        let serial: Vec<u64> = rays.iter().map(|r| h.key(r).unwrap()).collect();
-        assert_eq!(one, serial);
-        assert!(one.iter().all(|&k| k < 1 << 32));
+        for kind in [RayKind::Shadow, RayKind::Reflection] {
+            let batch: Vec<Ray> = rays
+                .iter()
+                .filter(|r| r.kind == kind as u32)
+                .copied()
+                .collect();
+            let one = with_threads(1, || h.hash(&Cpu, &batch, kind, &mut Stats::default()))
+                .unwrap()
+                .unwrap();
+            let three = with_threads(3, || h.hash(&Cpu, &batch, kind, &mut Stats::default()))
+                .unwrap()
+                .unwrap();
+            assert_eq!(one, three);
+            assert_eq!(one.len(), batch.len());
+            let serial: Vec<u64> = batch.iter().map(|r| h.key(r).unwrap()).collect();
+            assert_eq!(one, serial);
+            assert!(one.iter().all(|&k| k < 1 << 32));
+        }
     }
 }

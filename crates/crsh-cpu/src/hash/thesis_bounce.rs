@@ -17,7 +17,7 @@
 //! Each origin coordinate is cut into `2^O` equal cells of the scene's bounding box
 //! (coordinates outside it, e.g. after the epsilon offset, clamp to the border cells; a flat
 //! axis is a single cell). The direction is `θ = acos(d.z)` over `[0, π]` and `φ = atan2(d.y,
-//! d.x)` over `[−π, π]` ([`crate::hash::quantize::spherical_cells`]); `θ` takes the odd bit
+//! d.x)` over `[−π, π]` ([`crsh_core::quantize::spherical_cells`]); `θ` takes the odd bit
 //! of the direction budget. In either order the origin stays above the direction, as the
 //! thesis lists them: the key groups rays by origin cell first, and by direction within a cell.
 //!
@@ -35,7 +35,7 @@
 use crsh_core::{Aabb, CoreError, Result};
 use glam::Vec3;
 
-use crate::hash::quantize::{quantize, spherical_cells, FieldOrder};
+use crsh_core::quantize::{quantize, spherical_cells, FieldOrder};
 
 /// Field widths and the quantization box of the bounce hash.
 #[derive(Clone, Copy, Debug, PartialEq)]

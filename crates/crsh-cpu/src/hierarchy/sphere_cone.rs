@@ -60,7 +60,7 @@ use std::f64::consts::PI;
 use std::sync::Arc;
 
 use crsh_core::{
-    Cone, CoreError, HierarchyBuilder, ParamInfo, ParamValue, Ray, RayHierarchy, Result, Sphere,
+    Cone, CoreError, HierarchyBuilder, ParamInfo, Ray, RayHierarchy, Registry, Result, Sphere,
     SphereCone, StageKind, StageSpec, StageVariantInfo, Stats,
 };
 use crsh_scene::bounding::min_sphere;
@@ -92,28 +92,35 @@ const PERP_EPS: f64 = 1e-12;
 
 /// The catalogue entry of this variant.
 pub fn info() -> StageVariantInfo {
-    StageVariantInfo {
-        stage: StageKind::Hierarchy,
-        name: "sphere_cone",
-        doc: "bottom-up sphere-cone ray-space hierarchy: incremental leaf cones (seed 000 \
-              eq. 3.8-3.11, seed 004 §4), tight cone and sphere unions above (eq. 3.12-3.15 \
-              with the erratum), seed 000 §3.2.7",
-        params: vec![
-            ParamInfo {
-                name: "subdivision",
-                default: ParamValue::Int(DEFAULT_SUBDIVISION as i64),
-                choices: &[],
-                doc: "children per node (rays per lowest node), 2..=64",
-            },
-            ParamInfo {
-                name: "depth",
-                default: ParamValue::Int(DEFAULT_DEPTH as i64),
-                choices: &[],
-                doc: "node levels kept above the leaves, 1..=8 (fewer when a level already \
-                      has a single node)",
-            },
-        ],
-    }
+    StageVariantInfo::new(
+        StageKind::Hierarchy,
+        "sphere_cone",
+        "bottom-up sphere-cone ray-space hierarchy: incremental leaf cones (seed 000 \
+         eq. 3.8-3.11, seed 004 §4), tight cone and sphere unions above (eq. 3.12-3.15 \
+         with the erratum), seed 000 §3.2.7",
+    )
+    .param(ParamInfo::int(
+        "subdivision",
+        DEFAULT_SUBDIVISION as i64,
+        *SUBDIVISION_RANGE.start() as i64,
+        *SUBDIVISION_RANGE.end() as i64,
+        "children per node (rays per lowest node)",
+    ))
+    .param(ParamInfo::int(
+        "depth",
+        DEFAULT_DEPTH as i64,
+        *DEPTH_RANGE.start() as i64,
+        *DEPTH_RANGE.end() as i64,
+        "node levels kept above the leaves (fewer when a level already has a single node)",
+    ))
+}
+
+/// Registers `sphere_cone` ([`info`], [`SphereConeBuilder::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_hierarchy(info(), |ctx, spec| {
+        Ok(Box::new(SphereConeBuilder::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 /// The sphere-cone hierarchy builder (see the module docs).
@@ -623,6 +630,7 @@ pub fn swept_excess(node: &SphereCone, p: DVec3) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crsh_core::ParamValue;
     use crsh_core::{Hit, RayKind};
 
     /// SplitMix64 for reproducible test data.

@@ -59,8 +59,8 @@
 use std::sync::{Arc, Mutex};
 
 use crsh_core::{
-    Candidate, CoreError, Hit, HitMode, Intersector, Query, Ray, RayHierarchy, RayKind, Result,
-    StageSpec, Stats,
+    Candidate, CoreError, Hit, HitMode, Intersector, ParamInfo, Query, Ray, RayHierarchy, RayKind,
+    Registry, Result, StageKind, StageSpec, StageVariantInfo, Stats,
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
@@ -112,6 +112,32 @@ struct RaysKey {
     level0: usize,
     nodes: usize,
     subdivision: u32,
+}
+
+/// The catalogue entry of the `brute` intersector.
+pub fn info() -> StageVariantInfo {
+    StageVariantInfo::new(
+        StageKind::Intersect,
+        "brute",
+        "every ray against every triangle: the exact reference, N×M tests (§3.2.9); under a \
+         hierarchy, only the candidate pairs that survived traversal",
+    )
+    .param(ParamInfo::choice(
+        "test",
+        "mt",
+        crate::triangle::TEST_NAMES,
+        "ray-triangle test: `mt` Möller-Trumbore (f32), `watertight` Woop, Benthin and Wald \
+         2013 (no ray slips through shared edges), `projected` RTTest's projected \
+         barycentrics (seed 003 §4.2)",
+    ))
+}
+
+/// Registers `brute` ([`info`], [`BruteForce::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_intersector(info(), |ctx, spec| {
+        Ok(Box::new(BruteForce::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl BruteForce {

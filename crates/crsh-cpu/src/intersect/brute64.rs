@@ -31,7 +31,7 @@ use std::sync::Arc;
 
 use crsh_core::glam::DVec3;
 use crsh_core::{
-    CoreError, Hit, HitMode, Intersector, Query, Ray, Result, StageKind, StageSpec,
+    CoreError, Hit, HitMode, Intersector, Query, Ray, Registry, Result, StageKind, StageSpec,
     StageVariantInfo, Stats,
 };
 use crsh_scene::Scene;
@@ -93,13 +93,21 @@ pub struct BruteForce64 {
 
 /// The catalogue entry of `brute64`.
 pub fn info() -> StageVariantInfo {
-    StageVariantInfo {
-        stage: StageKind::Intersect,
-        name: "brute64",
-        doc: "every ray against every triangle in f64 (Möller-Trumbore, no tolerance): the \
-              reference accuracy is measured against; whole-scene queries only",
-        params: vec![],
-    }
+    StageVariantInfo::new(
+        StageKind::Intersect,
+        "brute64",
+        "every ray against every triangle in f64 (Möller-Trumbore, no tolerance): the \
+         reference accuracy is measured against; whole-scene queries only",
+    )
+    .scene_only()
+}
+
+/// Registers `brute64` ([`info`], [`BruteForce64::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_intersector(info(), |ctx, spec| {
+        Ok(Box::new(BruteForce64::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl BruteForce64 {

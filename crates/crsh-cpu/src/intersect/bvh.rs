@@ -52,7 +52,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use crsh_core::glam::{UVec2, Vec3, Vec3A};
-use crsh_core::{CoreError, Hit, HitMode, Intersector, Query, Ray, Result, StageSpec, Stats};
+use crsh_core::{
+    CoreError, Hit, HitMode, Intersector, ParamInfo, Query, Ray, Registry, Result, StageKind,
+    StageSpec, StageVariantInfo, Stats,
+};
 use crsh_scene::Scene;
 use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use obvhs::cwbvh::node::CwBvhNode;
@@ -143,6 +146,39 @@ impl std::fmt::Debug for CwBvh {
             .field("build_time", &self.build_time)
             .finish()
     }
+}
+
+/// The catalogue entry of the `bvh` intersector.
+pub fn info() -> StageVariantInfo {
+    StageVariantInfo::new(
+        StageKind::Intersect,
+        "bvh",
+        "obvhs compressed-wide BVH (CWBVH), closest and any hit, node and triangle tests \
+         counted; whole-scene queries only",
+    )
+    .param(ParamInfo::choice(
+        "build_quality",
+        "medium",
+        &["fast", "medium", "slow"],
+        "obvhs build preset: faster builds or better trees",
+    ))
+    .param(ParamInfo::choice(
+        "test",
+        "mt",
+        crate::triangle::TEST_NAMES,
+        "ray-triangle test: `mt` Möller-Trumbore (f32), `watertight` Woop, Benthin and Wald \
+         2013 (no ray slips through shared edges), `projected` RTTest's projected \
+         barycentrics (seed 003 §4.2)",
+    ))
+    .scene_only()
+}
+
+/// Registers `bvh` ([`info`], [`CwBvh::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_intersector(info(), |ctx, spec| {
+        Ok(Box::new(CwBvh::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl CwBvh {

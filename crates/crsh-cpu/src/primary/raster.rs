@@ -40,7 +40,10 @@
 use std::sync::Arc;
 
 use crsh_core::glam::{DVec3, Vec3};
-use crsh_core::{CoreError, Hit, PrimaryVisibility, Result, StageSpec, Stats, Surface};
+use crsh_core::{
+    CoreError, Hit, PrimaryVisibility, Registry, Result, StageKind, StageSpec, StageVariantInfo,
+    Stats, Surface,
+};
 use crsh_scene::Scene;
 use rayon::prelude::*;
 
@@ -73,6 +76,24 @@ struct ScreenTri {
 pub struct Raster {
     scene: Arc<Scene>,
     tris: TriangleSet,
+}
+
+/// The catalogue entry of the `raster` primary stage.
+pub fn info() -> StageVariantInfo {
+    StageVariantInfo::new(
+        StageKind::Primary,
+        "raster",
+        "z-buffer rasterizer writing the G-buffer (position, normals, material, triangle \
+         id), seed 000 §3.1",
+    )
+}
+
+/// Registers `raster` ([`info`], [`Raster::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_primary(info(), |ctx, spec| {
+        Ok(Box::new(Raster::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl Raster {

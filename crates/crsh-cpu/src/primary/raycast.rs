@@ -12,8 +12,8 @@ use std::sync::Arc;
 use crsh_core::glam::Vec3;
 use crsh_core::pipeline::MAX_IMAGE_SIDE;
 use crsh_core::{
-    CoreError, Hit, HitMode, Intersector, PrimaryVisibility, Query, Ray, RayKind, Result,
-    StageSpec, Stats, Surface,
+    CoreError, Hit, HitMode, Intersector, ParamInfo, PrimaryVisibility, Query, Ray, RayKind,
+    Registry, Result, StageKind, StageSpec, StageVariantInfo, Stats, Surface,
 };
 use crsh_scene::{Camera, Scene};
 use rayon::prelude::*;
@@ -54,6 +54,29 @@ enum Accel {
 pub struct RayCast {
     scene: Arc<Scene>,
     accel: Accel,
+}
+
+/// The catalogue entry of the `raycast` primary stage.
+pub fn info() -> StageVariantInfo {
+    StageVariantInfo::new(
+        StageKind::Primary,
+        "raycast",
+        "the same G-buffer by casting one camera ray per pixel centre",
+    )
+    .param(ParamInfo::choice(
+        "accel",
+        "bvh",
+        &["bvh", "brute"],
+        "what traces the camera rays: the obvhs CWBVH or every triangle",
+    ))
+}
+
+/// Registers `raycast` ([`info`], [`RayCast::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_primary(info(), |ctx, spec| {
+        Ok(Box::new(RayCast::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl RayCast {

@@ -91,7 +91,10 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use crsh_core::glam::Vec3;
-use crsh_core::{CoreError, Ray, RayGen, RayKind, Result, StageSpec, Stats, Surface};
+use crsh_core::{
+    CoreError, ParamInfo, Ray, RayGen, RayKind, Registry, Result, StageKind, StageSpec,
+    StageVariantInfo, Stats, Surface,
+};
 use crsh_scene::Scene;
 use rayon::prelude::*;
 
@@ -344,6 +347,68 @@ pub fn refraction_direction(incident: Vec3, normal: Vec3, ior: f32, front_face: 
     refract(incident, normal, ri)
         .unwrap_or_else(|| reflect(incident, normal))
         .normalize_or_zero()
+}
+
+/// The catalogue entry of the `whitted` ray generator.
+pub fn info() -> StageVariantInfo {
+    StageVariantInfo::new(
+        StageKind::Raygen,
+        "whitted",
+        "shadow, reflection and refraction rays with total internal reflection, seed 000 \
+         §3.2.3 eq. 3.1-3.7",
+    )
+    .param(ParamInfo::choice(
+        "shadow_origin",
+        "light",
+        &["light", "surface"],
+        "shadow rays start at the light (thesis, eq. 3.1-3.2) or at the surface",
+    ))
+    .param(ParamInfo::bool(
+        "cull_backfacing",
+        true,
+        "no shadow ray to a light behind the geometric normal (it lights nothing)",
+    ))
+    .param(
+        ParamInfo::float(
+            "min_throughput",
+            1e-3,
+            "rays whose largest throughput component is below this are not spawned",
+        )
+        .range(0.0, f64::INFINITY),
+    )
+    .param(
+        ParamInfo::float(
+            "epsilon",
+            1e-5,
+            "the offset distance of the `normal` and `scaled` policies, as a fraction of the \
+             scene's bounding-box diagonal",
+        )
+        .range(0.0, 0.1),
+    )
+    .param(ParamInfo::choice(
+        "offset",
+        "normal",
+        &["normal", "scaled", "fixed", "wachter"],
+        "self-intersection policy: origin moved along the geometric normal and t_min \
+         (normal), t_min only (scaled: epsilon, fixed: fixed_epsilon), or Wächter & Binder's \
+         ULP offset with t_min = 0 (wachter)",
+    ))
+    .param(
+        ParamInfo::float(
+            "fixed_epsilon",
+            1e-4,
+            "t_min of the `fixed` policy, an absolute distance in scene units",
+        )
+        .range(0.0, f64::INFINITY),
+    )
+}
+
+/// Registers `whitted` ([`info`], [`Whitted::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_raygen(info(), |ctx, spec| {
+        Ok(Box::new(Whitted::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl Whitted {

@@ -58,7 +58,10 @@
 use std::sync::Arc;
 
 use crsh_core::glam::Vec3;
-use crsh_core::{CoreError, Hit, Ray, Result, Shader, StageSpec, Stats, Surface};
+use crsh_core::{
+    CoreError, Hit, ParamInfo, Ray, Registry, Result, Shader, StageKind, StageSpec,
+    StageVariantInfo, Stats, Surface,
+};
 use crsh_scene::Scene;
 use rayon::prelude::*;
 
@@ -158,6 +161,40 @@ pub struct Phong {
     lights: Vec<LightShade>,
     ambient: f32,
     background: f32,
+}
+
+/// The catalogue entry of the `phong` shader.
+pub fn info() -> StageVariantInfo {
+    StageVariantInfo::new(
+        StageKind::Shade,
+        "phong",
+        "Phong with attenuation and shadows, barycentric normals, reflection and refraction \
+         weighted by the material, seed 000 eq. 3.17-3.19",
+    )
+    .param(
+        ParamInfo::float(
+            "ambient",
+            0.05,
+            "ambient fill as a fraction of the diffuse colour (0: the thesis exactly)",
+        )
+        .range(0.0, f64::INFINITY),
+    )
+    .param(
+        ParamInfo::float(
+            "background",
+            0.0,
+            "grey level that rays missing the scene see",
+        )
+        .range(0.0, f64::INFINITY),
+    )
+}
+
+/// Registers `phong` ([`info`], [`Phong::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_shader(info(), |ctx, spec| {
+        Ok(Box::new(Phong::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl Phong {

@@ -26,7 +26,9 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use crsh_core::{CoreError, Result, Sorter, StageKind, StageSpec, StageVariantInfo, Stats};
+use crsh_core::{
+    CoreError, Registry, Result, Sorter, StageKind, StageSpec, StageVariantInfo, Stats,
+};
 use crsh_scene::Scene;
 use rayon::prelude::*;
 
@@ -196,13 +198,20 @@ pub struct CompressSorter;
 
 /// The catalogue entry of the `compress` sorter.
 pub fn info() -> StageVariantInfo {
-    StageVariantInfo {
-        stage: StageKind::Sort,
-        name: "compress",
-        doc: "compress runs of equal keys into chunks, radix sort the chunks, decompress \
-              (seed 000 §3.2.4-3.2.6, figs 3.12-3.15; Garanzha & Loop 2010)",
-        params: vec![],
-    }
+    StageVariantInfo::new(
+        StageKind::Sort,
+        "compress",
+        "compress runs of equal keys into chunks, radix sort the chunks, decompress \
+         (seed 000 §3.2.4-3.2.6, figs 3.12-3.15; Garanzha & Loop 2010)",
+    )
+}
+
+/// Registers `compress` ([`info`], [`CompressSorter::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_sorter(info(), |ctx, spec| {
+        Ok(Box::new(CompressSorter::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl CompressSorter {

@@ -28,19 +28,16 @@ mod scene_batches {
     use crate::Cpu;
 
     fn defaults(info: &StageVariantInfo) -> StageSpec {
-        let mut s = StageSpec::new(info.name);
-        for p in &info.params {
-            s.params.insert(p.name.to_string(), p.default.clone());
-        }
-        s
+        info.defaults()
     }
 
     fn default_spec(name: &str) -> StageSpec {
-        let info = crate::catalogue()
-            .into_iter()
+        crsh_core::Registry::<Cpu>::builtin()
+            .variants()
+            .iter()
             .find(|i| i.name == name)
-            .expect("variant in the catalogue");
-        defaults(&info)
+            .expect("variant in the registry")
+            .defaults()
     }
 
     /// Both sorters give the stable order on real shadow and reflection batches of
@@ -67,7 +64,7 @@ mod scene_batches {
             let rays = whitted.generate(&Cpu, &gbuf, kind, &mut stats).unwrap();
             assert!(!rays.is_empty(), "{kind:?} rays");
             for (budget, h) in hashers {
-                let keys = h.hash(&Cpu, &rays, &mut stats).unwrap();
+                let keys = h.hash(&Cpu, &rays, kind, &mut stats).unwrap();
                 let bits = h.key_bits();
                 let c = CompressSorter.sort(&Cpu, &keys, bits, &mut stats).unwrap();
                 let r = RadixSorter.sort(&Cpu, &keys, bits, &mut stats).unwrap();

@@ -16,7 +16,9 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use crsh_core::{CoreError, Result, Sorter, StageKind, StageSpec, StageVariantInfo, Stats};
+use crsh_core::{
+    CoreError, Registry, Result, Sorter, StageKind, StageSpec, StageVariantInfo, Stats,
+};
 use crsh_scene::Scene;
 use rayon::prelude::*;
 use rdst::{RadixKey, RadixSort};
@@ -106,13 +108,20 @@ pub struct RadixSorter;
 
 /// The catalogue entry of the `radix` sorter.
 pub fn info() -> StageVariantInfo {
-    StageVariantInfo {
-        stage: StageKind::Sort,
-        name: "radix",
-        doc: "stable radix sort of every (key, ray) pair, no compression (baseline for \
-              seed 000 §3.2.4-3.2.6)",
-        params: vec![],
-    }
+    StageVariantInfo::new(
+        StageKind::Sort,
+        "radix",
+        "stable radix sort of every (key, ray) pair, no compression (baseline for \
+         seed 000 §3.2.4-3.2.6)",
+    )
+}
+
+/// Registers `radix` ([`info`], [`RadixSorter::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_sorter(info(), |ctx, spec| {
+        Ok(Box::new(RadixSorter::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl RadixSorter {

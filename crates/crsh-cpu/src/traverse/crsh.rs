@@ -105,8 +105,8 @@ use std::sync::Arc;
 
 use crsh_core::glam::DVec3;
 use crsh_core::{
-    Candidate, CandidateBatch, CoreError, ParamInfo, ParamValue, Ray, RayHierarchy, RayKind,
-    Result, Sphere, SphereCone, StageKind, StageSpec, StageVariantInfo, Stats, Traverser,
+    Candidate, CandidateBatch, CoreError, ParamInfo, Ray, RayHierarchy, RayKind, Registry, Result,
+    Sphere, SphereCone, StageKind, StageSpec, StageVariantInfo, Stats, Traverser,
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
@@ -127,29 +127,36 @@ const PAIR_BYTES: u64 = std::mem::size_of::<Candidate>() as u64;
 
 /// The catalogue entry of the `crsh` traverser.
 pub fn info() -> StageVariantInfo {
-    StageVariantInfo {
-        stage: StageKind::Traverse,
-        name: "crsh",
-        doc: "top-down sphere-cone hierarchy traversal against mesh and triangle bounding \
-              spheres with per-level stream compaction and triangle batches, seed 000 §3.2.8 \
-              eq. 3.16 (conservative enlarge-the-sphere test)",
-        params: vec![
-            ParamInfo {
-                name: "mesh_culling",
-                default: ParamValue::Bool(true),
-                choices: &[],
-                doc: "test the top nodes against whole-mesh bounding spheres first (thesis); \
-                      false: every triangle is a candidate of every top node (RAH)",
-            },
-            ParamInfo {
-                name: "candidate_budget_mb",
-                default: ParamValue::Float(64.0),
-                choices: &[],
-                doc: "memory bound of the candidate arrays in MiB (> 0); triangle batches \
-                      shrink (down to 1 triangle) so that no level's worst case exceeds it",
-            },
-        ],
-    }
+    StageVariantInfo::new(
+        StageKind::Traverse,
+        "crsh",
+        "top-down sphere-cone hierarchy traversal against mesh and triangle bounding \
+         spheres with per-level stream compaction and triangle batches, seed 000 §3.2.8 \
+         eq. 3.16 (conservative enlarge-the-sphere test)",
+    )
+    .param(ParamInfo::bool(
+        "mesh_culling",
+        true,
+        "test the top nodes against whole-mesh bounding spheres first (thesis); false: \
+         every triangle is a candidate of every top node (RAH)",
+    ))
+    .param(
+        ParamInfo::float(
+            "candidate_budget_mb",
+            64.0,
+            "memory bound of the candidate arrays in MiB (> 0); triangle batches shrink \
+             (down to 1 triangle) so that no level's worst case exceeds it",
+        )
+        .range(1.0 / 1024.0, 1024.0 * 1024.0),
+    )
+}
+
+/// Registers `crsh` ([`info`], [`Crsh::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_traverser(info(), |ctx, spec| {
+        Ok(Box::new(Crsh::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 /// A hierarchy node prepared for [`NodeBound::may_hit`] (`f64`, margins applied).
@@ -712,6 +719,7 @@ mod tests {
     use crate::intersect::brute::BruteForce;
     use crate::triangle::tests::TestRng;
     use crsh_core::glam::Vec3;
+    use crsh_core::ParamValue;
     use crsh_core::{Cone, Hit, HitMode, Intersector, LevelStats, Query};
     use crsh_scene::bounding::min_sphere;
     use crsh_scene::{Camera, Material, SceneBuilder};
@@ -1280,25 +1288,28 @@ mod tests {
     #[test]
     fn frames_with_crsh_traversal_equal_brute_force_frames() {
         use crate::hierarchy::sphere_cone::SphereConeBuilder;
-        use crsh_core::{render_frame, FrameOptions, PipelineConfig};
+        use crsh_core::{render_frame, FrameOptions, FrameSize, PipelineConfig, StageContext};
         let scene = Arc::new(crsh_scene::builtin::build("office-boxes").unwrap());
         let cfg = PipelineConfig::whitted("brute", "brute");
-        let opts = FrameOptions {
-            width: 40,
-            height: 30,
-            max_depth: 2,
-            triangles: scene.triangle_count() as u64,
-        };
-        let plain = crate::build_stages(&cfg, &scene).unwrap();
+        let registry = Registry::<Cpu>::builtin();
+        let ctx = StageContext::new(&Cpu, &scene, FrameSize::new(40, 30).unwrap());
+        let opts = FrameOptions::default().with_max_depth(2);
+        let plain = registry.build(&ctx, &cfg).unwrap();
         let want = render_frame(&Cpu, &plain, &opts, None, &mut |_| {}).unwrap();
         let reference = BruteForce::from_scene(&scene);
         for (culling, budget_mb) in [(true, 64.0), (false, 0.05)] {
-            let mut stages = crate::build_stages(&cfg, &scene).unwrap();
-            stages.hierarchy = Some(Box::new(SphereConeBuilder::with_params(4, 3).unwrap()));
-            stages.traverser = Some(Box::new(
+            // A library user's swap: stages the registry did not build go into a built pipeline,
+            // and the frame's stats name what ran.
+            let mut pipeline = registry.build(&ctx, &cfg).unwrap();
+            pipeline.stages.hierarchy =
+                Some(Box::new(SphereConeBuilder::with_params(4, 3).unwrap()));
+            pipeline.stages.traverser = Some(Box::new(
                 Crsh::with_options(&scene, culling, budget_mb).unwrap(),
             ));
-            let got = render_frame(&Cpu, &stages, &opts, Some(&reference), &mut |_| {}).unwrap();
+            let got = render_frame(&Cpu, &pipeline, &opts, Some(&reference), &mut |_| {}).unwrap();
+            assert_eq!(got.stats.stages["hierarchy"], "sphere_cone");
+            assert_eq!(got.stats.stages["traverse"], "crsh");
+            assert!(!got.stats.stages.contains_key("hash"));
             assert_eq!(got.image, want.image, "culling {culling}");
             let acc = got.stats.accuracy.clone().unwrap();
             assert!(acc.rays > 0);

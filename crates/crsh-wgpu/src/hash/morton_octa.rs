@@ -9,7 +9,7 @@
 use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
-use crsh_core::{Hasher, Ray, Result, StageSpec, Stats};
+use crsh_core::{Hasher, Ray, RayKind, Registry, Result, StageSpec, Stats};
 use crsh_cpu::hash::morton_octa::MortonOcta as CpuMorton;
 
 use crate::adapter::GpuContext;
@@ -58,6 +58,15 @@ pub struct MortonOcta {
     key_bits: u32,
 }
 
+/// Registers the wgpu `morton` under its CPU twin's catalogue entry (same name, parameters,
+/// defaults and documentation).
+pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
+    registry.add_hasher(crsh_cpu::hash::morton_octa::info(), |ctx, spec| {
+        Ok(Box::new(MortonOcta::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
+}
+
 impl MortonOcta {
     /// The hasher for `scene` with a resolved `spec` (validated and sized by the CPU twin).
     pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<MortonOcta> {
@@ -95,6 +104,7 @@ impl Hasher<Wgpu> for MortonOcta {
         &self,
         backend: &Wgpu,
         rays: &GpuBuffer<Ray>,
+        _kind: RayKind,
         _stats: &mut Stats,
     ) -> Result<GpuBuffer<u64>> {
         let ctx = backend.context();

@@ -1,4 +1,4 @@
-// Quantization and key packing shared by the hashes: the twins of crsh_cpu::hash::quantize
+// Quantization and key packing shared by the hashes: the twins of crsh_core::quantize
 // (quantize, spherical_cells, octahedral, FieldOrder::combine / interleave) in f32, keys as
 // vec2<u32> (x = low word). Prepended after common.wgsl.
 

@@ -21,8 +21,8 @@
 use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
-use crsh_core::{CoreError, Hasher, Ray, Result, StageSpec, Stats};
-use crsh_cpu::hash::quantize::FieldOrder;
+use crsh_core::quantize::FieldOrder;
+use crsh_core::{CoreError, Hasher, Ray, RayKind, Registry, Result, StageSpec, Stats};
 use crsh_cpu::hash::thesis::ThesisHasher as CpuThesis;
 
 use crate::adapter::GpuContext;
@@ -110,6 +110,15 @@ pub struct ThesisHasher {
     key_bits: u32,
 }
 
+/// Registers the wgpu `thesis` under its CPU twin's catalogue entry (same name, parameters,
+/// defaults and documentation).
+pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
+    registry.add_hasher(crsh_cpu::hash::thesis::info(), |ctx, spec| {
+        Ok(Box::new(ThesisHasher::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
+}
+
 impl ThesisHasher {
     /// The hasher for `scene` with a resolved `spec` (the CPU twin's parameters, validated and
     /// laid out by its constructor).
@@ -165,6 +174,7 @@ impl Hasher<Wgpu> for ThesisHasher {
         &self,
         backend: &Wgpu,
         rays: &GpuBuffer<Ray>,
+        _kind: RayKind,
         _stats: &mut Stats,
     ) -> Result<GpuBuffer<u64>> {
         let ctx = backend.context();

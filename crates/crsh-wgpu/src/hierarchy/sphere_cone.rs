@@ -20,7 +20,7 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 use crsh_core::{
-    CoreError, HierarchyBuilder, Ray, RayHierarchy, Result, SphereCone, StageSpec, Stats,
+    CoreError, HierarchyBuilder, Ray, RayHierarchy, Registry, Result, SphereCone, StageSpec, Stats,
 };
 use crsh_cpu::hierarchy::sphere_cone::{level_sizes, DEPTH_RANGE, SUBDIVISION_RANGE};
 
@@ -67,6 +67,15 @@ pub struct SphereConeBuilder {
     scene: Arc<GpuScene>,
     subdivision: u32,
     depth: u32,
+}
+
+/// Registers the wgpu `sphere_cone` under its CPU twin's catalogue entry (same name, parameters,
+/// defaults and documentation).
+pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
+    registry.add_hierarchy(crsh_cpu::hierarchy::sphere_cone::info(), |ctx, spec| {
+        Ok(Box::new(SphereConeBuilder::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl SphereConeBuilder {

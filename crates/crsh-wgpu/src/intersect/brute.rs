@@ -31,7 +31,8 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 use crsh_core::{
-    Candidate, CoreError, Hit, HitMode, Intersector, Query, Ray, RayKind, Result, StageSpec, Stats,
+    Candidate, CoreError, Hit, HitMode, Intersector, Query, Ray, RayKind, Registry, Result,
+    StageSpec, Stats,
 };
 use crsh_cpu::triangle::{PreparedTriangle, TriangleSet};
 
@@ -89,6 +90,16 @@ pub struct BruteForce {
     scene: Arc<GpuScene>,
     tris: GpuBuffer<PreparedTriangle>,
     n_tris: u32,
+}
+
+/// Registers the wgpu `brute` under its CPU twin's catalogue entry (same name, parameters,
+/// defaults and documentation) (`test` offers `mt` only: the other tests have no WGSL twin).
+pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
+    registry.add_intersector(
+        crate::registry::mt_only(crsh_cpu::intersect::brute::info()),
+        |ctx, spec| Ok(Box::new(BruteForce::new(ctx.scene, spec)?)),
+    )?;
+    Ok(())
 }
 
 impl BruteForce {

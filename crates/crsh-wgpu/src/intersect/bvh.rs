@@ -18,7 +18,9 @@
 use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
-use crsh_core::{CoreError, Hit, HitMode, Intersector, Query, Ray, Result, StageSpec, Stats};
+use crsh_core::{
+    CoreError, Hit, HitMode, Intersector, Query, Ray, Registry, Result, StageSpec, Stats,
+};
 use crsh_cpu::intersect::bvh::CwBvh as CpuBvh;
 use crsh_cpu::triangle::PreparedTriangle;
 
@@ -64,6 +66,16 @@ pub struct CwBvh {
     nodes: GpuBuffer<NodeWords>,
     leaf_tris: GpuBuffer<PreparedTriangle>,
     leaf_ids: GpuBuffer<u32>,
+}
+
+/// Registers the wgpu `bvh` under its CPU twin's catalogue entry (same name, parameters,
+/// defaults and documentation) (`test` offers `mt` only: the other tests have no WGSL twin).
+pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
+    registry.add_intersector(
+        crate::registry::mt_only(crsh_cpu::intersect::bvh::info()),
+        |ctx, spec| Ok(Box::new(CwBvh::new(ctx.scene, spec)?)),
+    )?;
+    Ok(())
 }
 
 impl CwBvh {

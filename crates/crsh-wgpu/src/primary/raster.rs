@@ -21,7 +21,7 @@
 use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
-use crsh_core::{CoreError, PrimaryVisibility, Result, StageSpec, Stats, Surface};
+use crsh_core::{CoreError, PrimaryVisibility, Registry, Result, StageSpec, Stats, Surface};
 use crsh_cpu::triangle::{PreparedTriangle, TriangleSet};
 
 use crate::adapter::GpuContext;
@@ -182,6 +182,15 @@ impl RasterKernels {
 pub struct Raster {
     scene: Arc<GpuScene>,
     prepared: GpuBuffer<PreparedTriangle>,
+}
+
+/// Registers the wgpu `raster` under its CPU twin's catalogue entry (same name, parameters,
+/// defaults and documentation).
+pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
+    registry.add_primary(crsh_cpu::primary::raster::info(), |ctx, spec| {
+        Ok(Box::new(Raster::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl Raster {

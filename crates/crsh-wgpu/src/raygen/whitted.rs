@@ -23,7 +23,7 @@
 use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
-use crsh_core::{CoreError, Ray, RayGen, RayKind, Result, StageSpec, Stats, Surface};
+use crsh_core::{CoreError, Ray, RayGen, RayKind, Registry, Result, StageSpec, Stats, Surface};
 
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
@@ -89,6 +89,15 @@ pub struct Whitted {
     min_throughput: f32,
     policy: u32,
     offset: f32,
+}
+
+/// Registers the wgpu `whitted` under its CPU twin's catalogue entry (same name, parameters,
+/// defaults and documentation).
+pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
+    registry.add_raygen(crsh_cpu::raygen::whitted::info(), |ctx, spec| {
+        Ok(Box::new(Whitted::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl Whitted {

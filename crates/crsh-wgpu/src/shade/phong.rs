@@ -22,7 +22,7 @@
 use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
-use crsh_core::{CoreError, Hit, Ray, Result, Shader, StageSpec, Stats, Surface};
+use crsh_core::{CoreError, Hit, Ray, Registry, Result, Shader, StageSpec, Stats, Surface};
 
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
@@ -83,6 +83,15 @@ pub struct Phong {
     scene: Arc<GpuScene>,
     ambient: f32,
     background: f32,
+}
+
+/// Registers the wgpu `phong` under its CPU twin's catalogue entry (same name, parameters,
+/// defaults and documentation).
+pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
+    registry.add_shader(crsh_cpu::shade::phong::info(), |ctx, spec| {
+        Ok(Box::new(Phong::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl Phong {

@@ -18,7 +18,7 @@
 use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
-use crsh_core::{CoreError, Result, Sorter, StageSpec, Stats};
+use crsh_core::{CoreError, Registry, Result, Sorter, StageSpec, Stats};
 
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
@@ -259,6 +259,15 @@ pub fn decompress(
 /// The GPU compress sorter (variant `compress`, no parameters).
 pub struct CompressSorter {
     scene: Arc<GpuScene>,
+}
+
+/// Registers the wgpu `compress` under its CPU twin's catalogue entry (same name, parameters,
+/// defaults and documentation).
+pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
+    registry.add_sorter(crsh_cpu::sort::compress::info(), |ctx, spec| {
+        Ok(Box::new(CompressSorter::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl CompressSorter {

@@ -17,7 +17,7 @@
 use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
-use crsh_core::{CoreError, Result, Sorter, StageSpec, Stats};
+use crsh_core::{CoreError, Registry, Result, Sorter, StageSpec, Stats};
 
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
@@ -194,6 +194,15 @@ pub fn stable_radix_order(
 /// The GPU radix sorter (variant `radix`, no parameters).
 pub struct RadixSorter {
     scene: Arc<GpuScene>,
+}
+
+/// Registers the wgpu `radix` under its CPU twin's catalogue entry (same name, parameters,
+/// defaults and documentation).
+pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
+    registry.add_sorter(crsh_cpu::sort::radix::info(), |ctx, spec| {
+        Ok(Box::new(RadixSorter::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl RadixSorter {

@@ -31,8 +31,8 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 use crsh_core::{
-    Candidate, CandidateBatch, CoreError, Ray, RayHierarchy, RayKind, Result, StageSpec, Stats,
-    Traverser,
+    Candidate, CandidateBatch, CoreError, Ray, RayHierarchy, RayKind, Registry, Result, StageSpec,
+    Stats, Traverser,
 };
 
 use crate::adapter::GpuContext;
@@ -133,6 +133,15 @@ enum Outcome {
         needed: u64,
         local: Box<Stats>,
     },
+}
+
+/// Registers the wgpu `crsh` under its CPU twin's catalogue entry (same name, parameters,
+/// defaults and documentation).
+pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
+    registry.add_traverser(crsh_cpu::traverse::crsh::info(), |ctx, spec| {
+        Ok(Box::new(Crsh::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
 }
 
 impl Crsh {

@@ -1,4 +1,5 @@
-//! What `crsh render` reports: the stats JSON document (`--stats`) and the stdout summary.
+//! What a frame reports: the stats JSON document (`crsh render --stats`), the summary text,
+//! Mrays/s, and the accuracy of a frame against a reference image.
 //!
 //! The JSON layout is documented key by key in the README ("Stats JSON"). Every number comes
 //! from the frame's [`Stats`]; this module only derives ratios (tests per ray, Mrays/s) and
@@ -7,7 +8,10 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
-use crsh_core::{KindStats, LevelStats, PipelineConfig, RayKind, Stats, TestCounts};
+use crsh_core::metrics::psnr_rgba8;
+use crsh_core::{
+    AccuracyCounts, KindStats, LevelStats, PipelineConfig, RayKind, Stats, TestCounts,
+};
 use crsh_scene::Scene;
 use serde::Serialize;
 
@@ -123,6 +127,9 @@ pub struct AccuracyReport {
     pub nearest_mismatches: u64,
     /// Mean `|t − t_reference|` over agreeing closest-hit rays that hit.
     pub mean_abs_t_error: f64,
+    /// Secondary rays whose hit is the triangle they were spawned from (self-intersections,
+    /// a lower bound; [`AccuracyCounts::self_hits`]).
+    pub self_hits: u64,
     /// Wall time of the full reference render, ms (not part of `timings_ms`).
     pub reference_render_ms: f64,
 }
@@ -147,6 +154,9 @@ pub struct StatsReport {
     pub pipeline: String,
     /// The full resolved pipeline (every stage, every parameter), as `--pipeline FILE.toml` reads it.
     pub config: PipelineConfig,
+    /// The variant that ran in each filled slot, as the stage objects name themselves (equal to
+    /// `config`'s kinds unless a program swapped a stage in).
+    pub stages: BTreeMap<String, String>,
     /// Backend that ran it (`cpu`, `wgpu`).
     pub backend: String,
     /// The wgpu adapter that ran it (absent on the CPU).
@@ -201,7 +211,7 @@ pub struct AdapterReport {
 }
 
 impl AdapterReport {
-    /// The report of `info`.
+    /// The report of `info` (the adapter of a render is in [`crate::Render::adapter`]).
     pub fn of(info: &crsh_wgpu::AdapterInfo) -> AdapterReport {
         AdapterReport {
             name: info.name.clone(),
@@ -274,6 +284,7 @@ impl StatsReport {
             scene: run.scene,
             pipeline: run.config.name.clone(),
             config: run.config.clone(),
+            stages: stats.stages.clone(),
             backend: run.backend.to_string(),
             adapter: run.adapter,
             threads: run.threads,
@@ -332,7 +343,11 @@ impl StatsReport {
             self.width,
             self.height,
             self.max_depth,
-            stage_line(&self.config),
+            if self.stages.is_empty() {
+                stage_line(&self.config)
+            } else {
+                names_line(&self.stages)
+            },
         );
         let r = &self.rays;
         let _ = writeln!(
@@ -421,6 +436,51 @@ pub fn stage_line(cfg: &PipelineConfig) -> String {
         .join(" ")
 }
 
+/// `primary=raster raygen=whitted ...` from the stage names a frame recorded
+/// ([`Stats::stages`]), in pipeline order.
+pub fn names_line(names: &BTreeMap<String, String>) -> String {
+    crsh_core::StageKind::ALL
+        .iter()
+        .filter_map(|k| names.get(k.key()).map(|n| format!("{k}={n}")))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// Compares a frame's 8-bit image with the reference pipeline's and shapes the accuracy
+/// report: the hit agreement of `counts` (the frame's [`Stats::accuracy`]), PSNR and differing
+/// pixels; `reference_render_ms` is the reference render's wall time.
+///
+/// # Panics
+/// If the images differ in size.
+pub fn compare_images(
+    reference: &str,
+    counts: &AccuracyCounts,
+    rgba: &[u8],
+    ref_rgba: &[u8],
+    reference_render_ms: f64,
+) -> AccuracyReport {
+    let psnr = psnr_rgba8(rgba, ref_rgba);
+    let pixels_differing = rgba
+        .chunks_exact(4)
+        .zip(ref_rgba.chunks_exact(4))
+        .filter(|(a, b)| a[..3] != b[..3])
+        .count() as u64;
+    AccuracyReport {
+        reference: reference.to_string(),
+        hit_agreement: counts.hit_agreement(),
+        psnr_db: psnr.is_finite().then_some(psnr),
+        images_identical: pixels_differing == 0,
+        pixels_differing,
+        rays_compared: counts.rays,
+        agreeing: counts.agreeing,
+        hit_miss_mismatches: counts.hit_miss_mismatches,
+        nearest_mismatches: counts.nearest_mismatches,
+        mean_abs_t_error: counts.mean_abs_t_error(),
+        self_hits: counts.self_hits,
+        reference_render_ms,
+    }
+}
+
 /// Stage timings in pipeline order, then any others, then `reference` and `total`.
 fn timing_line(t: &BTreeMap<String, f64>) -> String {
     const ORDER: [&str; 12] = crsh_core::STAGE_TIMINGS;
@@ -469,7 +529,6 @@ pub fn group(n: u64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crsh_core::AccuracyCounts;
 
     fn stats() -> Stats {
         let mut s = Stats::default();
@@ -550,6 +609,29 @@ mod tests {
     }
 
     #[test]
+    fn accuracy_of_identical_and_different_images() {
+        let counts = AccuracyCounts {
+            rays: 10,
+            agreeing: 9,
+            hit_miss_mismatches: 1,
+            nearest_mismatches: 0,
+            ..Default::default()
+        };
+        let a = vec![10u8, 20, 30, 255, 40, 50, 60, 255];
+        let same = compare_images("brute", &counts, &a, &a, 1.0);
+        assert_eq!(same.psnr_db, None);
+        assert!(same.images_identical);
+        assert_eq!(same.pixels_differing, 0);
+        assert!((same.hit_agreement - 0.9).abs() < 1e-12);
+        let mut b = a.clone();
+        b[4] = 41;
+        let diff = compare_images("brute", &counts, &a, &b, 1.0);
+        assert!(!diff.images_identical);
+        assert_eq!(diff.pixels_differing, 1);
+        assert!(diff.psnr_db.unwrap() > 40.0);
+    }
+
+    #[test]
     fn derived_numbers() {
         let r = report(None);
         assert_eq!(r.rays.traced, 14);
@@ -581,6 +663,7 @@ mod tests {
             hit_miss_mismatches: 0,
             nearest_mismatches: 0,
             mean_abs_t_error: 0.0,
+            self_hits: 0,
             reference_render_ms: 3.0,
         };
         let v: serde_json::Value = serde_json::from_str(&report(Some(acc)).to_json()).unwrap();

@@ -1,5 +1,11 @@
-//! Quantizers shared by the ray hashers: uniform cells over an interval, spherical and
-//! octahedral direction parameterizations, and MSB-first bit interleaving.
+//! Quantizers shared by the ray hashers of every backend and by third-party hashers: uniform
+//! cells over an interval, spherical and octahedral direction parameterizations, and
+//! MSB-first bit interleaving (seed 000 §3.2.3 quantizes origins and directions before
+//! hashing; figs 3.8-3.9 lay the fields out).
+//!
+//! Backend-neutral: the CPU hashers call these functions directly and the wgpu hashers size
+//! their fields with them (their WGSL twin quantizes in `f32`, see `crsh-wgpu`'s
+//! `hash/quantize.wgsl`).
 
 use glam::{Vec2, Vec3};
 
