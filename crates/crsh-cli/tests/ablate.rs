@@ -1,7 +1,8 @@
 //! End-to-end tests of `crsh ablate`: the quick plan on the built-in scenes (every output
 //! file, CSV, JSON, charts, report), failed cells recorded with their reason, the grid of
-//! the command-line form, `--compare`, clear errors for bad plans, and the report in
-//! headless Chromium when it is installed.
+//! the command-line form, `--compare`, clear errors for bad plans, a plan run as shards and
+//! merged, `--redraw` and stale charts, and the report in headless Chromium when it is
+//! installed.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -711,6 +712,265 @@ fn bad_plans_exit_2_with_one_clear_line() {
 }
 
 /// Renders `report.html` in headless Chromium and checks every chart and table is in the DOM.
+/// The figures of a cell that do not depend on the run: everything but wall times (and the
+/// per-kind trace times and Mrays/s derived from them).
+fn deterministic(c: &Value) -> Value {
+    let mut c = c.clone();
+    c["threads"] = Value::Null;
+    if let Some(m) = c.get_mut("measures").and_then(|m| m.as_object_mut()) {
+        for k in [
+            "timings_ms",
+            "device_timings_ms",
+            "mrays_per_s",
+            "build_stages_ms",
+        ] {
+            m.remove(k);
+        }
+        if let Some(kinds) = m.get_mut("per_kind").and_then(|k| k.as_object_mut()) {
+            for k in kinds.values_mut() {
+                k["trace_ms"] = Value::Null;
+            }
+        }
+    }
+    c
+}
+
+/// A plan run as 3 shards (3 processes, 3 directories) and merged equals the plan run whole,
+/// cell for cell: same cells in the same order, equal counters and accuracy, times present.
+/// The merge refuses a missing shard, a repeated one, a shard of another plan or revision and
+/// a directory that is not a shard.
+#[test]
+fn sharded_and_merged_equals_the_whole_run() {
+    let dir = scratch("shards");
+    let plan = small_quick_plan(&dir);
+    let plan = plan.to_str().unwrap();
+    let run = |extra: &[&str]| {
+        let mut args = vec!["ablate", "--plan", plan, "--repeat", "2", "--quiet"];
+        args.extend_from_slice(extra);
+        let o = crsh(&dir, &args);
+        assert_ok(&o);
+        o
+    };
+    run(&["--out", "whole"]);
+    for k in 1..=3 {
+        let o = run(&["--out", &format!("shard{k}"), "--shard", &format!("{k}/3")]);
+        assert!(
+            text(&o.stdout).contains(&format!("(shard {k}/3 of 10 cells)")),
+            "{}",
+            text(&o.stdout)
+        );
+    }
+    let whole = read_json(&dir.join("whole/results.json"));
+    let mut digests = Vec::new();
+    for k in 1..=3 {
+        let v = read_json(&dir.join(format!("shard{k}/results.json")));
+        assert_eq!(v["shard"]["index"], k);
+        assert_eq!(v["shard"]["count"], 3);
+        assert_eq!(v["expansion"]["cells"], 10);
+        for c in cells(&v) {
+            assert_eq!(
+                c["index"].as_u64().unwrap() % 3,
+                k - 1,
+                "round robin: {c:#}"
+            );
+        }
+        digests.push(v["expansion"]["digest"].clone());
+    }
+    assert!(digests.iter().all(|d| *d == whole["expansion"]["digest"]));
+
+    let o = crsh(
+        &dir,
+        &[
+            "ablate", "--merge", "shard3", "shard1", "shard2", "--out", "merged",
+        ],
+    );
+    assert_ok(&o);
+    assert!(
+        text(&o.stdout).contains("(merged from 3 shards)"),
+        "{}",
+        text(&o.stdout)
+    );
+    let merged = read_json(&dir.join("merged/results.json"));
+    let (w, m) = (cells(&whole), cells(&merged));
+    assert_eq!(w.len(), 10);
+    assert_eq!(m.len(), w.len());
+    for (a, b) in w.iter().zip(m) {
+        assert_eq!(deterministic(a), deterministic(b), "cell {}", a["index"]);
+        for c in [a, b] {
+            assert_eq!(c["status"], "ok");
+            let t = &c["measures"]["timings_ms"]["total"];
+            assert!(t["median"].as_f64().unwrap() > 0.0, "{c:#}");
+            assert!(c["measures"]["mrays_per_s"]["overall"].as_f64().unwrap() > 0.0);
+        }
+    }
+    assert_eq!(merged["plan"], whole["plan"]);
+    assert!(merged.get("shard").is_none());
+    let shards = merged["merged_from"].as_array().unwrap();
+    let order: Vec<u64> = shards
+        .iter()
+        .map(|s| s["shard"]["index"].as_u64().unwrap())
+        .collect();
+    assert_eq!(order, [1, 2, 3]);
+    // The CSV has the whole run's columns and rows; the report says where the cells ran.
+    let csv =
+        |d: &str| parse_csv(&std::fs::read_to_string(dir.join(d).join("results.csv")).unwrap());
+    let (wc, mc) = (csv("whole"), csv("merged"));
+    assert_eq!(wc[0], mc[0]);
+    assert_eq!(wc.len(), mc.len());
+    let html = std::fs::read_to_string(dir.join("merged/report.html")).unwrap();
+    assert!(
+        html.contains("id=\"shards-table\""),
+        "merged report lists the shards"
+    );
+    assert!(
+        std::fs::read_dir(dir.join("merged/charts"))
+            .unwrap()
+            .count()
+            >= 6
+    );
+
+    // Refusals: exit 2, one line naming the problem.
+    let refuse = |args: &[&str], needle: &str| {
+        let o = crsh(&dir, args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", text(&o.stderr));
+        let err = text(&o.stderr);
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+    };
+    refuse(
+        &["ablate", "--merge", "shard1", "shard2", "--out", "m2"],
+        "missing shard 3/3",
+    );
+    refuse(
+        &[
+            "ablate", "--merge", "shard1", "shard1", "shard2", "shard3", "--out", "m2",
+        ],
+        "given twice",
+    );
+    refuse(
+        &["ablate", "--merge", "whole", "shard1", "--out", "m2"],
+        "not a shard",
+    );
+    run(&["--out", "other1", "--shard", "1/3", "--reference", "bvh"]);
+    refuse(
+        &[
+            "ablate", "--merge", "other1", "shard2", "shard3", "--out", "m2",
+        ],
+        "different plans",
+    );
+    let p3 = dir.join("shard3/results.json");
+    let mut v = read_json(&p3);
+    v["machine"]["git_revision"] = Value::String("0000000".into());
+    std::fs::write(&p3, serde_json::to_string(&v).unwrap()).unwrap();
+    refuse(
+        &[
+            "ablate", "--merge", "shard1", "shard2", "shard3", "--out", "m2",
+        ],
+        "different revisions",
+    );
+    refuse(
+        &["ablate", "--shard", "4/3", "--plan", plan, "--out", "x"],
+        "--shard 4/3",
+    );
+    assert!(
+        !dir.join("m2").exists(),
+        "nothing is written by a refused merge"
+    );
+}
+
+/// `--redraw` rebuilds charts, CSV and report from `results.json` alone, and a rerun into the
+/// same directory removes the charts it no longer draws.
+#[test]
+fn redraw_rebuilds_the_outputs_and_stale_charts_go() {
+    let dir = scratch("redraw");
+    let plan = small_quick_plan(&dir);
+    let o = crsh(
+        &dir,
+        &[
+            "ablate",
+            "--plan",
+            plan.to_str().unwrap(),
+            "--out",
+            "out",
+            "--repeat",
+            "1",
+            "--quiet",
+        ],
+    );
+    assert_ok(&o);
+    let out = dir.join("out");
+    let charts: Vec<String> = std::fs::read_dir(out.join("charts"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .collect();
+    assert!(
+        charts.iter().any(|c| c.starts_with("office-boxes-")),
+        "{charts:?}"
+    );
+    let report = std::fs::read_to_string(out.join("report.html")).unwrap();
+    let csv = std::fs::read_to_string(out.join("results.csv")).unwrap();
+    // A chart nobody draws, then everything but results.json removed: --redraw restores them
+    // and removes the stranger.
+    std::fs::write(out.join("charts/old-scene-tests.svg"), "<svg/>").unwrap();
+    std::fs::remove_file(out.join("report.html")).unwrap();
+    std::fs::remove_file(out.join("results.csv")).unwrap();
+    for c in &charts {
+        std::fs::remove_file(out.join("charts").join(c)).unwrap();
+    }
+    let o = crsh(&dir, &["ablate", "--redraw", "out"]);
+    assert_ok(&o);
+    let mut again: Vec<String> = std::fs::read_dir(out.join("charts"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .collect();
+    again.sort();
+    let mut want = charts.clone();
+    want.sort();
+    assert_eq!(again, want, "the same charts, and no stale one");
+    assert_eq!(
+        std::fs::read_to_string(out.join("results.csv")).unwrap(),
+        csv
+    );
+    assert_eq!(
+        std::fs::read_to_string(out.join("report.html")).unwrap(),
+        report,
+        "the report is a function of results.json"
+    );
+    // A rerun on one scene into the same directory drops the other scene's charts.
+    let one = std::fs::read_to_string(&plan).unwrap().replace(
+        "scenes = [\"cornell-mirrors\", \"office-boxes\"]",
+        "scenes = [\"cornell-mirrors\"]",
+    );
+    let one_plan = dir.join("one.toml");
+    std::fs::write(&one_plan, one).unwrap();
+    let o = crsh(
+        &dir,
+        &[
+            "ablate",
+            "--plan",
+            one_plan.to_str().unwrap(),
+            "--out",
+            "out",
+            "--repeat",
+            "1",
+            "--quiet",
+        ],
+    );
+    assert_ok(&o);
+    let left: Vec<String> = std::fs::read_dir(out.join("charts"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .collect();
+    assert!(!left.is_empty());
+    assert!(
+        left.iter().all(|c| c.starts_with("cornell-mirrors-")),
+        "{left:?}"
+    );
+    // --redraw of a directory without results.json is a usage error.
+    let o = crsh(&dir, &["ablate", "--redraw", "nowhere"]);
+    assert_eq!(o.status.code(), Some(2));
+}
+
 #[test]
 fn report_renders_in_headless_chromium() {
     let Some(chromium) = ["chromium", "chromium-browser"].into_iter().find(|c| {
