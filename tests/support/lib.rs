@@ -1,4 +1,11 @@
 //! Helpers shared by the workspace-level tests in `tests/`.
+//!
+//! ```
+//! // A shared scene, or `None` after printing why the test that wanted it skips.
+//! if let Some(manifest) = crsh_tests::shared_scene("cornell/cornell-box.toml") {
+//!     assert!(manifest.is_file());
+//! }
+//! ```
 
 #![warn(missing_docs)]
 

@@ -17,6 +17,38 @@
 //! - [`stress`]: the procedural cases of the stability suite (`crsh stress`).
 //!
 //! Every error names the file and line, or the mesh, where the problem is.
+//!
+//! ```
+//! use crsh_scene::{Camera, Light, Material, SceneBuilder};
+//! use glam::Vec3;
+//!
+//! // A built-in scene, by name (manifests and OBJ files load the same way).
+//! let cornell = crsh_scene::load("cornell-mirrors").unwrap();
+//! assert!(cornell.triangle_count() > 0 && !cornell.lights.is_empty());
+//!
+//! // A scene from code: one lit quad.
+//! let mut b = SceneBuilder::new("quad");
+//! b.material(Material::default());
+//! b.light(Light {
+//!     position: Vec3::new(0.0, 2.0, 0.0),
+//!     color: Vec3::ONE,
+//!     intensity: 1.0,
+//!     attenuation: [1.0, 0.0, 0.0],
+//! });
+//! b.camera(Camera {
+//!     eye: Vec3::new(0.0, 1.0, 3.0),
+//!     target: Vec3::ZERO,
+//!     up: Vec3::Y,
+//!     vfov_deg: 45.0,
+//!     aspect: None,
+//! });
+//! let corners = [[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]].map(|[x, z]| Vec3::new(x, 0.0, z));
+//! b.mesh("floor", &corners, None, &[[0, 2, 1], [0, 3, 2]], 0);
+//! let quad = b.build("from code").unwrap();
+//! assert_eq!((quad.triangle_count(), quad.meshes.len()), (2, 1));
+//! // Bad input is an error, never a panic.
+//! assert!(crsh_scene::load("no/such/scene.toml").is_err());
+//! ```
 
 #![warn(missing_docs)]
 

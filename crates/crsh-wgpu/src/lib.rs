@@ -11,6 +11,10 @@
 //!   buffers; stages record their own compute passes on the context's device.
 //! * [`kernels`]: compute kernels that stages build on, starting with the exclusive prefix sum
 //!   ([`kernels::scan`]).
+//! * One module per stage variant (`primary`, `raygen`, `hash`, `sort`, `hierarchy`,
+//!   `traverse`, `intersect`, `shade`), each registering itself in
+//!   [`Registry::<Wgpu>::builtin`](crsh_core::Registry::builtin) under its CPU twin's
+//!   catalogue entry ([`registry`]).
 //!
 //! **Every kernel has a CPU twin** in the same module (e.g. [`exclusive_scan`] and
 //! [`exclusive_scan_cpu`]) with bit-identical semantics (integer kernels use the same wrapping
@@ -19,6 +23,26 @@
 //!
 //! Without a GPU, Mesa's lavapipe (`apt-get install mesa-vulkan-drivers libvulkan1`) provides
 //! a software Vulkan adapter: results are exact, timings are not representative.
+//!
+//! ```
+//! use std::sync::Arc;
+//! use crsh_core::{Backend, FrameOptions, FrameSize, Registry, StageContext};
+//! use crsh_wgpu::{GpuScene, Wgpu};
+//!
+//! let Ok(device) = Wgpu::new() else {
+//!     println!("no wgpu adapter on this machine");
+//!     return;
+//! };
+//! let scene = Arc::new(crsh_scene::load("cornell-mirrors").unwrap());
+//! let on_device = GpuScene::new(&device, &scene).unwrap();
+//! let registry = Registry::<Wgpu>::builtin();
+//! let cfg = registry.preset("bvh").unwrap();
+//! let ctx = StageContext::new(&device, &on_device, FrameSize::new(16, 16).unwrap());
+//! let opts = FrameOptions::default().with_max_depth(1);
+//! let frame = registry.render(&ctx, &cfg, &opts, None, &mut |_| {}).unwrap();
+//! assert_eq!(device.download(&frame.image).unwrap().len(), 16 * 16);
+//! assert_eq!(frame.stats.stages["intersect"], "bvh");
+//! ```
 
 #![warn(missing_docs)]
 

@@ -1,5 +1,6 @@
 //! `radix`: sorts every (key, ray index) pair directly with an LSD/MSD radix sort (rdst), the
-//! baseline for `compress` (seed 000 §3.2.5 sorts chunks with the same radix sort [13]).
+//! baseline for `compress` (seed 000 §3.2.5 sorts chunks with the same radix sort, the
+//! thesis's reference \[13\]).
 //!
 //! # Stability
 //!
