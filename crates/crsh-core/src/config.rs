@@ -1,9 +1,10 @@
 //! The pipeline as data: which variant fills each stage slot, with what parameters.
 //!
 //! A [`PipelineConfig`] is plain serde data (TOML in plan files, JSON in stats), shared by the
-//! CLI, tests and benchmarks. Each backend publishes a catalogue of [`StageVariantInfo`]s;
-//! [`PipelineConfig::resolve`] checks a config against it and fills in defaults, and
-//! [`PipelineConfig::set`] applies the CLI's `--set stage.param=value` overrides.
+//! CLI, tests and benchmarks. Each backend's [`crate::Registry`] holds the catalogue entries
+//! ([`StageVariantInfo`]) of its variants; [`PipelineConfig::resolve`] checks a config against
+//! them (variants, parameter types, choices and ranges, slots that fit together) and fills in
+//! defaults, and [`PipelineConfig::set`] applies the CLI's `--set stage.param=value` overrides.
 
 use std::collections::BTreeMap;
 use std::fmt;
