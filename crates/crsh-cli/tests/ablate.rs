@@ -878,6 +878,16 @@ fn sharded_and_merged_equals_the_whole_run() {
     );
 }
 
+/// The file names in `out/charts`, sorted.
+fn chart_names(out: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(out.join("charts"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .collect();
+    names.sort();
+    names
+}
+
 /// `--redraw` rebuilds charts, CSV and report from `results.json` alone, and a rerun into the
 /// same directory removes the charts it no longer draws.
 #[test]
@@ -899,10 +909,7 @@ fn redraw_rebuilds_the_outputs_and_stale_charts_go() {
     );
     assert_ok(&o);
     let out = dir.join("out");
-    let charts: Vec<String> = std::fs::read_dir(out.join("charts"))
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
-        .collect();
+    let charts = chart_names(&out);
     assert!(
         charts.iter().any(|c| c.starts_with("office-boxes-")),
         "{charts:?}"
@@ -919,14 +926,11 @@ fn redraw_rebuilds_the_outputs_and_stale_charts_go() {
     }
     let o = crsh(&dir, &["ablate", "--redraw", "out"]);
     assert_ok(&o);
-    let mut again: Vec<String> = std::fs::read_dir(out.join("charts"))
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
-        .collect();
-    again.sort();
-    let mut want = charts.clone();
-    want.sort();
-    assert_eq!(again, want, "the same charts, and no stale one");
+    assert_eq!(
+        chart_names(&out),
+        charts,
+        "the same charts, and no stale one"
+    );
     assert_eq!(
         std::fs::read_to_string(out.join("results.csv")).unwrap(),
         csv
@@ -957,10 +961,7 @@ fn redraw_rebuilds_the_outputs_and_stale_charts_go() {
         ],
     );
     assert_ok(&o);
-    let left: Vec<String> = std::fs::read_dir(out.join("charts"))
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
-        .collect();
+    let left = chart_names(&out);
     assert!(!left.is_empty());
     assert!(
         left.iter().all(|c| c.starts_with("cornell-mirrors-")),

@@ -27,6 +27,23 @@ fn spec(layout: &str) -> crsh_core::StageSpec {
     cfg.hash.unwrap()
 }
 
+/// The keys of `rays` by the CPU hasher and by its GPU twin (the batch kind does not matter to
+/// either: both key every ray by its own kind).
+fn keys(
+    b: &crsh_wgpu::Wgpu,
+    cpu: &dyn Hasher<Cpu>,
+    gpu: &dyn Hasher<crsh_wgpu::Wgpu>,
+    rays: &Vec<Ray>,
+) -> (Vec<u64>, Vec<u64>) {
+    let kind = RayKind::Shadow;
+    let want = cpu.hash(&Cpu, rays, kind, &mut Stats::default()).unwrap();
+    let on_device = b.upload(rays).unwrap();
+    let got = gpu
+        .hash(b, &on_device, kind, &mut Stats::default())
+        .unwrap();
+    (want, b.download(&got).unwrap())
+}
+
 fn rays_of(s: &Arc<Scene>) -> Vec<Ray> {
     let cfg: PipelineConfig = crsh_wgpu::testing::cpu_preset("crsh");
     let stages = crsh_wgpu::testing::cpu_stages(&cfg, s, 48, 36);
@@ -107,20 +124,7 @@ fn thesis_keys_match_the_cpu_up_to_cell_boundaries() {
                 Hasher::<Cpu>::key_bits(&cpu),
                 Hasher::<crsh_wgpu::Wgpu>::key_bits(&gpu)
             );
-            let want = cpu
-                .hash(&Cpu, &rays, RayKind::Shadow, &mut Stats::default())
-                .unwrap();
-            let got = b
-                .download(
-                    &gpu.hash(
-                        &b,
-                        &b.upload(&rays).unwrap(),
-                        RayKind::Shadow,
-                        &mut Stats::default(),
-                    )
-                    .unwrap(),
-                )
-                .unwrap();
+            let (want, got) = keys(&b, &cpu, &gpu, &rays);
             let mut differ = 0;
             for (i, (g, w)) in got.iter().zip(&want).enumerate() {
                 if g != w {
@@ -231,20 +235,7 @@ fn morton_keys_match_the_cpu_up_to_cell_boundaries() {
                 Hasher::<Cpu>::key_bits(&cpu),
                 Hasher::<crsh_wgpu::Wgpu>::key_bits(&gpu)
             );
-            let want = cpu
-                .hash(&Cpu, &rays, RayKind::Shadow, &mut Stats::default())
-                .unwrap();
-            let got = b
-                .download(
-                    &gpu.hash(
-                        &b,
-                        &b.upload(&rays).unwrap(),
-                        RayKind::Shadow,
-                        &mut Stats::default(),
-                    )
-                    .unwrap(),
-                )
-                .unwrap();
+            let (want, got) = keys(&b, &cpu, &gpu, &rays);
             let widths = cpu.widths();
             let mut differ = 0;
             for (i, (gk, wk)) in got.iter().zip(&want).enumerate() {
