@@ -592,6 +592,35 @@ fn pipelines_lists_presets_and_every_variant() {
             "no {stage} variant {name}"
         );
     }
+    // Which backends have each variant, ranges, whole-scene-only intersectors, preset docs.
+    let find = |stage: &str, name: &str| {
+        variants
+            .iter()
+            .find(|x| x["stage"] == stage && x["name"] == name)
+            .unwrap_or_else(|| panic!("{stage} {name}"))
+    };
+    assert_eq!(
+        find("hash", "thesis")["backends"],
+        serde_json::json!(["cpu", "wgpu"])
+    );
+    assert_eq!(
+        find("primary", "raycast")["backends"],
+        serde_json::json!(["cpu"])
+    );
+    assert_eq!(find("intersect", "bvh")["scene_only"], true);
+    assert!(find("intersect", "brute").get("scene_only").is_none());
+    let sub = &find("hierarchy", "sphere_cone")["params"][0];
+    assert_eq!(
+        (
+            sub["name"].as_str(),
+            sub["min"].as_f64(),
+            sub["max"].as_f64()
+        ),
+        (Some("subdivision"), Some(2.0), Some(64.0))
+    );
+    assert!(v["presets"][0]["doc"]
+        .as_str()
+        .is_some_and(|d| !d.is_empty()));
 
     let o = crsh(&dir, &["pipelines"]);
     assert_ok(&o);
@@ -606,6 +635,51 @@ fn pipelines_lists_presets_and_every_variant() {
                 "text listing lacks parameter {key}:\n{text}"
             );
         }
+    }
+    assert!(text.contains("raycast  [cpu]"), "{text}");
+    assert!(
+        text.contains("hierarchy.subdivision = 8 (2..=64)"),
+        "{text}"
+    );
+}
+
+/// Stages that do not fit together, and values outside a parameter's range, are usage errors
+/// (exit 2) found before the scene is loaded or any stage is built, naming the slots.
+#[test]
+fn slots_that_do_not_fit_and_out_of_range_values_exit_2() {
+    let dir = scratch("slots");
+    for (sets, needle) in [
+        (
+            &["--set", "sort=off"][..],
+            "stages `hash, sort` do not fit together",
+        ),
+        (
+            &["--set", "traverse=off"],
+            "stages `hierarchy, traverse` do not fit together",
+        ),
+        (
+            &["--set", "intersect.kind=bvh"],
+            "stages `hierarchy, intersect` do not fit together",
+        ),
+        (
+            &["--set", "hierarchy.subdivision=100"],
+            "100 is outside 2..=64",
+        ),
+        (&["--set", "shade.ambient=nan"], "NaN"),
+    ] {
+        let mut args = vec![
+            "render",
+            "--pipeline",
+            "crsh",
+            "--scene",
+            "no/such/scene.toml",
+            "--width",
+            "8",
+        ];
+        args.extend_from_slice(sets);
+        let o = crsh(&dir, &args);
+        assert_eq!(o.status.code(), Some(2), "{sets:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains(needle), "{sets:?}: {}", stderr(&o));
     }
 }
 
