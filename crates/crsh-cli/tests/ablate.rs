@@ -894,9 +894,8 @@ fn chart_names(out: &Path) -> Vec<String> {
 fn redraw_rebuilds_the_outputs_and_stale_charts_go() {
     let dir = scratch("redraw");
     let plan = small_quick_plan(&dir);
-    let o = crsh(
-        &dir,
-        &[
+    let run_into_out = |plan: &Path| {
+        let args = [
             "ablate",
             "--plan",
             plan.to_str().unwrap(),
@@ -905,9 +904,10 @@ fn redraw_rebuilds_the_outputs_and_stale_charts_go() {
             "--repeat",
             "1",
             "--quiet",
-        ],
-    );
-    assert_ok(&o);
+        ];
+        assert_ok(&crsh(&dir, &args));
+    };
+    run_into_out(&plan);
     let out = dir.join("out");
     let charts = chart_names(&out);
     assert!(
@@ -947,20 +947,7 @@ fn redraw_rebuilds_the_outputs_and_stale_charts_go() {
     );
     let one_plan = dir.join("one.toml");
     std::fs::write(&one_plan, one).unwrap();
-    let o = crsh(
-        &dir,
-        &[
-            "ablate",
-            "--plan",
-            one_plan.to_str().unwrap(),
-            "--out",
-            "out",
-            "--repeat",
-            "1",
-            "--quiet",
-        ],
-    );
-    assert_ok(&o);
+    run_into_out(&one_plan);
     let left = chart_names(&out);
     assert!(!left.is_empty());
     assert!(
