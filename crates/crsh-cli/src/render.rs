@@ -34,7 +34,7 @@ pub fn run(args: &RenderArgs, registries: &Registries) -> CliResult<()> {
         BackendKind::Cpu => None,
         BackendKind::Wgpu => Some(Wgpu::new().map_err(|e| wgpu_unavailable(&e))?),
     };
-    let threads = configure_threads(args.threads)?;
+    configure_threads(args.threads)?;
 
     let t_load = Instant::now();
     let (scene, load_report) = crsh_scene::load_with_report(&args.scene)
@@ -78,13 +78,12 @@ pub fn run(args: &RenderArgs, registries: &Registries) -> CliResult<()> {
     render
         .write_png(&args.out)
         .map_err(|e| CliError::runtime(e.to_string()))?;
-    let mut report = render.report(
+    let report = render.report(
         &scene,
         &args.scene,
         &args.out.display().to_string(),
         scene_load_ms,
     );
-    report.threads = threads;
     if let Some(path) = &args.stats {
         output::write_text(path, &(report.to_json() + "\n"))?;
     }

@@ -743,6 +743,24 @@ impl PipelineConfig {
     }
 }
 
+/// The error for variant `name` missing from `slot` of `catalogue`, listing the ones there.
+pub(crate) fn unknown_variant(
+    slot: StageKind,
+    name: &str,
+    catalogue: &[StageVariantInfo],
+) -> CoreError {
+    CoreError::UnknownVariant {
+        stage: slot.key().into(),
+        name: name.to_string(),
+        known: catalogue
+            .iter()
+            .filter(|v| v.stage == slot)
+            .map(|v| v.name)
+            .collect::<Vec<_>>()
+            .join(", "),
+    }
+}
+
 /// Resolves one slot's spec against `catalogue` (see [`PipelineConfig::resolve`]).
 pub fn resolve_spec(
     slot: StageKind,
@@ -752,16 +770,7 @@ pub fn resolve_spec(
     let info = catalogue
         .iter()
         .find(|v| v.stage == slot && v.name == spec.kind)
-        .ok_or_else(|| CoreError::UnknownVariant {
-            stage: slot.key().into(),
-            name: spec.kind.clone(),
-            known: catalogue
-                .iter()
-                .filter(|v| v.stage == slot)
-                .map(|v| v.name)
-                .collect::<Vec<_>>()
-                .join(", "),
-        })?;
+        .ok_or_else(|| unknown_variant(slot, &spec.kind, catalogue))?;
     for (k, v) in spec.params.iter_mut() {
         let p =
             info.params

@@ -143,27 +143,6 @@ impl FrameSize {
         Ok(FrameSize { width, height })
     }
 
-    /// A frame `width` pixels wide whose height follows `aspect` (width / height, e.g. a
-    /// scene camera's framing aspect), rounded to the nearest pixel and at least 1; square
-    /// without an aspect.
-    ///
-    /// # Errors
-    /// As [`FrameSize::new`], or a non-finite or non-positive aspect.
-    pub fn with_aspect(width: u32, aspect: Option<f32>) -> Result<FrameSize> {
-        let height = match aspect {
-            None => width,
-            Some(a) if a.is_finite() && a > 0.0 => {
-                ((width as f64 / a as f64).round() as u64).clamp(1, u32::MAX as u64) as u32
-            }
-            Some(a) => {
-                return Err(CoreError::InvalidInput(format!(
-                    "aspect {a} is not a positive number"
-                )))
-            }
-        };
-        FrameSize::new(width, height)
-    }
-
     /// Pixels in the frame.
     pub fn pixels(&self) -> usize {
         self.width as usize * self.height as usize

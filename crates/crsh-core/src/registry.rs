@@ -59,7 +59,8 @@ use std::sync::Arc;
 
 use crate::backend::{Backend, StageScene};
 use crate::config::{
-    check_name, resolve_spec, PipelineConfig, StageKind, StageSpec, StageVariantInfo,
+    check_name, resolve_spec, unknown_variant, PipelineConfig, StageKind, StageSpec,
+    StageVariantInfo,
 };
 use crate::error::{CoreError, Result};
 use crate::pipeline::{render_frame, Frame, FrameOptions, FrameSize, Pipeline, Progress, Stages};
@@ -383,17 +384,7 @@ impl<B: Backend> Registry<B> {
             .iter()
             .position(|v| v.stage == slot && v.name == name)
             .map(|i| &self.ctors[i])
-            .ok_or_else(|| CoreError::UnknownVariant {
-                stage: slot.key().into(),
-                name: name.to_string(),
-                known: self
-                    .infos
-                    .iter()
-                    .filter(|v| v.stage == slot)
-                    .map(|v| v.name)
-                    .collect::<Vec<_>>()
-                    .join(", "),
-            })
+            .ok_or_else(|| unknown_variant(slot, name, &self.infos))
     }
 
     /// Builds the stages of `cfg` for `ctx`: resolves a copy of `cfg` ([`Registry::resolve`];

@@ -58,6 +58,6 @@ pub use crsh_cpu::Cpu;
 pub use crsh_scene::Scene;
 pub use crsh_wgpu::Wgpu;
 pub use error::{Error, Result};
-pub use registries::{BackendKind, Registries, RegistryOf};
+pub use registries::{BackendKind, Registries};
 pub use renderer::{Built, HostFrame, Render, RenderRequest, Renderer};
 pub use report::{AccuracyReport, AdapterReport, SceneInfo, SetupTimes, StatsReport};

@@ -4,7 +4,7 @@ use std::fmt;
 use std::str::FromStr;
 
 use crsh_core::config::resolve_spec;
-use crsh_core::{Backend, CoreError, PipelineConfig, Registry, StageKind, StageVariantInfo};
+use crsh_core::{CoreError, PipelineConfig, Registry, StageKind, StageVariantInfo};
 use crsh_cpu::Cpu;
 use crsh_wgpu::Wgpu;
 use serde::{Deserialize, Serialize};
@@ -177,33 +177,6 @@ impl Registries {
             }
         }
         Err(err)
-    }
-
-    /// Whether `cfg` resolves on `backend` ([`Registries::resolve`]).
-    pub fn supports(&self, cfg: &PipelineConfig, backend: BackendKind) -> bool {
-        self.resolve(cfg, backend).is_ok()
-    }
-}
-
-/// The registry of backend `B` among `registries` (for generic code).
-pub trait RegistryOf: Backend + Sized {
-    /// This backend's kind.
-    const KIND: BackendKind;
-    /// This backend's registry.
-    fn registry(registries: &Registries) -> &Registry<Self>;
-}
-
-impl RegistryOf for Cpu {
-    const KIND: BackendKind = BackendKind::Cpu;
-    fn registry(registries: &Registries) -> &Registry<Cpu> {
-        &registries.cpu
-    }
-}
-
-impl RegistryOf for Wgpu {
-    const KIND: BackendKind = BackendKind::Wgpu;
-    fn registry(registries: &Registries) -> &Registry<Wgpu> {
-        &registries.wgpu
     }
 }
 

@@ -243,19 +243,18 @@ impl<'r> Renderer<'r> {
     /// [`CoreError::InvalidInput`] when a side is 0 or above
     /// [`crsh_core::MAX_IMAGE_SIDE`], naming the aspect when it made the height too large.
     pub fn frame_size(&self, width: u32, height: Option<u32>) -> Result<FrameSize> {
-        Ok(match height {
-            Some(h) => FrameSize::new(width, h)?,
-            None => FrameSize::with_aspect(width, self.scene.camera.aspect).map_err(|e| {
+        let camera = &self.scene.camera;
+        let Some(h) = height else {
+            let h = camera.height_for(width).unwrap_or(width);
+            return FrameSize::new(width, h).map_err(|e| {
                 CoreError::InvalidInput(format!(
-                    "width {width} with the camera's aspect {} gives an image of {}: {e}; give a height",
-                    self.scene.camera.aspect.unwrap_or(1.0),
-                    self.scene
-                        .camera
-                        .height_for(width)
-                        .map_or("?".to_string(), |h| format!("{width}x{h}"))
+                    "width {width} with the camera's aspect {} gives an image of {width}x{h}: {e}; give a height",
+                    camera.aspect.unwrap_or(1.0)
                 ))
-            })?,
-        })
+                .into()
+            });
+        };
+        Ok(FrameSize::new(width, h)?)
     }
 
     fn cpu_context(&self, frame: FrameSize) -> StageContext<'_, Cpu> {

@@ -666,6 +666,7 @@ pub fn expand(
                                     // runnable nowhere: the plan is wrong.
                                     let elsewhere = BackendKind::ALL
                                         .into_iter()
+                                        .filter(|b| *b != backend)
                                         .find_map(|b| registries.resolve(&unresolved, b).ok());
                                     match elsewhere {
                                         Some(c) => (c, Some(format!("building pipeline: {err}"))),

@@ -75,9 +75,8 @@ pub fn run_cells(
         let st = state.as_mut().expect("scene state set above");
         let mut run = || run_cell(plan, cell, registries, st, &mut device, threads);
         let result = match plan.threads {
-            Some(n) => crsh_cpu::with_threads(n, run).unwrap_or_else(|e| {
-                failed(cell, &Err(e.to_string()), threads, plan, e.to_string())
-            }),
+            Some(n) => crsh_cpu::with_threads(n, run)
+                .unwrap_or_else(|e| failed(cell, &st.scene, threads, plan, e.to_string())),
             None => run(),
         };
         on_done(&result, &bar);
