@@ -52,6 +52,7 @@
 
 #![warn(missing_docs)]
 
+pub mod animation;
 pub mod bounding;
 pub mod builtin;
 pub mod error;
@@ -63,6 +64,7 @@ pub mod stress;
 
 use std::path::Path;
 
+pub use animation::{AnimatedScene, Instance, Motion, UpdateTimes};
 pub use error::SceneError;
 pub use model::{
     is_degenerate_triangle, Camera, Light, Material, Mesh, Scene, SceneBuilder, SceneSummary,
@@ -112,6 +114,30 @@ pub fn load_with_report(spec: &str) -> Result<(Scene, LoadReport), SceneError> {
         ));
     }
     load_path_with_report(path)
+}
+
+/// Loads `spec` as an animated scene: a built-in name, a `.toml` manifest (moving when it has
+/// `[[instances]]` with motions) or an `.obj` file (never moves), with the load report.
+pub fn load_animated(spec: &str) -> Result<(AnimatedScene, LoadReport), SceneError> {
+    let report = |warnings| LoadReport {
+        source: spec.to_string(),
+        warnings,
+    };
+    if builtin::NAMES.contains(&spec) {
+        let (anim, warnings) = builtin::animated_with_warnings(spec)?;
+        return Ok((anim, report(warnings)));
+    }
+    let path = Path::new(spec);
+    match extension(path) {
+        Some("toml") => {
+            let (anim, warnings) = manifest::load_animated(path)?;
+            Ok((anim, report(warnings)))
+        }
+        _ => {
+            let (scene, r) = load_with_report(spec)?;
+            Ok((AnimatedScene::fixed(scene), r))
+        }
+    }
 }
 
 fn extension(path: &Path) -> Option<&'static str> {

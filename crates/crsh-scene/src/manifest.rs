@@ -22,17 +22,54 @@
 //! reflectivity = 0.95        # also diffuse, specular, shininess, transparency, ior, emission
 //! ```
 //!
-//! Unknown keys are rejected (with the line), and an override naming a material that the MTL
-//! does not define is an error naming it.
+//!
+//! # Instances and animation
+//!
+//! A manifest may also extend another scene and place meshes in it, moving or not
+//! ([`crate::animation`]):
+//!
+//! ```toml
+//! extends = "../sponza/sponza.toml"   # a manifest (relative to this one) or a built-in name:
+//!                                     # its mesh, camera, lights and overrides come first
+//! [animation]
+//! fps = 24.0                          # frame f is the scene at t = f / fps seconds
+//!
+//! [[instances]]
+//! name = "bunny"
+//! mesh = "../bunny/stanford-bunny.obj"   # an OBJ, or a built-in shape:
+//! # shape = "icosphere" | "box" | "grid", subdivisions = 2
+//! translate = [0.0, 10.0, 0.0]        # placement: scale, then rotate, then translate
+//! rotate = [0.0, 1.0, 0.0, 90.0]      # axis and degrees
+//! scale = 100.0                       # or [x, y, z]
+//! material = { diffuse = [0.8, 0.7, 0.6], reflectivity = 0.2 }   # onto all its materials
+//!
+//! [[instances.motion]]                # any number, applied in order
+//! kind = "rotate"                     # also translate, scale, keyframes, wave, twist
+//! axis = [0.0, 1.0, 0.0]
+//! degrees_per_second = 45.0
+//! ```
+//!
+//! Unknown keys are rejected (with the line), and an override naming a material that the
+//! scene does not define is an error naming it. A manifest needs a `mesh`, an `extends` or an
+//! instance, and a camera of its own or from what it extends.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
+use glam::{Affine3A, Quat, Vec3};
+
+use crate::animation::{AnimatedScene, Instance, Motion, DEFAULT_FPS};
+use crate::builtin::Geometry;
 use crate::error::SceneError;
 use crate::model::{Camera, Light, Material, Scene, SceneBuilder};
+
+/// Deepest chain of `extends` followed (a cycle is an error, not a hang).
+pub const MAX_EXTENDS_DEPTH: usize = 8;
+
+/// Largest `subdivisions` of a built-in shape (icosphere levels; box and grid divisions).
+pub const MAX_SUBDIVISIONS: [u32; 3] = [7, 512, 2048];
 
 /// A parsed manifest.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -41,16 +78,136 @@ pub struct Manifest {
     /// Scene name used in reports (default: the manifest's file stem).
     #[serde(default)]
     pub name: Option<String>,
+    /// A scene this one adds to: a manifest path (relative to this manifest) or a built-in
+    /// scene name.
+    #[serde(default)]
+    pub extends: Option<String>,
     /// The OBJ file, relative to the manifest (or absolute).
-    pub mesh: PathBuf,
-    /// The camera.
-    pub camera: CameraSpec,
+    #[serde(default)]
+    pub mesh: Option<PathBuf>,
+    /// The camera (required unless `extends` gives one).
+    #[serde(default)]
+    pub camera: Option<CameraSpec>,
     /// Point lights.
     #[serde(default)]
     pub lights: Vec<LightSpec>,
     /// Material overrides by MTL material name.
     #[serde(default)]
     pub materials: BTreeMap<String, MaterialOverride>,
+    /// Scene time (`[animation]`).
+    #[serde(default)]
+    pub animation: Option<AnimationSpec>,
+    /// Placed meshes, moving or not (`[[instances]]`).
+    #[serde(default)]
+    pub instances: Vec<InstanceSpec>,
+}
+
+/// The `[animation]` table.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AnimationSpec {
+    /// Frames per second of scene time (default [`DEFAULT_FPS`]).
+    #[serde(default = "default_fps")]
+    pub fps: f32,
+}
+
+fn default_fps() -> f32 {
+    DEFAULT_FPS
+}
+
+/// A built-in shape of an instance, in object space.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Shape {
+    /// Unit icosphere at the origin (`subdivisions` levels, default 2: 320 triangles).
+    Icosphere,
+    /// The cube `[-1, 1]³`, each face `subdivisions²` quads (default 1), faces outward.
+    Box,
+    /// The square `[-1, 1]²` in the `xz` plane facing `+y`, `subdivisions²` quads (default 16).
+    Grid,
+}
+
+/// A uniform or per-axis scale.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum ScaleSpec {
+    /// The same on every axis.
+    Uniform(f32),
+    /// Per axis.
+    Axes([f32; 3]),
+}
+
+impl ScaleSpec {
+    fn vec(self) -> Vec3 {
+        match self {
+            ScaleSpec::Uniform(s) => Vec3::splat(s),
+            ScaleSpec::Axes(a) => Vec3::from_array(a),
+        }
+    }
+}
+
+/// One `[[instances]]` entry: a mesh placed in the scene, and how it moves.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InstanceSpec {
+    /// Name in reports (default: the OBJ's stem or the shape's name, numbered).
+    #[serde(default)]
+    pub name: Option<String>,
+    /// An OBJ file, relative to the manifest.
+    #[serde(default)]
+    pub mesh: Option<PathBuf>,
+    /// Or a built-in shape.
+    #[serde(default)]
+    pub shape: Option<Shape>,
+    /// Detail of the shape (see [`Shape`]).
+    #[serde(default)]
+    pub subdivisions: Option<u32>,
+    /// Values set on every material of the instance (a shape starts from the default
+    /// material).
+    #[serde(default)]
+    pub material: Option<MaterialOverride>,
+    /// Placement translation.
+    #[serde(default)]
+    pub translate: [f32; 3],
+    /// Placement rotation: axis and degrees.
+    #[serde(default)]
+    pub rotate: Option<[f32; 4]>,
+    /// Placement scale.
+    #[serde(default)]
+    pub scale: Option<ScaleSpec>,
+    /// Motions, applied in order ([`Motion`]).
+    #[serde(default)]
+    pub motion: Vec<Motion>,
+}
+
+impl InstanceSpec {
+    /// Object to world at rest: scale, then rotation, then translation.
+    pub fn placement(&self) -> Result<Affine3A, String> {
+        let scale = self.scale.map(ScaleSpec::vec).unwrap_or(Vec3::ONE);
+        if !scale.is_finite() || scale.min_element() <= 0.0 {
+            return Err(format!("scale {scale} must be finite and positive"));
+        }
+        let translate = Vec3::from_array(self.translate);
+        if !translate.is_finite() {
+            return Err(format!("translate {translate} is not finite"));
+        }
+        let rotation = match self.rotate {
+            None => Quat::IDENTITY,
+            Some([x, y, z, deg]) => {
+                let axis = Vec3::new(x, y, z);
+                if !axis.is_finite() || axis.length_squared() < 1e-12 || !deg.is_finite() {
+                    return Err(format!(
+                        "rotate {:?} needs a finite non-zero axis and a finite angle",
+                        [x, y, z, deg]
+                    ));
+                }
+                Quat::from_axis_angle(axis.normalize(), deg.to_radians())
+            }
+        };
+        Ok(Affine3A::from_scale_rotation_translation(
+            scale, rotation, translate,
+        ))
+    }
 }
 
 /// The `[camera]` table.
@@ -191,37 +348,102 @@ impl Manifest {
     }
 
     /// The OBJ path, resolved against the manifest's directory.
-    pub fn mesh_path(&self, manifest_path: &Path) -> PathBuf {
-        manifest_path
-            .parent()
-            .unwrap_or(Path::new("."))
-            .join(&self.mesh)
+    pub fn mesh_path(&self, manifest_path: &Path) -> Option<PathBuf> {
+        self.mesh.as_ref().map(|m| relative_to(manifest_path, m))
     }
 }
 
-/// Loads the scene a manifest describes, with the load report's warnings.
+/// `path` resolved against the directory of `manifest_path`.
+fn relative_to(manifest_path: &Path, path: &Path) -> PathBuf {
+    manifest_path.parent().unwrap_or(Path::new(".")).join(path)
+}
+
+/// Loads the scene a manifest describes (at frame 0 when it is animated), with the load
+/// report's warnings.
 pub fn load(path: &Path) -> Result<(Scene, Vec<String>), SceneError> {
+    load_animated(path).map(|(a, w)| (a.into_scene(), w))
+}
+
+/// Loads the animated scene a manifest describes (a manifest without moving instances gives
+/// one that never moves), with the load report's warnings.
+pub fn load_animated(path: &Path) -> Result<(AnimatedScene, Vec<String>), SceneError> {
     let manifest = Manifest::read(path)?;
-    let mesh = manifest.mesh_path(path);
-    let ext_ok = mesh
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("obj"));
-    if !ext_ok {
+    build_animated(&manifest, path)
+}
+
+/// The animated scene of an already parsed manifest; `path` resolves its relative paths and
+/// names it in errors.
+pub fn build_animated(
+    manifest: &Manifest,
+    path: &Path,
+) -> Result<(AnimatedScene, Vec<String>), SceneError> {
+    let mut builder = SceneBuilder::new(manifest.scene_name(path));
+    let mut instances = Vec::new();
+    add_manifest(manifest, path, &mut builder, &mut instances, 0)?;
+    if !builder.has_camera() {
         return Err(SceneError::invalid(
             path.display().to_string(),
-            format!("mesh '{}' is not an .obj file", manifest.mesh.display()),
+            "no [camera]: give one, or extend a scene that has one",
         ));
     }
-    let mut builder = SceneBuilder::new(manifest.scene_name(path));
-    let info = crate::obj::read(&mesh, &mut builder)?;
-    for (name, ov) in &manifest.materials {
-        let Some(ids) = info.materials_by_name.get(name) else {
-            let known: Vec<&str> = info.materials_by_name.keys().map(String::as_str).collect();
+    let fps = manifest.animation.as_ref().map_or(DEFAULT_FPS, |a| a.fps);
+    let (scene, warnings) = builder.build_with_warnings(&path.display().to_string())?;
+    Ok((AnimatedScene::new(scene, instances, fps)?, warnings))
+}
+
+/// Adds what `manifest` (at `path`) describes to `builder`: what it extends, its mesh and
+/// material overrides, its instances, camera and lights.
+fn add_manifest(
+    manifest: &Manifest,
+    path: &Path,
+    builder: &mut SceneBuilder,
+    instances: &mut Vec<Instance>,
+    depth: usize,
+) -> Result<(), SceneError> {
+    let here = path.display().to_string();
+    if let Some(base) = &manifest.extends {
+        if depth >= MAX_EXTENDS_DEPTH {
             return Err(SceneError::invalid(
-                format!("{}: [materials.{name}]", path.display()),
+                here,
+                format!("extends `{base}`: more than {MAX_EXTENDS_DEPTH} levels (a cycle?)"),
+            ));
+        }
+        if crate::builtin::STATIC_NAMES.contains(&base.as_str()) {
+            let name = builder.name().to_string();
+            *builder = crate::builtin::builder(base)?;
+            builder.rename(name);
+        } else {
+            let base_path = relative_to(path, Path::new(base));
+            let parent = Manifest::read(&base_path).map_err(|e| {
+                SceneError::invalid(format!("{here}: extends `{base}`"), e.to_string())
+            })?;
+            add_manifest(&parent, &base_path, builder, instances, depth + 1)?;
+        }
+    }
+    if let Some(mesh) = manifest.mesh_path(path) {
+        check_obj(&mesh, &here)?;
+        crate::obj::read(&mesh, builder)?;
+    }
+    for (name, ov) in &manifest.materials {
+        let ids: Vec<usize> = builder
+            .materials()
+            .iter()
+            .enumerate()
+            .filter(|(_, m)| &m.name == name)
+            .map(|(i, _)| i)
+            .collect();
+        if ids.is_empty() {
+            let mut known: Vec<&str> = builder
+                .materials()
+                .iter()
+                .map(|m| m.name.as_str())
+                .collect();
+            known.sort_unstable();
+            known.dedup();
+            return Err(SceneError::invalid(
+                format!("{here}: [materials.{name}]"),
                 format!(
-                    "the override names material '{name}', which {} does not define (it has: {})",
-                    mesh.display(),
+                    "the override names material '{name}', which the scene does not define (it has: {})",
                     if known.is_empty() {
                         "none".to_string()
                     } else {
@@ -229,19 +451,23 @@ pub fn load(path: &Path) -> Result<(Scene, Vec<String>), SceneError> {
                     }
                 ),
             ));
-        };
-        for &id in ids {
-            ov.apply(&mut builder.materials_mut()[id as usize]);
+        }
+        for id in ids {
+            ov.apply(&mut builder.materials_mut()[id]);
         }
     }
-    let c = &manifest.camera;
-    builder.camera(Camera {
-        eye: Vec3::from_array(c.eye),
-        target: Vec3::from_array(c.target),
-        up: Vec3::from_array(c.up),
-        vfov_deg: c.vfov_deg,
-        aspect: c.aspect,
-    });
+    for (i, spec) in manifest.instances.iter().enumerate() {
+        instances.push(add_instance(spec, i, path, builder)?);
+    }
+    if let Some(c) = &manifest.camera {
+        builder.camera(Camera {
+            eye: Vec3::from_array(c.eye),
+            target: Vec3::from_array(c.target),
+            up: Vec3::from_array(c.up),
+            vfov_deg: c.vfov_deg,
+            aspect: c.aspect,
+        });
+    }
     for l in &manifest.lights {
         builder.light(Light {
             position: Vec3::from_array(l.position),
@@ -250,7 +476,117 @@ pub fn load(path: &Path) -> Result<(Scene, Vec<String>), SceneError> {
             attenuation: l.attenuation,
         });
     }
-    builder.build_with_warnings(&path.display().to_string())
+    if manifest.mesh.is_none() && manifest.extends.is_none() && manifest.instances.is_empty() {
+        return Err(SceneError::invalid(
+            here,
+            "nothing to load: give a mesh, an extends or [[instances]]",
+        ));
+    }
+    Ok(())
+}
+
+fn check_obj(mesh: &Path, context: &str) -> Result<(), SceneError> {
+    let ok = mesh
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("obj"));
+    if ok {
+        Ok(())
+    } else {
+        Err(SceneError::invalid(
+            context,
+            format!("mesh '{}' is not an .obj file", mesh.display()),
+        ))
+    }
+}
+
+/// Adds instance `index` of the manifest at `path` to `builder` (in object space; the
+/// [`AnimatedScene`] places it).
+fn add_instance(
+    spec: &InstanceSpec,
+    index: usize,
+    path: &Path,
+    builder: &mut SceneBuilder,
+) -> Result<Instance, SceneError> {
+    let label = format!(
+        "{}: instance #{index}{}",
+        path.display(),
+        spec.name
+            .as_deref()
+            .map(|n| format!(" '{n}'"))
+            .unwrap_or_default()
+    );
+    let bad = |m: String| SceneError::invalid(&label, m);
+    let placement = spec.placement().map_err(bad)?;
+    for m in &spec.motion {
+        m.validate().map_err(bad)?;
+    }
+    let (v0, m0, t0, mat0) = (
+        builder.positions().len(),
+        builder.mesh_count(),
+        builder.triangle_count(),
+        builder.materials().len(),
+    );
+    let name = match (&spec.mesh, spec.shape) {
+        (Some(mesh), None) => {
+            let file = relative_to(path, mesh);
+            check_obj(&file, &label)?;
+            crate::obj::read(&file, builder)?;
+            spec.name.clone().unwrap_or_else(|| {
+                file.file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| format!("instance-{index}"))
+            })
+        }
+        (None, Some(shape)) => {
+            let name = spec
+                .name
+                .clone()
+                .unwrap_or_else(|| format!("{shape:?}-{index}").to_lowercase());
+            let (max, default) = match shape {
+                Shape::Icosphere => (MAX_SUBDIVISIONS[0], 2),
+                Shape::Box => (MAX_SUBDIVISIONS[1], 1),
+                Shape::Grid => (MAX_SUBDIVISIONS[2], 16),
+            };
+            let n = spec.subdivisions.unwrap_or(default);
+            if n > max || (n == 0 && shape != Shape::Icosphere) {
+                return Err(bad(format!(
+                    "subdivisions {n} of a {shape:?} must be in {}..={max}",
+                    u32::from(shape != Shape::Icosphere)
+                )));
+            }
+            let g = match shape {
+                Shape::Icosphere => Geometry::icosphere(Vec3::ZERO, 1.0, n),
+                Shape::Box => Geometry::subdivided_box(n),
+                Shape::Grid => Geometry::grid(n),
+            };
+            let mat = builder.material(Material {
+                name: name.clone(),
+                ..Material::default()
+            });
+            builder.mesh(
+                name.clone(),
+                &g.positions,
+                Some(&g.normals),
+                &g.indices,
+                mat,
+            );
+            name
+        }
+        _ => return Err(bad("give exactly one of mesh and shape".into())),
+    };
+    if let Some(ov) = &spec.material {
+        for m in &mut builder.materials_mut()[mat0..] {
+            ov.apply(m);
+        }
+    }
+    Ok(Instance::new(
+        name,
+        v0..builder.positions().len(),
+        m0..builder.mesh_count(),
+        t0..builder.triangle_count(),
+        placement,
+        spec.motion.clone(),
+    ))
 }
 
 /// A manifest found by [`list`].

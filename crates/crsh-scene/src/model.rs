@@ -269,7 +269,7 @@ pub struct Mesh {
 }
 
 /// A scene: flat arrays, no graph.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Scene {
     /// Name used in reports.
     pub name: String,
@@ -469,6 +469,22 @@ impl SceneBuilder {
     /// The vertex positions added so far (all meshes).
     pub fn positions(&self) -> &[Vec3] {
         &self.positions
+    }
+
+    /// Number of triangles added so far.
+    pub fn triangle_count(&self) -> usize {
+        self.indices.len()
+    }
+
+    /// The scene's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Renames the scene.
+    pub fn rename(&mut self, name: impl Into<String>) -> &mut Self {
+        self.name = name.into();
+        self
     }
 
     /// Number of meshes added so far.

@@ -5,34 +5,74 @@
 //! - [`office_boxes`]: a deterministic procedural office with ~140 separate meshes and two
 //!   lights (shadow-ray work), plus one glass and one mirror object.
 //!
+//! - `cornell-mirrors-animated`: `cornell-mirrors` with a spinning, bouncing cube, a waving
+//!   flag and a twisting column ([`CORNELL_MIRRORS_ANIMATED`], a manifest of built-in shapes:
+//!   see [`crate::animation`]).
+//!
 //! Every built-in is deterministic: the same arrays on every call and machine.
 
 pub mod cornell_mirrors;
 pub mod office_boxes;
 
+use std::path::Path;
+
 use glam::Vec3;
 
+use crate::animation::AnimatedScene;
 use crate::error::SceneError;
-use crate::model::Scene;
+use crate::manifest::Manifest;
+use crate::model::{Scene, SceneBuilder};
 
 /// Names of the built-in scenes, as accepted by [`build`] and [`crate::load`].
-pub const NAMES: &[&str] = &["cornell-mirrors", "office-boxes"];
+pub const NAMES: &[&str] = &[
+    "cornell-mirrors",
+    "office-boxes",
+    "cornell-mirrors-animated",
+];
 
-/// Builds the built-in scene `name` (one of [`NAMES`]).
+/// The built-ins that never move (a manifest may `extends` them).
+pub const STATIC_NAMES: &[&str] = &["cornell-mirrors", "office-boxes"];
+
+/// The manifest of `cornell-mirrors-animated`: the built-in `cornell-mirrors` plus a cube that
+/// spins and bounces (rigid: rotation and keyframes), a flag that waves and a column that
+/// twists (deforming: every vertex moves relative to the others).
+pub const CORNELL_MIRRORS_ANIMATED: &str = include_str!("cornell_mirrors_animated.toml");
+
+/// The builder of the static built-in `name` (one of [`STATIC_NAMES`]).
+pub fn builder(name: &str) -> Result<SceneBuilder, SceneError> {
+    match name {
+        "cornell-mirrors" => Ok(cornell_mirrors::builder()),
+        "office-boxes" => Ok(office_boxes::builder()),
+        _ => Err(unknown(name)),
+    }
+}
+
+fn unknown(name: &str) -> SceneError {
+    SceneError::invalid(
+        format!("built-in scene '{name}'"),
+        format!("unknown (built-ins: {})", NAMES.join(", ")),
+    )
+}
+
+/// Builds the built-in scene `name` (one of [`NAMES`]; an animated one at frame 0).
 pub fn build(name: &str) -> Result<Scene, SceneError> {
     build_with_warnings(name).map(|(s, _)| s)
 }
 
 /// [`build`], also returning the (normally empty) build warnings.
 pub fn build_with_warnings(name: &str) -> Result<(Scene, Vec<String>), SceneError> {
-    match name {
-        "cornell-mirrors" => cornell_mirrors::builder().build_with_warnings(name),
-        "office-boxes" => office_boxes::builder().build_with_warnings(name),
-        _ => Err(SceneError::invalid(
-            format!("built-in scene '{name}'"),
-            format!("unknown (built-ins: {})", NAMES.join(", ")),
-        )),
+    animated_with_warnings(name).map(|(a, w)| (a.into_scene(), w))
+}
+
+/// The built-in scene `name` as an animated scene (one that never moves for the static ones).
+pub fn animated_with_warnings(name: &str) -> Result<(AnimatedScene, Vec<String>), SceneError> {
+    if name == "cornell-mirrors-animated" {
+        let path = Path::new("cornell-mirrors-animated.toml");
+        let manifest = Manifest::parse(CORNELL_MIRRORS_ANIMATED, path)?;
+        return crate::manifest::build_animated(&manifest, path);
     }
+    let (scene, warnings) = builder(name)?.build_with_warnings(name)?;
+    Ok((AnimatedScene::fixed(scene), warnings))
 }
 
 /// Indexed triangle geometry with per-vertex normals.
@@ -78,6 +118,69 @@ impl Geometry {
         g.quad(v(x0, y0, z0), v(x1, y0, z0), v(x1, y0, z1), v(x0, y0, z1)); // -y
         g.quad(v(x0, y0, z1), v(x1, y0, z1), v(x1, y1, z1), v(x0, y1, z1)); // +z
         g.quad(v(x0, y0, z0), v(x0, y1, z0), v(x1, y1, z0), v(x1, y0, z0)); // -z
+        g
+    }
+
+    /// The cube `[-1, 1]³`, each face split into `n × n` quads, faces outward, flat normals.
+    pub(crate) fn subdivided_box(n: u32) -> Geometry {
+        let mut g = Geometry::default();
+        let n = n.max(1);
+        let step = 2.0 / n as f32;
+        for axis in 0..3 {
+            for sign in [-1.0f32, 1.0] {
+                let normal =
+                    Vec3::from_array(std::array::from_fn(|k| if k == axis { sign } else { 0.0 }));
+                let (u, v) = (
+                    Vec3::from_array(std::array::from_fn(|k| {
+                        f32::from(u8::from(k == (axis + 1) % 3))
+                    })),
+                    Vec3::from_array(std::array::from_fn(|k| {
+                        f32::from(u8::from(k == (axis + 2) % 3))
+                    })),
+                );
+                for i in 0..n {
+                    for j in 0..n {
+                        let corner = |a: u32, b: u32| {
+                            normal + u * (-1.0 + step * a as f32) + v * (-1.0 + step * b as f32)
+                        };
+                        g.quad_facing(
+                            corner(i, j),
+                            corner(i + 1, j),
+                            corner(i + 1, j + 1),
+                            corner(i, j + 1),
+                            normal,
+                        );
+                    }
+                }
+            }
+        }
+        g
+    }
+
+    /// The square `[-1, 1]²` of the `xz` plane (`y = 0`) facing `+y`, as `n × n` quads with
+    /// shared vertices (so a deformation keeps it closed).
+    pub(crate) fn grid(n: u32) -> Geometry {
+        let n = n.max(1);
+        let mut g = Geometry::default();
+        let step = 2.0 / n as f32;
+        for j in 0..=n {
+            for i in 0..=n {
+                g.positions.push(Vec3::new(
+                    -1.0 + step * i as f32,
+                    0.0,
+                    -1.0 + step * j as f32,
+                ));
+                g.normals.push(Vec3::Y);
+            }
+        }
+        let id = |i: u32, j: u32| j * (n + 1) + i;
+        for j in 0..n {
+            for i in 0..n {
+                // Counter-clockwise seen from +y.
+                g.indices.push([id(i, j), id(i, j + 1), id(i + 1, j + 1)]);
+                g.indices.push([id(i, j), id(i + 1, j + 1), id(i + 1, j)]);
+            }
+        }
         g
     }
 
