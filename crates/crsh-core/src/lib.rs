@@ -56,7 +56,7 @@ pub use config::{ParamInfo, ParamValue, PipelineConfig, StageKind, StageSpec, St
 pub use error::{panic_message, CoreError, Result};
 pub use pipeline::{
     count_self_hits, render_frame, timed, trace_batch, Frame, FrameOptions, FrameSize, Pipeline,
-    Progress, Stages, MAX_DEPTH, MAX_IMAGE_SIDE,
+    Progress, StageBuild, Stages, MAX_DEPTH, MAX_IMAGE_SIDE,
 };
 pub use ray::{Hit, HitMode, Ray, RayKind, Surface, NO_HIT};
 pub use registry::{BuiltinVariants, Preset, Registry, StageContext};

@@ -202,6 +202,26 @@ pub struct Pipeline<B: Backend> {
     pub frame: FrameSize,
     /// Triangles in the scene the stages were built for: the `M` of brute force's `N × M`.
     pub triangles: u64,
+    /// What building each stage did and took, in construction order (empty for a pipeline
+    /// assembled by hand).
+    pub builds: Vec<StageBuild>,
+}
+
+/// What building one stage of a [`Pipeline`] did and took: for an intersector that is its
+/// acceleration structure over the scene (an object BVH, a grid), built or refitted; for the
+/// other stages little more than keeping the scene's arrays. The per-frame rebuild cost of a
+/// dynamic scene ([`crate::Registry::rebuild`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StageBuild {
+    /// The slot key (`intersect`, `traverse`, ...).
+    pub slot: String,
+    /// The variant built.
+    pub variant: String,
+    /// Wall time, ms (after a backend sync, so device work is included).
+    pub ms: f64,
+    /// Whether the stage refitted the previous frame's structure instead of building anew
+    /// ([`crate::Intersector::refit`]).
+    pub refit: bool,
 }
 
 impl<B: Backend> Pipeline<B> {

@@ -56,6 +56,7 @@
 //! ```
 
 use std::sync::Arc;
+use std::time::Instant;
 
 use crate::backend::{Backend, StageScene};
 use crate::config::{
@@ -63,7 +64,9 @@ use crate::config::{
     StageVariantInfo,
 };
 use crate::error::{CoreError, Result};
-use crate::pipeline::{render_frame, Frame, FrameOptions, FrameSize, Pipeline, Progress, Stages};
+use crate::pipeline::{
+    render_frame, Frame, FrameOptions, FrameSize, Pipeline, Progress, StageBuild, Stages,
+};
 use crate::stage::{
     Hasher, HierarchyBuilder, Intersector, PrimaryVisibility, RayGen, Shader, Sorter, Traverser,
 };
@@ -391,29 +394,88 @@ impl<B: Backend> Registry<B> {
     /// nothing is constructed when it fails), constructs every filled slot, and checks the
     /// stage objects fit together ([`Stages::check`]).
     pub fn build(&self, ctx: &StageContext<'_, B>, cfg: &PipelineConfig) -> Result<Pipeline<B>> {
+        self.build_from(ctx, cfg, None)
+    }
+
+    /// The pipeline `previous` (built by this registry) for a scene whose geometry changed
+    /// (`ctx.scene`: same triangles, moved): every stage is constructed again for the new
+    /// scene, except an intersector that can refit its structure ([`Intersector::refit`]),
+    /// which does. [`Pipeline::builds`] says what each stage did and how long it took: the
+    /// per-frame rebuild cost of a dynamic scene.
+    pub fn rebuild(
+        &self,
+        ctx: &StageContext<'_, B>,
+        previous: &Pipeline<B>,
+    ) -> Result<Pipeline<B>> {
+        self.build_from(ctx, &previous.config, Some(previous))
+    }
+
+    fn build_from(
+        &self,
+        ctx: &StageContext<'_, B>,
+        cfg: &PipelineConfig,
+        previous: Option<&Pipeline<B>>,
+    ) -> Result<Pipeline<B>> {
         let mut cfg = cfg.clone();
         self.resolve(&mut cfg)?;
+        let mut builds = Vec::new();
+        let mut done =
+            |slot: StageKind, spec: &StageSpec, refit: bool, t0: Instant| -> Result<()> {
+                ctx.backend.sync()?;
+                builds.push(StageBuild {
+                    slot: slot.key().to_string(),
+                    variant: spec.kind.clone(),
+                    ms: t0.elapsed().as_secs_f64() * 1e3,
+                    refit,
+                });
+                Ok(())
+            };
+        macro_rules! slot {
+            ($slot:ident, $spec:expr) => {{
+                let spec: &StageSpec = $spec;
+                let t0 = Instant::now();
+                let stage = construct!(self, ctx, $slot, spec);
+                done(StageKind::$slot, spec, false, t0)?;
+                stage
+            }};
+        }
+        macro_rules! optional {
+            ($slot:ident, $spec:expr) => {
+                match $spec {
+                    Some(spec) => Some(slot!($slot, spec)),
+                    None => None,
+                }
+            };
+        }
+        let primary = slot!(Primary, &cfg.primary);
+        let raygen = slot!(Raygen, &cfg.raygen);
+        let hasher = optional!(Hash, &cfg.hash);
+        let sorter = optional!(Sort, &cfg.sort);
+        let hierarchy = optional!(Hierarchy, &cfg.hierarchy);
+        let traverser = optional!(Traverse, &cfg.traverse);
+        let t0 = Instant::now();
+        let refitted = match previous {
+            Some(p) if p.config.intersect == cfg.intersect => p.stages.intersector.refit(ctx),
+            _ => None,
+        };
+        let intersector = match refitted {
+            Some(result) => {
+                let stage = result?;
+                done(StageKind::Intersect, &cfg.intersect, true, t0)?;
+                stage
+            }
+            None => slot!(Intersect, &cfg.intersect),
+        };
+        let shader = slot!(Shade, &cfg.shade);
         let stages = Stages {
-            primary: construct!(self, ctx, Primary, &cfg.primary),
-            raygen: construct!(self, ctx, Raygen, &cfg.raygen),
-            hasher: match &cfg.hash {
-                Some(spec) => Some(construct!(self, ctx, Hash, spec)),
-                None => None,
-            },
-            sorter: match &cfg.sort {
-                Some(spec) => Some(construct!(self, ctx, Sort, spec)),
-                None => None,
-            },
-            hierarchy: match &cfg.hierarchy {
-                Some(spec) => Some(construct!(self, ctx, Hierarchy, spec)),
-                None => None,
-            },
-            traverser: match &cfg.traverse {
-                Some(spec) => Some(construct!(self, ctx, Traverse, spec)),
-                None => None,
-            },
-            intersector: construct!(self, ctx, Intersect, &cfg.intersect),
-            shader: construct!(self, ctx, Shade, &cfg.shade),
+            primary,
+            raygen,
+            hasher,
+            sorter,
+            hierarchy,
+            traverser,
+            intersector,
+            shader,
         };
         stages.check()?;
         Ok(Pipeline {
@@ -421,6 +483,7 @@ impl<B: Backend> Registry<B> {
             stages,
             frame: ctx.frame,
             triangles: ctx.scene.triangle_count() as u64,
+            builds,
         })
     }
 

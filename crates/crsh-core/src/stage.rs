@@ -14,6 +14,7 @@ use crate::backend::Backend;
 use crate::bounds::SphereCone;
 use crate::error::Result;
 use crate::ray::{Hit, HitMode, Ray, RayKind, Surface};
+use crate::registry::StageContext;
 use crate::stats::Stats;
 
 /// Stage 1: primary visibility. Rasterization in the thesis (§3.1), or ray casting.
@@ -175,6 +176,16 @@ pub trait Intersector<B: Backend>: Send + Sync {
     /// pair them with a hierarchy are rejected when they are built.
     fn supports_candidates(&self) -> bool {
         true
+    }
+    /// For a scene whose triangles moved (`ctx.scene`: the same triangles, new positions), an
+    /// intersector that reuses this one's work instead of building anew, e.g. a BVH whose
+    /// boxes are refitted over its kept topology; `None` (the default) when the variant has
+    /// nothing to reuse, and [`crate::Registry::rebuild`] constructs it again. The result must
+    /// answer queries exactly as a fresh build would (the same hits), however its speed
+    /// degrades.
+    fn refit(&self, ctx: &StageContext<'_, B>) -> Option<Result<Box<dyn Intersector<B>>>> {
+        let _ = ctx;
+        None
     }
     /// Tests `rays` as `query` says and merges the results into `hits` (one per ray, same
     /// order; pass a buffer of [`Hit::MISS`] to start): for [`HitMode::Closest`] a hit replaces

@@ -40,6 +40,7 @@
 #![warn(missing_docs)]
 
 pub mod error;
+pub mod frames;
 pub mod output;
 pub mod registries;
 pub mod renderer;
@@ -55,9 +56,10 @@ pub use crsh_core::{
     StageContext, StageKind, StageSpec, StageVariantInfo, Stats,
 };
 pub use crsh_cpu::Cpu;
-pub use crsh_scene::Scene;
+pub use crsh_scene::{AnimatedScene, Scene};
 pub use crsh_wgpu::Wgpu;
 pub use error::{Error, Result};
+pub use frames::{render_frames, FrameRender, FramesReport, FramesRequest, UpdateReport};
 pub use registries::{BackendKind, Registries};
 pub use renderer::{Built, HostFrame, Render, RenderRequest, Renderer};
 pub use report::{AccuracyReport, AdapterReport, SceneInfo, SetupTimes, StatsReport};

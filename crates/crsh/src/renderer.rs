@@ -13,7 +13,7 @@ use std::time::Instant;
 use crsh_core::metrics::to_rgba8;
 use crsh_core::{
     Backend, CoreError, FrameOptions, FrameSize, Intersector, Pipeline, PipelineConfig, Progress,
-    StageContext, StageSpec, Stats,
+    StageBuild, StageContext, StageSpec, Stats,
 };
 use crsh_cpu::Cpu;
 use crsh_scene::Scene;
@@ -175,9 +175,13 @@ impl Render {
     }
 }
 
-/// A pipeline built by a [`Renderer`] for one frame size, ready to render frames.
-pub struct Built<'a> {
-    renderer: &'a Renderer<'a>,
+/// A pipeline built by a [`Renderer`] for one frame size, ready to render frames. It keeps
+/// the scene it was built for (not the renderer), so it may outlive the renderer: the frames
+/// of an animation rebuild it for the next frame's scene ([`Renderer::rebuild`]).
+pub struct Built<'r> {
+    registries: &'r Registries,
+    scene: Arc<Scene>,
+    gpu: Option<Arc<GpuScene>>,
     inner: BuiltInner,
     build_ms: f64,
 }
@@ -261,10 +265,57 @@ impl<'r> Renderer<'r> {
         StageContext::new(&Cpu, &self.scene, frame)
     }
 
+    fn built(&self, inner: BuiltInner, t0: Instant) -> Built<'r> {
+        Built {
+            registries: self.registries,
+            scene: Arc::clone(&self.scene),
+            gpu: self.gpu.clone(),
+            inner,
+            build_ms: t0.elapsed().as_secs_f64() * 1e3,
+        }
+    }
+
+    /// `previous` (built by a renderer of the same backend for the same triangles, e.g. the
+    /// last frame of an animation) rebuilt for this renderer's scene
+    /// ([`crsh_core::Registry::rebuild`]: every stage constructed again, except intersectors
+    /// that refit; [`Built::builds`] says what each did).
+    ///
+    /// # Errors
+    /// [`CoreError::InvalidInput`] when `previous` ran on the other backend or for another
+    /// triangle count; what building a stage returns.
+    pub fn rebuild(&self, previous: Built<'_>) -> Result<Built<'r>> {
+        if previous.scene.triangle_count() != self.scene.triangle_count() {
+            return Err(CoreError::InvalidInput(format!(
+                "rebuild: the pipeline was built for {} triangles, the scene has {}",
+                previous.scene.triangle_count(),
+                self.scene.triangle_count()
+            ))
+            .into());
+        }
+        let t0 = Instant::now();
+        let inner = match (&previous.inner, &self.gpu) {
+            (BuiltInner::Cpu(p), None) => {
+                BuiltInner::Cpu(self.registries.cpu.rebuild(&self.cpu_context(p.frame), p)?)
+            }
+            (BuiltInner::Wgpu(p), Some(g)) => {
+                let ctx = StageContext::new(&g.backend, g, p.frame);
+                BuiltInner::Wgpu(self.registries.wgpu.rebuild(&ctx, p)?)
+            }
+            _ => {
+                return Err(CoreError::InvalidInput(
+                    "rebuild: the pipeline ran on the other backend".into(),
+                )
+                .into())
+            }
+        };
+        drop(previous);
+        Ok(self.built(inner, t0))
+    }
+
     /// Builds `cfg` for `frame` on this renderer's backend: resolved against that backend's
     /// registry ([`Registries::resolve`]: a variant only the other backend has is
     /// [`CoreError::Unsupported`]), then constructed and timed.
-    pub fn build(&self, cfg: &PipelineConfig, frame: FrameSize) -> Result<Built<'_>> {
+    pub fn build(&self, cfg: &PipelineConfig, frame: FrameSize) -> Result<Built<'r>> {
         let cfg = self.registries.resolve(cfg, self.backend())?;
         let t0 = Instant::now();
         let inner = match &self.gpu {
@@ -274,11 +325,7 @@ impl<'r> Renderer<'r> {
                 BuiltInner::Wgpu(self.registries.wgpu.build(&ctx, &cfg)?)
             }
         };
-        Ok(Built {
-            renderer: self,
-            inner,
-            build_ms: t0.elapsed().as_secs_f64() * 1e3,
-        })
+        Ok(self.built(inner, t0))
     }
 
     /// The reference pipeline of `cfg` with the intersector `intersect`
@@ -386,6 +433,14 @@ impl Built<'_> {
         self.build_ms
     }
 
+    /// What building each stage did and took ([`crsh_core::Pipeline::builds`]).
+    pub fn builds(&self) -> &[StageBuild] {
+        match &self.inner {
+            BuiltInner::Cpu(p) => &p.builds,
+            BuiltInner::Wgpu(p) => &p.builds,
+        }
+    }
+
     /// Renders one frame and reads it back. With `reference` (an intersector spec of the CPU
     /// registry), every batch is traced again by it on the host and
     /// [`Stats::accuracy`] is filled.
@@ -395,13 +450,12 @@ impl Built<'_> {
         reference: Option<&StageSpec>,
         progress: &mut dyn FnMut(Progress),
     ) -> Result<HostFrame> {
-        let r = self.renderer;
         let cpu_reference = |frame: FrameSize| -> Result<Option<Box<dyn Intersector<Cpu>>>> {
             Ok(reference
                 .map(|spec| {
-                    r.registries
+                    self.registries
                         .cpu
-                        .build_intersector(&r.cpu_context(frame), spec)
+                        .build_intersector(&StageContext::new(&Cpu, &self.scene, frame), spec)
                 })
                 .transpose()?)
         };
@@ -415,7 +469,7 @@ impl Built<'_> {
                 })
             }
             BuiltInner::Wgpu(p) => {
-                let g = r
+                let g = self
                     .gpu
                     .as_ref()
                     .expect("a wgpu pipeline is built by a wgpu renderer");

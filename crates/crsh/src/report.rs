@@ -72,7 +72,7 @@ pub struct RaysReport {
 }
 
 /// Intersection tests, plus derived ratios.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct TestsReport {
     /// Bounding-volume tests (BVH node boxes, hierarchy nodes vs spheres).
     pub bounds: u64,
@@ -89,7 +89,8 @@ pub struct TestsReport {
 }
 
 impl TestsReport {
-    fn new(t: &TestCounts, traced: u64) -> TestsReport {
+    /// The counts `t` with their ratios over `traced` rays.
+    pub fn new(t: &TestCounts, traced: u64) -> TestsReport {
         TestsReport {
             bounds: t.bounds,
             ray_triangle: t.ray_triangle,
@@ -135,7 +136,7 @@ pub struct AccuracyReport {
 }
 
 /// Wall time spent before the frame (not part of `timings_ms`).
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct SetupTimes {
     /// Loading and validating the scene (OBJ / manifest parsing, normals, bounding spheres), ms.
     pub scene_load_ms: f64,

@@ -37,6 +37,19 @@
 //!   their triangle fragments, which would break the guarantee above. Everything else of the
 //!   preset (PLOC search distance, reinsertion, sort precision) is kept.
 //!
+//! # Moving geometry (`update`)
+//!
+//! For a dynamic scene the pipeline is rebuilt every frame ([`crsh_core::Registry::rebuild`]).
+//! With `update = "rebuild"` (the default) the BVH is built anew with `build_quality`. With
+//! `update = "refit"` the binary tree obvhs builds before compressing it to 8-wide nodes
+//! (`Bvh2`) is kept; the next frame recomputes its leaf boxes from the moved triangles,
+//! refits the inner boxes bottom-up (`Bvh2::refit_all`) and compresses it again
+//! (`bvh2_to_cwbvh`: obvhs has no in-place refit of the compressed layout). The topology stays
+//! that of the frame it was built for, so traversal degrades as the geometry moves away from
+//! it (Wald, Boulos and Shirley 2007); hits do not (the boxes bound the moved triangles). When
+//! the set of triangles the test can hit changes (one becomes degenerate or stops being), the
+//! kept tree does not hold the right primitives and the BVH is built anew instead.
+//!
 //! # Counting
 //!
 //! `stats.add_bounds`: one per non-empty child box tested (each node visited tests all its
@@ -53,12 +66,15 @@ use std::time::Duration;
 
 use crsh_core::glam::{UVec2, Vec3, Vec3A};
 use crsh_core::{
-    CoreError, Hit, HitMode, Intersector, ParamInfo, Query, Ray, Registry, Result, StageKind,
-    StageSpec, StageVariantInfo, Stats,
+    CoreError, Hit, HitMode, Intersector, ParamInfo, Query, Ray, Registry, Result, StageContext,
+    StageKind, StageSpec, StageVariantInfo, Stats,
 };
 use crsh_scene::Scene;
-use obvhs::cwbvh::builder::build_cwbvh_from_tris;
+use obvhs::bvh2::reinsertion::ReinsertionOptimizer;
+use obvhs::bvh2::Bvh2;
+use obvhs::cwbvh::bvh2_to_cwbvh::bvh2_to_cwbvh;
 use obvhs::cwbvh::node::CwBvhNode;
+use obvhs::ploc::PlocBuilder;
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 use rayon::prelude::*;
@@ -126,6 +142,16 @@ pub struct CwBvh {
     leaf_ids: Vec<u32>,
     quality: BuildQuality,
     build_time: Duration,
+    /// The binary tree and its primitives' scene ids, kept for the next frame's refit
+    /// (`update = "refit"`); taken by the refit that uses it.
+    refit: Option<Box<std::sync::Mutex<Option<RefitState>>>>,
+}
+
+/// What a refit of the next frame needs: the binary tree before compression and the scene
+/// triangle id of each of its primitives.
+struct RefitState {
+    bvh2: Bvh2,
+    ids: Vec<u32>,
 }
 
 /// The leaf triangles prepared for one ray-triangle test (matched once per query).
@@ -163,6 +189,13 @@ pub fn info() -> StageVariantInfo {
         "obvhs build preset: faster builds or better trees",
     ))
     .param(ParamInfo::choice(
+        "update",
+        "rebuild",
+        &["rebuild", "refit"],
+        "per frame of a moving scene: build anew with `build_quality`, or refit the boxes of \
+         the first frame's tree (obvhs `Bvh2::refit_all`, then re-compression to 8-wide nodes)",
+    ))
+    .param(ParamInfo::choice(
         "test",
         "mt",
         crate::triangle::TEST_NAMES,
@@ -181,6 +214,36 @@ pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
     Ok(())
 }
 
+/// The scene ids of the triangles test `test` can hit (degenerate ones stay out of the tree)
+/// and those triangles in obvhs's form.
+fn hittable_triangles(scene: &Scene, test: TestKind) -> (Vec<u32>, Vec<Triangle>) {
+    fn hittable<T: TriangleTest>(tri: [Vec3; 3]) -> bool {
+        !T::is_degenerate(&T::prepare(tri[0], tri[1], tri[2]))
+    }
+    let keep = match test {
+        TestKind::MollerTrumbore => hittable::<MollerTrumbore>,
+        TestKind::Watertight => hittable::<Watertight>,
+        TestKind::Projected => hittable::<Projected>,
+    };
+    (0..scene.triangle_count())
+        .into_par_iter()
+        .filter_map(|t| {
+            let tri = scene.triangle(t);
+            keep(tri).then(|| {
+                let [a, b, c] = tri;
+                (
+                    t as u32,
+                    Triangle {
+                        v0: a.into(),
+                        v1: b.into(),
+                        v2: c.into(),
+                    },
+                )
+            })
+        })
+        .unzip()
+}
+
 impl CwBvh {
     /// Builds the BVH of `scene` with `spec.build_quality` (`fast` | `medium` | `slow`), its
     /// leaves prepared for `spec.test` (`mt` | `watertight` | `projected`).
@@ -190,11 +253,63 @@ impl CwBvh {
             key: "bvh.build_quality".into(),
             reason: format!("`{name}` is not one of {}", BuildQuality::NAMES.join(", ")),
         })?;
-        Ok(CwBvh::build_with_test(
-            scene,
-            quality,
-            test_kind(spec, "bvh")?,
-        ))
+        let refit = match spec.str("update")? {
+            "rebuild" => false,
+            "refit" => true,
+            other => {
+                return Err(CoreError::InvalidParam {
+                    key: "bvh.update".into(),
+                    reason: format!("`{other}` is not one of rebuild, refit"),
+                })
+            }
+        };
+        let mut bvh = CwBvh::build_with_test(scene, quality, test_kind(spec, "bvh")?);
+        if !refit {
+            bvh.refit = None;
+        }
+        Ok(bvh)
+    }
+
+    /// The BVH of `scene` (the same triangles as the one this was built for, moved) from this
+    /// one's kept binary tree: leaf boxes recomputed, inner boxes refitted, the tree compressed
+    /// again. `None` when nothing was kept (`update = "rebuild"`, or already refitted from) or
+    /// the triangles the test can hit are not the same set.
+    pub fn refitted(&self, scene: &Scene) -> Option<CwBvh> {
+        let state = self.refit.as_ref()?.lock().ok()?.take()?;
+        let RefitState { mut bvh2, ids } = state;
+        let test = self.test();
+        let (current, tris) = hittable_triangles(scene, test);
+        if current != ids {
+            return None;
+        }
+        let t0 = std::time::Instant::now();
+        let prims = &bvh2.primitive_indices;
+        bvh2.nodes.par_iter_mut().for_each(|node| {
+            if node.is_leaf() {
+                let first = node.first_index as usize;
+                let count = node.prim_count as usize;
+                let aabb = prims[first..first + count]
+                    .iter()
+                    .map(|&p| tris[p as usize].aabb())
+                    .reduce(|a, b| a.union(&b))
+                    .unwrap_or_else(|| *node.aabb());
+                node.set_aabb(aabb);
+            }
+        });
+        bvh2.refit_all();
+        let bvh = bvh2_to_cwbvh(
+            &bvh2,
+            self.quality.params().max_prims_per_leaf.clamp(1, 3),
+            true,
+            false,
+        );
+        let build_time = t0.elapsed();
+        let mut out = CwBvh::assemble(scene, bvh, &current, test, self.quality, build_time);
+        out.refit = Some(Box::new(std::sync::Mutex::new(Some(RefitState {
+            bvh2,
+            ids,
+        }))));
+        Some(out)
     }
 
     /// Builds the BVH of `scene` with the given preset, for Möller-Trumbore.
@@ -204,37 +319,46 @@ impl CwBvh {
 
     /// Builds the BVH of `scene` with the given preset, its leaves prepared for test `test`.
     pub fn build_with_test(scene: &Scene, quality: BuildQuality, test: TestKind) -> CwBvh {
-        // Each test decides which triangles are degenerate (never hit): those stay out.
-        fn hittable<T: TriangleTest>(tri: [Vec3; 3]) -> bool {
-            !T::is_degenerate(&T::prepare(tri[0], tri[1], tri[2]))
-        }
-        let keep = match test {
-            TestKind::MollerTrumbore => hittable::<MollerTrumbore>,
-            TestKind::Watertight => hittable::<Watertight>,
-            TestKind::Projected => hittable::<Projected>,
-        };
-        let prepared: Vec<(u32, [Vec3; 3])> = (0..scene.triangle_count())
-            .map(|t| (t as u32, scene.triangle(t)))
-            .filter(|(_, tri)| keep(*tri))
-            .collect();
-        let tris: Vec<Triangle> = prepared
-            .iter()
-            .map(|(_, [a, b, c])| Triangle {
-                v0: (*a).into(),
-                v1: (*b).into(),
-                v2: (*c).into(),
-            })
-            .collect();
+        let (ids, tris) = hittable_triangles(scene, test);
         let mut build_time = Duration::ZERO;
-        let bvh = if tris.is_empty() {
-            obvhs::cwbvh::CwBvh::default()
+        let (bvh, bvh2) = if tris.is_empty() {
+            (obvhs::cwbvh::CwBvh::default(), None)
         } else {
-            build_cwbvh_from_tris(&tris, quality.params(), &mut build_time)
+            // What obvhs's `build_cwbvh_from_tris` does without pre-splits (never used here,
+            // see the module doc), keeping the binary tree for a refit.
+            let params = quality.params();
+            let t0 = std::time::Instant::now();
+            let mut bvh2 = PlocBuilder::with_capacity(tris.len()).build(
+                params.ploc_search_distance,
+                &tris,
+                (0..tris.len() as u32).collect::<Vec<_>>(),
+                params.sort_precision,
+                params.search_depth_threshold,
+            );
+            ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
+            let bvh = bvh2_to_cwbvh(&bvh2, params.max_prims_per_leaf.clamp(1, 3), true, false);
+            build_time = t0.elapsed();
+            (bvh, Some(bvh2))
         };
+        let mut out = CwBvh::assemble(scene, bvh, &ids, test, quality, build_time);
+        out.refit =
+            bvh2.map(|bvh2| Box::new(std::sync::Mutex::new(Some(RefitState { bvh2, ids }))));
+        out
+    }
+
+    /// The intersector of the compressed tree `bvh` over the triangles `ids` of `scene`.
+    fn assemble(
+        scene: &Scene,
+        bvh: obvhs::cwbvh::CwBvh,
+        ids: &[u32],
+        test: TestKind,
+        quality: BuildQuality,
+        build_time: Duration,
+    ) -> CwBvh {
         let leaf_ids: Vec<u32> = bvh
             .primitive_indices
             .iter()
-            .map(|&i| prepared[i as usize].0)
+            .map(|&i| ids[i as usize])
             .collect();
         fn leaves<T: TriangleTest>(scene: &Scene, ids: &[u32]) -> Vec<T::Tri> {
             TriangleSet::<T>::from_triangles(ids.iter().map(|&t| scene.triangle(t as usize)))
@@ -256,6 +380,7 @@ impl CwBvh {
             leaf_ids,
             quality,
             build_time,
+            refit: None,
         }
     }
 
@@ -429,6 +554,11 @@ pub fn child_hits(node: &CwBvhNode, nr: &NodeRay, oct_inv4: u32, t_lo: f32, t_hi
 impl Intersector<Cpu> for CwBvh {
     fn name(&self) -> &str {
         "bvh"
+    }
+
+    fn refit(&self, ctx: &StageContext<'_, Cpu>) -> Option<Result<Box<dyn Intersector<Cpu>>>> {
+        self.refitted(ctx.scene)
+            .map(|b| Ok(Box::new(b) as Box<dyn Intersector<Cpu>>))
     }
 
     fn supports_candidates(&self) -> bool {

@@ -19,7 +19,8 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 use crsh_core::{
-    CoreError, Hit, HitMode, Intersector, Query, Ray, Registry, Result, StageSpec, Stats,
+    CoreError, Hit, HitMode, Intersector, Query, Ray, Registry, Result, StageContext, StageSpec,
+    Stats,
 };
 use crsh_cpu::intersect::bvh::CwBvh as CpuBvh;
 use crsh_cpu::triangle::PreparedTriangle;
@@ -66,6 +67,8 @@ pub struct CwBvh {
     nodes: GpuBuffer<NodeWords>,
     leaf_tris: GpuBuffer<PreparedTriangle>,
     leaf_ids: GpuBuffer<u32>,
+    /// The host tree, kept for the next frame's refit (`update = "refit"`).
+    host: Option<CpuBvh>,
 }
 
 /// Registers the wgpu `bvh` under its CPU twin's catalogue entry (same name, parameters,
@@ -83,6 +86,12 @@ impl CwBvh {
     pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<CwBvh> {
         super::require_mt(spec, "bvh")?;
         let cpu = CpuBvh::new(&scene.scene, spec)?;
+        let refit = spec.str("update")? == "refit";
+        CwBvh::upload(scene, cpu, refit)
+    }
+
+    /// Uploads the host tree `cpu`, keeping it when it will be refitted.
+    fn upload(scene: &Arc<GpuScene>, cpu: CpuBvh, keep: bool) -> Result<CwBvh> {
         let ctx = scene.ctx();
         let words: Vec<NodeWords> = cpu
             .nodes()
@@ -97,6 +106,7 @@ impl CwBvh {
             nodes: GpuBuffer::from_slice(ctx, "crsh bvh nodes", &words)?,
             leaf_tris: GpuBuffer::from_slice(ctx, "crsh bvh leaf triangles", leaf)?,
             leaf_ids: GpuBuffer::from_slice(ctx, "crsh bvh leaf ids", cpu.leaf_ids())?,
+            host: keep.then_some(cpu),
         })
     }
 }
@@ -104,6 +114,12 @@ impl CwBvh {
 impl Intersector<Wgpu> for CwBvh {
     fn name(&self) -> &str {
         "bvh"
+    }
+
+    /// The CPU twin's refit ([`CpuBvh::refitted`]) of the kept host tree, uploaded.
+    fn refit(&self, ctx: &StageContext<'_, Wgpu>) -> Option<Result<Box<dyn Intersector<Wgpu>>>> {
+        let cpu = self.host.as_ref()?.refitted(&ctx.scene.scene)?;
+        Some(CwBvh::upload(ctx.scene, cpu, true).map(|b| Box::new(b) as Box<dyn Intersector<Wgpu>>))
     }
 
     fn supports_candidates(&self) -> bool {
