@@ -33,6 +33,7 @@ impl BuiltinVariants for Cpu {
         crate::intersect::brute::register(registry)?;
         crate::intersect::brute64::register(registry)?;
         crate::intersect::bvh::register(registry)?;
+        crate::intersect::grid::register(registry)?;
         crate::shade::phong::register(registry)?;
         add_presets(registry)
     }

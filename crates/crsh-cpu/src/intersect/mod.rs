@@ -3,3 +3,4 @@
 pub mod brute;
 pub mod brute64;
 pub mod bvh;
+pub mod grid;
