@@ -117,6 +117,17 @@ pub struct RenderArgs {
     /// Worker threads (default: rayon's choice, i.e. `RAYON_NUM_THREADS` or one per core).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=MAX_THREADS as u64))]
     pub threads: Option<u64>,
+
+    /// Render frames 0..N-1 of an animated scene (a manifest with moving `[[instances]]`, or
+    /// `cornell-mirrors-animated`): numbered PNGs (`OUT-0000.png`, ...), the scene update and
+    /// the pipeline rebuild timed per frame, and a stats JSON with one row per frame.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=crsh::frames::MAX_FRAMES as i64))]
+    pub frames: Option<u32>,
+
+    /// With --frames and --reference: check every K-th frame against the reference (frame 0
+    /// included).
+    #[arg(long, value_name = "K", default_value_t = 1, requires = "frames", value_parser = clap::value_parser!(u32).range(1..))]
+    pub reference_every: u32,
 }
 
 /// `crsh tables`.

@@ -7,7 +7,8 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use crsh::{BackendKind, Registries, RenderRequest, Renderer};
+use crsh::report::SetupTimes;
+use crsh::{BackendKind, FramesReport, FramesRequest, Registries, RenderRequest, Renderer};
 use crsh_core::{CoreError, PipelineConfig, Progress};
 use crsh_wgpu::Wgpu;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -35,6 +36,9 @@ pub fn run(args: &RenderArgs, registries: &Registries) -> CliResult<()> {
         BackendKind::Wgpu => Some(Wgpu::new().map_err(|e| wgpu_unavailable(&e))?),
     };
     configure_threads(args.threads)?;
+    if let Some(frames) = args.frames {
+        return run_frames(args, registries, &cfg, gpu.as_ref(), frames);
+    }
 
     let t_load = Instant::now();
     let (scene, load_report) = crsh_scene::load_with_report(&args.scene)
@@ -90,6 +94,104 @@ pub fn run(args: &RenderArgs, registries: &Registries) -> CliResult<()> {
     let wrote = match &args.stats {
         Some(s) => format!("wrote     {} and {}\n", args.out.display(), s.display()),
         None => format!("wrote     {}\n", args.out.display()),
+    };
+    output::print_stdout(&(report.summary() + &wrote))
+}
+
+/// `OUT.png` → `OUT-0007.png` for frame 7.
+pub fn frame_path(out: &Path, frame: u32) -> std::path::PathBuf {
+    let stem = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "crsh".into());
+    let ext = out
+        .extension()
+        .map(|e| e.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "png".into());
+    out.with_file_name(format!("{stem}-{frame:04}.{ext}"))
+}
+
+/// `crsh render --frames N`: frames of an animated scene, each written as it is done.
+fn run_frames(
+    args: &RenderArgs,
+    registries: &Registries,
+    cfg: &PipelineConfig,
+    gpu: Option<&Wgpu>,
+    frames: u32,
+) -> CliResult<()> {
+    let t_load = Instant::now();
+    let (anim, load_report) = crsh_scene::load_animated(&args.scene)
+        .map_err(|e| CliError::runtime(format!("cannot load scene `{}`: {e}", args.scene)))?;
+    let scene_load_ms = t_load.elapsed().as_secs_f64() * 1e3;
+    for w in load_report.warnings.iter().take(20) {
+        eprintln_warning(w);
+    }
+    if !anim.is_animated() {
+        eprintln_warning(&format!(
+            "scene `{}` does not move: every frame is the same",
+            args.scene
+        ));
+    }
+    // The frame size from the camera, checked before any work.
+    let probe = Renderer::new(registries, Arc::new(anim.scene().clone()));
+    let frame = probe
+        .frame_size(args.width, args.height)
+        .map_err(|e| CliError::usage(format!("--width {}: {e}", args.width)))?;
+    drop(probe);
+    let mut request = RenderRequest::new()
+        .with_width(frame.width)
+        .with_height(frame.height)
+        .with_max_depth(args.depth);
+    if let Some(r) = &args.reference {
+        request = request.with_reference(r);
+    }
+    let request = FramesRequest::new(request, frames).with_reference_every(args.reference_every);
+    let bar = progress_bar();
+    bar.set_prefix(cfg.name.clone());
+    let mut report = FramesReport::new(&anim, &args.scene, cfg);
+    let mut setup = SetupTimes {
+        scene_load_ms,
+        build_stages_ms: 0.0,
+    };
+    crsh::render_frames(
+        registries,
+        &anim,
+        gpu,
+        cfg,
+        &request,
+        &mut |f, p: Progress| {
+            advance(
+                &bar,
+                &Progress {
+                    message: format!("frame {f}/{frames}: {}", p.message),
+                    ..p
+                },
+            )
+        },
+        &mut |f| {
+            let path = frame_path(&args.out, f.frame);
+            f.render.write_png(&path)?;
+            setup.build_stages_ms = f.render.build_stages_ms;
+            report.push(&f, &path.display().to_string(), setup.clone());
+            setup.scene_load_ms = 0.0;
+            Ok(())
+        },
+    )
+    .map_err(|e| library_error(e, &format!("pipeline `{}`", cfg.name)))?;
+    bar.finish_and_clear();
+    if let Some(path) = &args.stats {
+        output::write_text(path, &(report.to_json() + "\n"))?;
+    }
+    let first = frame_path(&args.out, 0);
+    let last = frame_path(&args.out, frames - 1);
+    let wrote = match &args.stats {
+        Some(s) => format!(
+            "wrote     {} .. {} and {}\n",
+            first.display(),
+            last.display(),
+            s.display()
+        ),
+        None => format!("wrote     {} .. {}\n", first.display(), last.display()),
     };
     output::print_stdout(&(report.summary() + &wrote))
 }
