@@ -218,3 +218,57 @@ fn gpu_frames_are_deterministic_and_timed() {
         }
     }
 }
+
+/// The frames of the built-in animated scene on the GPU: every pipeline's hits agree with the
+/// CPU's brute force on every frame (the scene is uploaded and the pipeline rebuilt per frame;
+/// `bvh` with `update = refit` refits the host tree and uploads it).
+#[test]
+fn gpu_frames_of_the_animated_scene_agree_with_brute_force_on_every_frame() {
+    let Some(b) = crsh_wgpu::testing::shared_backend(
+        "gpu_frames_of_the_animated_scene_agree_with_brute_force_on_every_frame",
+    ) else {
+        return;
+    };
+    let (anim, _) = crsh_scene::load_animated("cornell-mirrors-animated").unwrap();
+    for (name, sets) in [
+        ("brute", &[][..]),
+        ("bvh", &[][..]),
+        ("bvh", &["intersect.update=refit"][..]),
+        ("crsh", &[][..]),
+        ("rah", &[][..]),
+    ] {
+        let cfg = config(name, sets);
+        let request = crsh::FramesRequest::new(opts(1).with_reference("brute"), 3);
+        let mut images = Vec::new();
+        crsh::render_frames(
+            registries(),
+            &anim,
+            Some(&b),
+            &cfg,
+            &request,
+            &mut |_, _| {},
+            &mut |f| {
+                let acc = f.render.accuracy.as_ref().expect("every frame checked");
+                assert!(
+                    acc.hit_agreement >= 0.9999,
+                    "{name} {sets:?} frame {}: {acc:?}",
+                    f.frame
+                );
+                assert_eq!(f.render.backend, BackendKind::Wgpu);
+                assert!(f.update.upload_ms > 0.0);
+                let intersect = f.update.stages.iter().find(|s| s.slot == "intersect");
+                assert_eq!(
+                    intersect.map(|s| s.refit),
+                    Some(!sets.is_empty() && f.frame > 0),
+                    "{name} {sets:?} frame {}",
+                    f.frame
+                );
+                images.push(f.render.image);
+                Ok(())
+            },
+        )
+        .unwrap_or_else(|e| panic!("{name} {sets:?} on wgpu: {e}"));
+        assert_eq!(images.len(), 3);
+        assert_ne!(images[0], images[2], "{name}: nothing moved");
+    }
+}

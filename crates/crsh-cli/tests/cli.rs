@@ -733,3 +733,71 @@ fn adapters_lists_what_wgpu_finds() {
         }
     }
 }
+
+#[test]
+fn render_frames_writes_numbered_pngs_and_a_row_per_frame() {
+    let dir = scratch("frames");
+    let (s, o) = render(
+        &dir,
+        &[
+            "--scene",
+            "cornell-mirrors-animated",
+            "--pipeline",
+            "bvh",
+            "--set",
+            "intersect.update=refit",
+            "--frames",
+            "3",
+            "--width",
+            "32",
+            "--depth",
+            "1",
+            "--reference",
+            "brute",
+            "--reference-every",
+            "2",
+        ],
+    );
+    for f in 0..3 {
+        let img = image::open(dir.join(format!("img-{f:04}.png")))
+            .expect("valid PNG")
+            .to_rgba8();
+        assert_eq!(img.dimensions(), (32, 32));
+    }
+    assert!(!dir.join("img.png").exists());
+    let frames = s["frames"].as_array().expect("frames rows");
+    assert_eq!(frames.len(), 3);
+    for (i, row) in frames.iter().enumerate() {
+        assert_eq!(u(row, "/frame"), i as u64);
+        let structure = row["update"]["structure"].as_str().unwrap();
+        assert_eq!(structure, if i == 0 { "bvh rebuild" } else { "bvh refit" });
+        let frame_ms = f(row, "/frame_ms");
+        assert!((frame_ms - f(row, "/update/total_ms") - f(row, "/render_ms")).abs() < 1e-6);
+        let output = row["report"]["output"].as_str().unwrap();
+        assert!(output.ends_with(&format!("img-{i:04}.png")), "{output}");
+        // Frames 0 and 2 are checked (every 2nd), frame 1 is not.
+        assert_eq!(row["report"]["accuracy"].is_null(), i == 1, "frame {i}");
+    }
+    assert_eq!(u(&s, "/totals/frames"), 3);
+    assert_eq!(u(&s, "/totals/frames_checked"), 2);
+    assert_eq!(f(&s, "/totals/min_hit_agreement"), 1.0);
+    assert!(u(&s, "/moving_triangles") > 0);
+    let out = stdout(&o);
+    assert!(
+        out.contains("bvh refit") && out.contains("3 frames"),
+        "{out}"
+    );
+}
+
+#[test]
+fn bad_frame_requests_exit_2() {
+    let dir = scratch("frames-bad");
+    for args in [
+        &["render", "--frames", "0"][..],
+        &["render", "--reference-every", "2"][..],
+        &["render", "--frames", "2", "--reference-every", "0"][..],
+    ] {
+        let o = crsh(&dir, args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+    }
+}
