@@ -584,6 +584,7 @@ mod tests {
         for (preset, sets) in [
             ("bvh", &[][..]),
             ("bvh", &["intersect.update=refit"][..]),
+            ("bvh", &["intersect.kind=grid"][..]),
             ("crsh", &[][..]),
             ("rah", &[][..]),
         ] {
@@ -601,7 +602,7 @@ mod tests {
                     .iter()
                     .find(|b| b.slot == "intersect")
                     .unwrap();
-                let refit = !sets.is_empty() && f.frame > 0;
+                let refit = sets.contains(&"intersect.update=refit") && f.frame > 0;
                 assert_eq!(
                     intersect.refit, refit,
                     "{preset} {sets:?} frame {}",
