@@ -45,6 +45,7 @@ impl BuiltinVariants for Wgpu {
         crate::traverse::crsh::register(registry)?;
         crate::intersect::brute::register(registry)?;
         crate::intersect::bvh::register(registry)?;
+        crate::intersect::grid::register(registry)?;
         crate::shade::phong::register(registry)?;
         crsh_cpu::registry::add_presets(registry)
     }

@@ -3,6 +3,7 @@
 
 pub mod brute;
 pub mod bvh;
+pub mod grid;
 
 /// Shared WGSL of the triangle tests (`kernels/mt.wgsl`).
 pub(crate) const MT_WGSL: &str = include_str!("../kernels/mt.wgsl");
