@@ -1,7 +1,8 @@
 //! End-to-end tests of `crsh ablate`: the quick plan on the built-in scenes (every output
 //! file, CSV, JSON, charts, report), failed cells recorded with their reason, the grid of
 //! the command-line form, `--compare`, clear errors for bad plans, a plan run as shards and
-//! merged, `--redraw` and stale charts, and the report in headless Chromium when it is
+//! merged, `--redraw` and stale charts, frames of an animated scene (per-frame rows, totals,
+//! the frames chart, `frames.csv`), and the report in headless Chromium when it is
 //! installed.
 
 use std::path::{Path, PathBuf};
@@ -691,6 +692,28 @@ fn bad_plans_exit_2_with_one_clear_line() {
             ],
             "raygen.bogus",
         ),
+        (
+            vec![
+                "--plan".into(),
+                write("frames0.toml", "scenes = [\"cornell-mirrors-animated\"]\nframes = 0\n[[pipelines]]\npipeline = \"bvh\"\n"),
+                "--out".into(),
+                "o".into(),
+            ],
+            "frames = 0 is outside 1..=100000",
+        ),
+        (
+            vec!["--frames".into(), "100001".into(), "--out".into(), "o".into()],
+            "frames = 100001 is outside 1..=100000",
+        ),
+        (
+            vec![
+                "--plan".into(),
+                write("every.toml", "scenes = [\"cornell-mirrors-animated\"]\nreference_every = 2\n[[pipelines]]\npipeline = \"bvh\"\n"),
+                "--out".into(),
+                "o".into(),
+            ],
+            "set `frames` too",
+        ),
     ];
     for (args, needle) in cases {
         let mut full = vec!["ablate".to_string()];
@@ -709,6 +732,180 @@ fn bad_plans_exit_2_with_one_clear_line() {
         assert!(!err.contains("panicked"), "{err}");
     }
     assert!(!dir.join("o").exists(), "nothing is written for a bad plan");
+}
+
+#[test]
+fn frames_plan_has_per_frame_rows_totals_and_a_chart() {
+    let dir = scratch("frames");
+    let plan = dir.join("frames.toml");
+    std::fs::write(
+        &plan,
+        r#"
+scenes = ["cornell-mirrors-animated"]
+width = 24
+depth = 1
+repeat = 1
+warmup = 0
+frames = 3
+reference = "brute"
+
+[[pipelines]]
+pipeline = "bvh"
+
+[[pipelines]]
+pipeline = "bvh"
+label = "bvh-refit"
+[pipelines.grid]
+"intersect.update" = "refit"
+
+[[pipelines]]
+pipeline = "crsh"
+"#,
+    )
+    .unwrap();
+    let o = crsh(
+        &dir,
+        &["ablate", "--plan", plan.to_str().unwrap(), "--out", "out"],
+    );
+    assert_ok(&o);
+    let stdout = text(&o.stdout);
+    assert!(stdout.contains("3 frames,"), "{stdout}");
+    assert!(stdout.contains("frames.csv, report.html"), "{stdout}");
+    let out = dir.join("out");
+    let v = read_json(&out.join("results.json"));
+    assert_eq!(v["plan"]["frames"], 3);
+    let cs = cells(&v);
+    assert_eq!(cs.len(), 3);
+    let mut structures = Vec::new();
+    for c in cs {
+        assert_eq!(c["status"], "ok", "{c:#}");
+        let m = &c["measures"];
+        assert_eq!(m["counters_equal_across_repeats"], true);
+        assert_eq!(m["accuracy"]["hit_agreement"], 1.0, "{c:#}");
+        let rows = m["frames"]["rows"].as_array().expect("per-frame rows");
+        assert_eq!(rows.len(), 3);
+        let mut frame_sum = 0.0;
+        let mut rays = 0;
+        for (i, r) in rows.iter().enumerate() {
+            assert_eq!(r["frame"], i as u64);
+            assert_eq!(r["hit_agreement"], 1.0, "{r}");
+            assert!(r["moved_triangles"].as_u64().unwrap() > 0);
+            let update = r["update_ms"].as_f64().unwrap();
+            let render = r["render_ms"].as_f64().unwrap();
+            assert!(update > 0.0 && render > 0.0, "{r}");
+            assert!((r["frame_ms"].as_f64().unwrap() - (update + render)).abs() < 1e-6);
+            assert!(r["structure_ms"].as_f64().unwrap() <= update);
+            assert!(r["trace_ms"].as_f64().unwrap() <= render);
+            assert!(r["tests_per_ray"].as_f64().unwrap() > 0.0);
+            frame_sum += r["frame_ms"].as_f64().unwrap();
+            rays += r["traced_rays"].as_u64().unwrap();
+        }
+        let t = &m["frames"]["totals"];
+        assert_eq!(
+            (t["frames"].as_u64(), t["frames_checked"].as_u64()),
+            (Some(3), Some(3))
+        );
+        assert_eq!(t["min_hit_agreement"], 1.0);
+        assert!(
+            (t["frame_ms"].as_f64().unwrap() - frame_sum).abs() < 1e-6,
+            "{t}"
+        );
+        assert!((t["mean_frame_ms"].as_f64().unwrap() - frame_sum / 3.0).abs() < 1e-6);
+        for k in [
+            "update_ms",
+            "structure_ms",
+            "trace_ms",
+            "mean_update_ms",
+            "mean_structure_ms",
+        ] {
+            assert!(t[k].as_f64().unwrap() > 0.0, "{k}: {t}");
+        }
+        // The cell's counters are the sequence's: every frame's rays summed.
+        assert_eq!(t["traced_rays"].as_u64(), Some(rays));
+        assert_eq!(m["rays"]["traced"].as_u64(), Some(rays));
+        assert!(m["timings_ms"]["update"]["median"].as_f64().unwrap() > 0.0);
+        structures.push((
+            c["label"].as_str().unwrap().to_string(),
+            rows[0]["structure"].as_str().unwrap().to_string(),
+            rows[2]["structure"].as_str().unwrap().to_string(),
+        ));
+    }
+    // Frame 0 builds; afterwards the BVH rebuilds or refits and crsh updates its spheres.
+    assert_eq!(
+        structures,
+        [
+            (
+                "bvh".to_string(),
+                "bvh rebuild".to_string(),
+                "bvh rebuild".to_string()
+            ),
+            (
+                "bvh-refit update=refit".to_string(),
+                "bvh rebuild".to_string(),
+                "bvh refit".to_string()
+            ),
+            (
+                "crsh".to_string(),
+                "spheres + brute rebuild".to_string(),
+                "spheres + brute rebuild".to_string()
+            ),
+        ]
+    );
+
+    // results.csv: the totals' columns, filled for frames cells.
+    let csv = parse_csv(&std::fs::read_to_string(out.join("results.csv")).unwrap());
+    let header = &csv[0];
+    let col = |name: &str| {
+        header
+            .iter()
+            .position(|h| h == name)
+            .unwrap_or_else(|| panic!("CSV lacks {name}: {header:?}"))
+    };
+    for (row, c) in csv[1..].iter().zip(cs) {
+        assert_eq!(row.len(), header.len());
+        assert_eq!(row[col("frames")], "3");
+        let mean: f64 = row[col("frame_mean_ms")].parse().unwrap();
+        let want = c["measures"]["frames"]["totals"]["mean_frame_ms"]
+            .as_f64()
+            .unwrap();
+        assert!((mean - want).abs() < 1e-3, "{mean} vs {want}");
+        for k in ["update_mean_ms", "structure_mean_ms", "render_mean_ms"] {
+            assert!(row[col(k)].parse::<f64>().unwrap() > 0.0, "{k}");
+        }
+    }
+    // frames.csv: one line per cell and frame.
+    let frames_csv = std::fs::read_to_string(out.join("frames.csv")).expect("frames.csv");
+    let fcsv = parse_csv(&frames_csv);
+    assert_eq!(fcsv.len(), 1 + 3 * 3, "{frames_csv}");
+    let fcol = |name: &str| fcsv[0].iter().position(|h| h == name).unwrap();
+    assert_eq!(fcsv[5][fcol("label")], "bvh-refit update=refit");
+    assert_eq!(fcsv[6][fcol("structure")], "bvh refit");
+    assert_eq!(fcsv[1][fcol("hit_agreement")], "1.00000000");
+
+    // The frames chart, and the report shows it with the frames table.
+    let stem = "cornell-mirrors-animated-frames";
+    assert!(is_png(&out.join(format!("charts/{stem}.png"))));
+    assert!(is_svg(&out.join(format!("charts/{stem}.svg"))));
+    let report = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(
+        report.contains(&format!("id=\"chart-{stem}\"")),
+        "chart not in report"
+    );
+    assert!(report.contains(&format!("charts/{stem}.png")));
+    assert!(report.contains("id=\"frames-cornell-mirrors-animated\""));
+    assert!(report.contains("render (trace and shade)"));
+
+    // --redraw from results.json alone gives the same CSV files (the frames round-trip).
+    let o = crsh(&dir, &["ablate", "--redraw", "out", "--out", "again"]);
+    assert_ok(&o);
+    for f in ["results.csv", "frames.csv"] {
+        assert_eq!(
+            std::fs::read_to_string(dir.join("again").join(f)).unwrap(),
+            std::fs::read_to_string(out.join(f)).unwrap(),
+            "{f}"
+        );
+    }
+    assert!(is_png(&dir.join(format!("again/charts/{stem}.png"))));
 }
 
 /// Renders `report.html` in headless Chromium and checks every chart and table is in the DOM.

@@ -8,7 +8,11 @@
 //!    rate, lower is better, linear axis from 0);
 //! 2. `SCENE-tests`: tests per traced ray per cell, stacked by hierarchy level (the thesis's
 //!    figs 4.7-4.23 comparisons);
-//! 3. `SCENE-stages`: median wall time per stage per cell, stacked (tables 4.25-4.27).
+//! 3. `SCENE-stages`: median wall time per stage per cell, stacked (tables 4.25-4.27);
+//! 4. `SCENE-frames` (plans with `frames`): mean frame time per pipeline cell, stacked as the
+//!    scene update, the acceleration structure's rebuild or refit (with the bounding spheres
+//!    for ray-space hierarchies), then the render, so that what each technique pays for
+//!    moving geometry shows beside what it saves in tracing.
 //!
 //! Text uses DejaVu Sans, shipped in `assets/` and registered once (plotters' `ab_glyph`
 //! text rendering has no system font lookup).
@@ -117,7 +121,7 @@ impl AccuracyAxis {
 /// One chart written to disk: its kind, and the file stem under `charts/`.
 #[derive(Clone, Debug)]
 pub struct ChartFile {
-    /// `pareto`, `pareto-psnr`, `pareto-self-hits`, `tests` or `stages`.
+    /// `pareto`, `pareto-psnr`, `pareto-self-hits`, `tests`, `stages` or `frames`.
     pub kind: &'static str,
     /// Title shown in the report.
     pub title: String,
@@ -244,6 +248,10 @@ pub fn write_all(results: &Results, dir: &Path) -> Result<Vec<(String, Vec<Chart
         let s = StackedBars::stages(&scene, &cells);
         let (svg, png) = render(&s)?;
         emit("stages", s.title.clone(), svg, png)?;
+        if let Some(f) = StackedBars::frames(&scene, &cells) {
+            let (svg, png) = render(&f)?;
+            emit("frames", f.title.clone(), svg, png)?;
+        }
         out.push((scene, files));
     }
     Ok(out)
@@ -703,6 +711,58 @@ impl StackedBars {
             colors,
         }
         .drop_empty_segments()
+    }
+
+    /// Mean frame time of the frames cells (`None` without any): the scene update (geometry,
+    /// upload, the stages other than the structure), the acceleration structure's rebuild or
+    /// refit (and the spheres), the render. Each bar is labelled with the cell and the
+    /// structure update of its frames after the first (frame 0 always builds).
+    fn frames(scene: &str, cells: &[&CellResult]) -> Option<StackedBars> {
+        let framed: Vec<(&CellResult, &super::results::CellFrames)> = cells
+            .iter()
+            .filter_map(|c| Some((*c, c.measures.as_ref()?.frames.as_ref()?)))
+            .collect();
+        let n = framed.first()?.1.totals.frames;
+        let segments = vec![
+            "scene update (geometry, upload, other stage builds)".to_string(),
+            "acceleration structure (build or refit, spheres)".to_string(),
+            "render (trace and shade)".to_string(),
+        ];
+        let values = framed
+            .iter()
+            .map(|(_, f)| {
+                let t = &f.totals;
+                vec![
+                    (t.mean_update_ms - t.mean_structure_ms).max(0.0),
+                    t.mean_structure_ms,
+                    t.mean_render_ms,
+                ]
+            })
+            .collect();
+        let labels = framed
+            .iter()
+            .map(|(c, f)| {
+                let steady = f.rows.get(1).or(f.rows.first());
+                match steady {
+                    Some(r) => format!("{} ({})", c.label, r.structure),
+                    None => c.label.clone(),
+                }
+            })
+            .collect();
+        Some(StackedBars {
+            title: format!("{scene}: mean frame time over {n} frames, update and rebuild + render"),
+            x_desc:
+                "ms per frame (mean over the frames; each frame the median of the timed sequences)"
+                    .into(),
+            labels,
+            segments,
+            values,
+            colors: vec![
+                RGBColor(127, 127, 127),
+                RGBColor(214, 39, 40),
+                RGBColor(31, 119, 180),
+            ],
+        })
     }
 
     fn drop_empty_segments(mut self) -> StackedBars {

@@ -1,5 +1,6 @@
 //! `report.html`: one self-contained page (no scripts, no network) with the machine facts,
-//! the plan, and per scene the three charts inlined as SVG and a table of every cell.
+//! the plan, and per scene its charts inlined as SVG and a table of every cell (plans with
+//! `frames`: also a table of each cell's frame totals).
 
 use std::fmt::Write as _;
 
@@ -51,6 +52,19 @@ pub fn report(results: &Results, charts: &[(String, Vec<ChartFile>)]) -> String 
         results.plan.warmup,
         escape(&results.plan.reference),
     );
+    if let Some(n) = results.plan.frames {
+        let _ = writeln!(
+            h,
+            "<p class=\"note\" id=\"frames-note\">Dynamic scenes: every cell renders frames 0..{} of its scene, each frame's update (the moved geometry, the bounding spheres for ray-space hierarchies, the upload, every stage's rebuild or refit) timed with its render; a cell's times and counters are over the whole sequence, each frame's time the median of the timed sequences. {} Per-frame rows: <a href=\"frames.csv\">frames.csv</a>.</p>",
+            n.saturating_sub(1),
+            match results.plan.reference_every {
+                1 => "Every frame is checked against the reference.".to_string(),
+                k => format!(
+                    "Every {k}th frame (frame 0 included) is checked against the reference."
+                ),
+            },
+        );
+    }
     if let Some(shard) = &results.shard {
         let _ = writeln!(
             h,
@@ -154,6 +168,7 @@ pub fn report(results: &Results, charts: &[(String, Vec<ChartFile>)]) -> String 
                 escape(&f.stem),
             );
         }
+        frames_table(&mut h, &sid, &cells);
         cell_table(&mut h, &sid, &cells);
     }
 
@@ -173,6 +188,50 @@ fn strip_xml_header(svg: &str) -> &str {
         Some(i) => &svg[i..],
         None => svg,
     }
+}
+
+/// The frames cells' totals: mean frame, update, structure and render times, the structure
+/// updates seen, the lowest hit agreement of the checked frames.
+fn frames_table(h: &mut String, sid: &str, cells: &[&CellResult]) {
+    let framed: Vec<(&CellResult, &super::results::CellFrames)> = cells
+        .iter()
+        .filter_map(|c| Some((*c, c.measures.as_ref()?.frames.as_ref()?)))
+        .collect();
+    if framed.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        h,
+        "<table class=\"frames\" id=\"frames-{sid}\">\n<tr><th class=\"l\">cell</th><th class=\"l\">backend</th><th>frames</th><th>mean frame ms</th><th>mean update ms</th><th>mean structure ms</th><th>mean render ms</th><th>Σ frame ms</th><th>Σ trace ms</th><th class=\"l\">structure updates</th><th>min hit agreement (checked frames)</th></tr>"
+    );
+    for (c, f) in framed {
+        let t = &f.totals;
+        let mut kinds: Vec<&str> = Vec::new();
+        for r in &f.rows {
+            if !kinds.contains(&r.structure.as_str()) {
+                kinds.push(&r.structure);
+            }
+        }
+        let _ = writeln!(
+            h,
+            "<tr><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{}</td><td>{:.2}</td><td>{:.2}</td><td>{:.2}</td><td>{:.2}</td><td>{:.1}</td><td>{:.1}</td><td class=\"l\">{}</td><td>{}</td></tr>",
+            escape(&c.label),
+            escape(&c.backend),
+            t.frames,
+            t.mean_frame_ms,
+            t.mean_update_ms,
+            t.mean_structure_ms,
+            t.mean_render_ms,
+            t.frame_ms,
+            t.trace_ms,
+            escape(&kinds.join(", then ")),
+            t.min_hit_agreement.map_or("—".into(), |a| format!(
+                "{a:.6} ({} frames)",
+                t.frames_checked
+            )),
+        );
+    }
+    let _ = writeln!(h, "</table>");
 }
 
 fn cell_table(h: &mut String, sid: &str, cells: &[&CellResult]) {

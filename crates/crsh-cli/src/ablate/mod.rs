@@ -5,11 +5,18 @@
 //! joins the shards' directories, `--redraw` rebuilds charts and report from a `results.json`,
 //! and `--compare OLD.json NEW.json` prints per-cell ratios of two runs.
 //!
+//! With `frames = N` in the plan (or `--frames N`) every cell renders frames `0..N` of its
+//! scene loaded as an animated scene, timing each frame's update and structure rebuild or
+//! refit with its render: `results.json` carries the per-frame rows and their totals,
+//! `results.csv` the mean frame, update, structure and render times, `frames.csv` one line
+//! per cell and frame, and each scene gets a `SCENE-frames` chart (mean frame time split into
+//! update and rebuild, then render, per pipeline cell).
+//!
 //! - [`plan`] — the plan (TOML or the command line's quick form) and its expansion into cells;
 //! - [`run`] — running the cells;
 //! - [`results`] — what was measured, `results.json` and `results.csv`, shards;
 //! - [`merge`] — `--merge`;
-//! - [`charts`] — the three charts per scene;
+//! - [`charts`] — the charts per scene;
 //! - [`html`] — `report.html`;
 //! - [`headline`] — the per-scene headline numbers printed at the end;
 //! - [`compare`] — `--compare`.
@@ -80,6 +87,12 @@ pub struct AblateArgs {
     #[arg(long, value_name = "D,...")]
     pub depth: Option<String>,
 
+    /// Frames of an animated scene per cell, 1..=100000 (overrides the plan's `frames`): each
+    /// cell times sequences of frames, every frame's update and rebuild with its render
+    /// [default: one static frame].
+    #[arg(long, value_name = "N")]
+    pub frames: Option<u32>,
+
     /// Timed runs per cell (overrides the plan's `repeat`) [default: 5].
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=plan::MAX_REPEAT as i64))]
     pub repeat: Option<u32>,
@@ -97,7 +110,7 @@ pub struct AblateArgs {
     pub quiet: bool,
 
     /// Compare two results.json files: per-cell ratios new/old of time, tests and hit agreement.
-    #[arg(long, num_args = 2, value_names = ["OLD.json", "NEW.json"], conflicts_with_all = ["plan", "out", "scenes", "pipelines", "set", "shard", "merge", "redraw"])]
+    #[arg(long, num_args = 2, value_names = ["OLD.json", "NEW.json"], conflicts_with_all = ["plan", "out", "scenes", "pipelines", "set", "shard", "merge", "redraw", "frames"])]
     pub compare: Option<Vec<PathBuf>>,
 
     /// Run only shard K of N: the cells whose index i (in the plan's expansion) has
@@ -109,12 +122,12 @@ pub struct AblateArgs {
     /// Merge the directories of the shards of one run (`--shard K/N`) into --out: one
     /// results.csv / results.json, charts and report. Shards of different plans, expansions,
     /// revisions or versions, and missing or repeated shards, are refused.
-    #[arg(long, num_args = 1.., value_name = "DIR", conflicts_with_all = ["plan", "scenes", "pipelines", "set", "backends", "width", "height", "depth", "repeat", "reference", "threads", "shard", "redraw"])]
+    #[arg(long, num_args = 1.., value_name = "DIR", conflicts_with_all = ["plan", "scenes", "pipelines", "set", "backends", "width", "height", "depth", "repeat", "reference", "threads", "shard", "redraw", "frames"])]
     pub merge: Option<Vec<PathBuf>>,
 
     /// Rebuild the charts, results.csv and report.html from DIR/results.json (into --out, by
     /// default DIR itself), without running anything.
-    #[arg(long, value_name = "DIR", conflicts_with_all = ["plan", "scenes", "pipelines", "set", "backends", "width", "height", "depth", "repeat", "reference", "threads", "shard"])]
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["plan", "scenes", "pipelines", "set", "backends", "width", "height", "depth", "repeat", "reference", "threads", "shard", "frames"])]
     pub redraw: Option<PathBuf>,
 }
 
@@ -172,6 +185,7 @@ fn plan_of(args: &AblateArgs) -> CliResult<(Plan, String, String, Option<PathBuf
                 repeat: None,
                 reference: None,
                 threads: None,
+                frames: None,
             };
             let plan = quick.into_plan()?;
             (plan, String::new(), "the command line".to_string(), None)
@@ -185,6 +199,9 @@ fn plan_of(args: &AblateArgs) -> CliResult<(Plan, String, String, Option<PathBuf
     }
     if let Some(t) = args.threads {
         plan.threads = Some(t as usize);
+    }
+    if let Some(f) = args.frames {
+        plan.frames = Some(f);
     }
     let text = if text.is_empty() {
         toml::to_string(&plan).unwrap_or_default()
@@ -218,6 +235,27 @@ fn cell_line(c: &CellResult, n: usize) -> String {
         c.backend
     );
     match &c.measures {
+        Some(m) if c.ok() && m.frames.is_some() => {
+            let t = &m.frames.as_ref().expect("checked").totals;
+            let acc = t
+                .min_hit_agreement
+                .map(|a| format!(", agreement ≥ {a:.6} on {} frames", t.frames_checked))
+                .unwrap_or_default();
+            format!(
+                "{head}: {} frames, {:.2} ms/frame (update {:.2}, structure {:.2}, render {:.2}), {:.1} tests/ray{acc}{}",
+                t.frames,
+                t.mean_frame_ms,
+                t.mean_update_ms,
+                t.mean_structure_ms,
+                t.mean_render_ms,
+                m.tests.per_ray,
+                if m.counters_equal_across_repeats {
+                    ""
+                } else {
+                    " (counters differ between repeats!)"
+                }
+            )
+        }
         Some(m) if c.ok() => {
             let t = m.timings_ms.get("total").copied().unwrap_or_default();
             let acc = m
@@ -295,6 +333,15 @@ fn write_outputs(results: &Results, out: &Path, write_json: bool) -> CliResult<u
         w("results.json", &(results.to_json() + "\n"))?;
     }
     w("results.csv", &results.to_csv())?;
+    let frames_csv = out.join("frames.csv");
+    match results.frames_csv() {
+        Some(text) => w("frames.csv", &text)?,
+        // An earlier run's into the same directory would not match this one.
+        None if frames_csv.is_file() => std::fs::remove_file(&frames_csv).map_err(|e| {
+            CliError::runtime(format!("removing stale {}: {e}", frames_csv.display()))
+        })?,
+        None => {}
+    }
     w("report.html", &html::report(results, &charts))?;
     Ok(drawn.len())
 }
@@ -326,12 +373,17 @@ fn summary(results: &Results, out: &Path, charts: usize) -> String {
         _ => String::new(),
     };
     format!(
-        "{}{} cells{scope}: {ok} ran, {} failed, in {:.1} s\nwrote     {}/results.csv, results.json, report.html and {charts} charts in charts/\n",
+        "{}{} cells{scope}: {ok} ran, {} failed, in {:.1} s\nwrote     {}/results.csv, results.json, {}report.html and {charts} charts in charts/\n",
         headline::headline(results),
         results.cells.len(),
         results.cells.len() - ok,
         results.wall_s,
         out.display(),
+        if results.has_frames() {
+            "frames.csv, "
+        } else {
+            ""
+        },
     )
 }
 

@@ -8,6 +8,13 @@
 //! slot the pipeline leaves empty (and its own grid does not fill with `STAGE.kind`): `bvh` has
 //! no hierarchy, so `hierarchy.depth = [2, 3, 4]` does not multiply its cells, and RAH gets no
 //! sorter from `sort.kind = [...]`. A plan-wide key no pipeline takes is an error.
+//!
+//! `frames = N` makes every cell a dynamic one: frames `0..N` of the scene loaded as an
+//! animated scene ([`crsh_scene::load_animated`]; a scene that does not move gives N equal
+//! frames), each frame's scene update and structure rebuild or refit timed with its render
+//! ([`crsh::render_frames`]). `reference_every = K` checks only every K-th frame (frame 0
+//! included) against the reference, for large scenes. Without `frames` a cell is one static
+//! frame, as before.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -146,6 +153,17 @@ pub struct Plan {
     /// Worker threads (default: rayon's choice).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threads: Option<usize>,
+    /// Frames of an animated scene per cell (`1..=`[`crsh::frames::MAX_FRAMES`]); absent: one
+    /// static frame per run (see the module documentation).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames: Option<u32>,
+    /// With `frames`: check every `reference_every`-th frame against the reference (frame 0
+    /// included; 1: every frame).
+    #[serde(
+        default = "default_reference_every",
+        skip_serializing_if = "is_default_reference_every"
+    )]
+    pub reference_every: u32,
     /// Grid applied to every pipeline (see the module documentation).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub grid: Grid,
@@ -174,6 +192,12 @@ fn default_accuracy_axes() -> Vec<String> {
 fn default_backends() -> Vec<String> {
     vec!["cpu".to_string()]
 }
+fn default_reference_every() -> u32 {
+    1
+}
+fn is_default_reference_every(v: &u32) -> bool {
+    *v == default_reference_every()
+}
 
 /// The command line's quick form of a plan.
 #[derive(Clone, Debug, Default)]
@@ -198,6 +222,8 @@ pub struct QuickPlan {
     pub reference: Option<String>,
     /// `--threads`.
     pub threads: Option<usize>,
+    /// `--frames`.
+    pub frames: Option<u32>,
 }
 
 /// Splits a comma list, trimming and dropping empty items.
@@ -301,6 +327,8 @@ impl QuickPlan {
                     grid: Grid::new(),
                 })
                 .collect(),
+            frames: self.frames,
+            reference_every: default_reference_every(),
         })
     }
 }
@@ -465,6 +493,32 @@ fn with_reference_params(
         .map_err(|e| CliError::usage(format!("reference_params: {e}")))
 }
 
+/// Checks `frames` (`1..=MAX_FRAMES`) and `reference_every` (at least 1, and only with
+/// `frames`); `reference_params` does not combine with `frames` (a frames cell's reference is
+/// the plain `reference` intersector, [`crsh::render_frames`] builds it per frame).
+fn check_frames(plan: &Plan) -> CliResult<()> {
+    let max = crsh::frames::MAX_FRAMES;
+    match plan.frames {
+        Some(f) if f == 0 || f > max => Err(CliError::usage(format!(
+            "frames = {f} is outside 1..={max}"
+        ))),
+        None if plan.reference_every != 1 => Err(CliError::usage(format!(
+            "reference_every = {} applies only to frames cells: set `frames` too",
+            plan.reference_every
+        ))),
+        _ if plan.reference_every == 0 || plan.reference_every > max => {
+            Err(CliError::usage(format!(
+                "reference_every = {} is outside 1..={max}",
+                plan.reference_every
+            )))
+        }
+        Some(_) if !plan.reference_params.is_empty() => Err(CliError::usage(
+            "reference_params does not apply to frames cells (their reference is the plain `reference` intersector); remove one of them",
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// Every combination of the grid's values, keys in order.
 fn combinations(grid: &[(String, Vec<GridValue>)]) -> Vec<Vec<(String, String)>> {
     let mut out: Vec<Vec<(String, String)>> = vec![Vec::new()];
@@ -516,6 +570,7 @@ pub fn expand(
     if plan.threads == Some(0) {
         return Err(CliError::usage("threads = 0: give at least 1"));
     }
+    check_frames(plan)?;
     let side = crsh_core::pipeline::MAX_IMAGE_SIDE;
     let widths = plan.width.to_vec();
     let depths = plan.depth.to_vec();
@@ -918,6 +973,45 @@ mod tests {
             assert_eq!(e.exit_code(), 2, "{bad}");
             assert!(e.to_string().contains(needle), "{needle}: {e}");
         }
+    }
+
+    #[test]
+    fn frames_are_optional_and_checked() {
+        let cat = Registries::builtin();
+        let base = "scenes = [\"cornell-mirrors-animated\"]\n[[pipelines]]\npipeline = \"bvh\"\n";
+        let plain = parse_plan(base).unwrap();
+        assert_eq!((plain.frames, plain.reference_every), (None, 1));
+        // A static plan serializes as before: no frames keys.
+        let text = toml::to_string(&plain).unwrap();
+        assert!(
+            !text.contains("frames") && !text.contains("reference_every"),
+            "{text}"
+        );
+        let p = parse_plan(&format!("frames = 4\nreference_every = 2\n{base}")).unwrap();
+        assert_eq!((p.frames, p.reference_every), (Some(4), 2));
+        assert_eq!(expand(&p, None, &cat).unwrap().len(), 1);
+        assert_eq!(parse_plan(&toml::to_string(&p).unwrap()).unwrap(), p);
+        for (bad, needle) in [
+            ("frames = 0\n", "frames = 0 is outside"),
+            ("frames = 100001\n", "frames = 100001 is outside"),
+            ("frames = 2\nreference_every = 0\n", "reference_every = 0"),
+            ("reference_every = 2\n", "set `frames` too"),
+            (
+                "frames = 2\nreference_params = { \"raygen.offset\" = \"wachter\" }\n",
+                "reference_params does not apply",
+            ),
+        ] {
+            let e = expand(&parse_plan(&format!("{bad}{base}")).unwrap(), None, &cat).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{bad}");
+            assert!(e.to_string().contains(needle), "{needle}: {e}");
+        }
+        let q = QuickPlan {
+            frames: Some(3),
+            ..Default::default()
+        }
+        .into_plan()
+        .unwrap();
+        assert_eq!(q.frames, Some(3));
     }
 
     #[test]

@@ -1,5 +1,10 @@
 //! What an ablation measured: one [`CellResult`] per cell, the machine it ran on, and the
-//! writers of `results.json` and `results.csv`.
+//! writers of `results.json`, `results.csv` and (for plans with `frames`) `frames.csv`.
+//!
+//! A frames cell's [`Measures`] cover its whole sequence of frames: counters and times are
+//! summed over the frames (its `total` is every frame's update and render, the updates also
+//! under `update`), and [`Measures::frames`] holds one [`FrameMeasure`] per frame and their
+//! [`FramesTotals`].
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
@@ -131,9 +136,128 @@ pub struct Measures {
     pub mrays_per_s: BTreeMap<String, f64>,
     /// Building the stages (e.g. an object BVH), ms, once per cell.
     pub build_stages_ms: f64,
-    /// Agreement with the reference (absent with `reference = "none"`).
+    /// Agreement with the reference (absent with `reference = "none"`). For a frames cell:
+    /// over the checked frames (the lowest hit agreement and PSNR, the counts summed).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub accuracy: Option<CellAccuracy>,
+    /// The frames of a frames cell (plans with `frames`): one row per frame and their totals.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames: Option<CellFrames>,
+}
+
+/// One frame of a frames cell: its update and rebuild, its render, its counters. Times are
+/// medians over the timed sequences, ms.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct FrameMeasure {
+    /// Frame number.
+    pub frame: u32,
+    /// Scene time, seconds.
+    pub time_s: f32,
+    /// What the acceleration structure's update was (`bvh rebuild`, `bvh refit`,
+    /// `spheres + brute rebuild`, ...).
+    pub structure: String,
+    /// Triangles moved this frame.
+    pub moved_triangles: u64,
+    /// Moving the geometry.
+    pub scene_ms: f64,
+    /// The bounding spheres (ray-space hierarchies only).
+    pub spheres_ms: f64,
+    /// Uploading the scene (wgpu only).
+    pub upload_ms: f64,
+    /// The acceleration structure: the intersector's build or refit, plus the spheres.
+    pub structure_ms: f64,
+    /// The whole update: scene, spheres, upload and every stage's build.
+    pub update_ms: f64,
+    /// Tracing (hash to final tests, every ray kind).
+    pub trace_ms: f64,
+    /// The render (primary visibility to shading).
+    pub render_ms: f64,
+    /// `update_ms + render_ms` (of the same sequence, then the median).
+    pub frame_ms: f64,
+    /// Rays traced.
+    pub traced_rays: u64,
+    /// Bounds and ray-triangle tests.
+    pub tests: u64,
+    /// `tests / traced_rays`.
+    pub tests_per_ray: f64,
+    /// Agreement with the reference, on the checked frames.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hit_agreement: Option<f64>,
+}
+
+/// Sums and means over the rows of a frames cell (sums of the per-frame medians), ms.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct FramesTotals {
+    /// Frames.
+    pub frames: u32,
+    /// Σ frame time (update and render).
+    pub frame_ms: f64,
+    /// Mean frame time.
+    pub mean_frame_ms: f64,
+    /// Σ update (scene, spheres, upload, stage builds).
+    pub update_ms: f64,
+    /// Mean update.
+    pub mean_update_ms: f64,
+    /// Σ acceleration-structure update (build or refit, spheres).
+    pub structure_ms: f64,
+    /// Mean acceleration-structure update.
+    pub mean_structure_ms: f64,
+    /// Σ trace.
+    pub trace_ms: f64,
+    /// Σ render.
+    pub render_ms: f64,
+    /// Mean render.
+    pub mean_render_ms: f64,
+    /// Σ rays traced.
+    pub traced_rays: u64,
+    /// Σ tests.
+    pub tests: u64,
+    /// Frames checked against the reference.
+    pub frames_checked: u32,
+    /// Lowest hit agreement over the checked frames.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_hit_agreement: Option<f64>,
+}
+
+impl FramesTotals {
+    /// The totals of `rows`.
+    pub fn of(rows: &[FrameMeasure]) -> FramesTotals {
+        let n = rows.len() as u32;
+        let sum = |f: &dyn Fn(&FrameMeasure) -> f64| rows.iter().map(f).sum::<f64>();
+        let mean = |total: f64| if n > 0 { total / n as f64 } else { 0.0 };
+        let (frame_ms, update_ms, structure_ms, render_ms) = (
+            sum(&|r| r.frame_ms),
+            sum(&|r| r.update_ms),
+            sum(&|r| r.structure_ms),
+            sum(&|r| r.render_ms),
+        );
+        let checked: Vec<f64> = rows.iter().filter_map(|r| r.hit_agreement).collect();
+        FramesTotals {
+            frames: n,
+            frame_ms,
+            mean_frame_ms: mean(frame_ms),
+            update_ms,
+            mean_update_ms: mean(update_ms),
+            structure_ms,
+            mean_structure_ms: mean(structure_ms),
+            trace_ms: sum(&|r| r.trace_ms),
+            render_ms,
+            mean_render_ms: mean(render_ms),
+            traced_rays: rows.iter().map(|r| r.traced_rays).sum(),
+            tests: rows.iter().map(|r| r.tests).sum(),
+            frames_checked: checked.len() as u32,
+            min_hit_agreement: checked.into_iter().reduce(f64::min),
+        }
+    }
+}
+
+/// The frames of a frames cell.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CellFrames {
+    /// One row per frame, in order.
+    pub rows: Vec<FrameMeasure>,
+    /// Their sums and means.
+    pub totals: FramesTotals,
 }
 
 /// One cell's outcome.
@@ -518,6 +642,11 @@ impl Results {
                 "peak_candidate_bytes",
                 "counters_equal_across_repeats",
                 "build_stages_ms",
+                "frames",
+                "frame_mean_ms",
+                "update_mean_ms",
+                "structure_mean_ms",
+                "render_mean_ms",
                 "config",
             ]
             .iter()
@@ -621,10 +750,121 @@ impl Results {
             row.push(num(&|m| m.peak_candidate_bytes.to_string()));
             row.push(num(&|m| m.counters_equal_across_repeats.to_string()));
             row.push(num(&|m| format!("{:.3}", m.build_stages_ms)));
+            let totals = m.and_then(|m| m.frames.as_ref()).map(|f| &f.totals);
+            row.push(totals.map(|t| t.frames.to_string()).unwrap_or_default());
+            for pick in [
+                |t: &FramesTotals| t.mean_frame_ms,
+                |t: &FramesTotals| t.mean_update_ms,
+                |t: &FramesTotals| t.mean_structure_ms,
+                |t: &FramesTotals| t.mean_render_ms,
+            ] {
+                row.push(
+                    totals
+                        .map(|t| format!("{:.3}", pick(t)))
+                        .unwrap_or_default(),
+                );
+            }
             row.push(serde_json::to_string(&c.config).unwrap_or_default());
             push_row(&mut out, &row);
         }
         out
+    }
+
+    /// Whether a cell ran frames (the plan has `frames`).
+    pub fn has_frames(&self) -> bool {
+        self.cells
+            .iter()
+            .any(|c| c.measures.as_ref().is_some_and(|m| m.frames.is_some()))
+    }
+
+    /// `frames.csv`: one row per frames cell and frame (`None` when no cell ran frames):
+    /// the cell's identity, then the frame's [`FrameMeasure`].
+    pub fn frames_csv(&self) -> Option<String> {
+        if !self.has_frames() {
+            return None;
+        }
+        let params = self.param_keys();
+        let mut header: Vec<String> = ["scene", "pipeline", "label", "backend"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        header.extend(params.iter().cloned());
+        header.extend(
+            [
+                "width",
+                "height",
+                "depth",
+                "frame",
+                "time_s",
+                "structure",
+                "moved_triangles",
+                "scene_ms",
+                "spheres_ms",
+                "upload_ms",
+                "structure_ms",
+                "update_ms",
+                "trace_ms",
+                "render_ms",
+                "frame_ms",
+                "rays_traced",
+                "tests_total",
+                "tests_per_ray",
+                "hit_agreement",
+            ]
+            .iter()
+            .map(|s| s.to_string()),
+        );
+        let mut out = String::new();
+        push_row(&mut out, &header);
+        for c in &self.cells {
+            let Some(frames) = c.measures.as_ref().and_then(|m| m.frames.as_ref()) else {
+                continue;
+            };
+            for r in &frames.rows {
+                let mut row = vec![
+                    c.scene.clone(),
+                    c.pipeline.clone(),
+                    c.label.clone(),
+                    c.backend.clone(),
+                ];
+                row.extend(
+                    params
+                        .iter()
+                        .map(|k| c.params.get(k).cloned().unwrap_or_default()),
+                );
+                row.extend([
+                    c.width.to_string(),
+                    c.height.to_string(),
+                    c.depth.to_string(),
+                    r.frame.to_string(),
+                    format!("{:.4}", r.time_s),
+                    r.structure.clone(),
+                    r.moved_triangles.to_string(),
+                ]);
+                for ms in [
+                    r.scene_ms,
+                    r.spheres_ms,
+                    r.upload_ms,
+                    r.structure_ms,
+                    r.update_ms,
+                    r.trace_ms,
+                    r.render_ms,
+                    r.frame_ms,
+                ] {
+                    row.push(format!("{ms:.3}"));
+                }
+                row.extend([
+                    r.traced_rays.to_string(),
+                    r.tests.to_string(),
+                    format!("{:.4}", r.tests_per_ray),
+                    r.hit_agreement
+                        .map(|a| format!("{a:.8}"))
+                        .unwrap_or_default(),
+                ]);
+                push_row(&mut out, &row);
+            }
+        }
+        Some(out)
     }
 
     fn any_timing(&self, key: &str) -> bool {
@@ -690,6 +930,34 @@ mod tests {
             assert_eq!(shards.iter().filter(|s| s.holds(i)).count(), 1, "cell {i}");
         }
         assert!(shards[0].holds(0) && shards[1].holds(1) && shards[2].holds(5));
+    }
+
+    #[test]
+    fn frame_totals_sum_the_rows() {
+        let row = |frame: u32, update: f64, render: f64, agreement: Option<f64>| FrameMeasure {
+            frame,
+            structure_ms: update / 2.0,
+            update_ms: update,
+            render_ms: render,
+            frame_ms: update + render,
+            traced_rays: 10,
+            tests: 30,
+            hit_agreement: agreement,
+            ..Default::default()
+        };
+        let t = FramesTotals::of(&[
+            row(0, 4.0, 6.0, Some(1.0)),
+            row(1, 2.0, 4.0, None),
+            row(2, 0.0, 2.0, Some(0.5)),
+        ]);
+        assert_eq!((t.frames, t.frames_checked), (3, 2));
+        assert_eq!((t.frame_ms, t.mean_frame_ms), (18.0, 6.0));
+        assert_eq!((t.update_ms, t.mean_update_ms), (6.0, 2.0));
+        assert_eq!((t.structure_ms, t.mean_structure_ms), (3.0, 1.0));
+        assert_eq!((t.render_ms, t.mean_render_ms), (12.0, 4.0));
+        assert_eq!((t.traced_rays, t.tests), (30, 90));
+        assert_eq!(t.min_hit_agreement, Some(0.5));
+        assert_eq!(FramesTotals::of(&[]), FramesTotals::default());
     }
 
     #[test]

@@ -8,6 +8,12 @@
 //! agreement is measured against the CPU's answer, and their image is compared with the CPU
 //! reference pipeline's image.
 //!
+//! With the plan's `frames`, each scene loads once as an animated scene and a cell runs
+//! sequences of frames ([`crsh::render_frames`], on the CPU or on the run's wgpu device):
+//! `warmup` untimed sequences, `repeat` timed ones (each frame's times the median over them,
+//! its counters equal in every one), then one more with the reference checking every
+//! `reference_every`-th frame.
+//!
 //! A cell that fails (scene missing, stage construction or render error, no wgpu adapter, a
 //! panic) is recorded with its reason and the run goes on.
 
@@ -18,15 +24,18 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use crsh::report::{compare_images, mrays_per_s};
-use crsh::{Registries, Renderer};
+use crsh::{AccuracyReport, FramesRequest, Registries, RenderRequest, Renderer, UpdateReport};
 use crsh_core::metrics::to_rgba8;
-use crsh_core::{FrameOptions, KindStats, Stats};
-use crsh_scene::Scene;
+use crsh_core::{AccuracyCounts, FrameOptions, KindStats, Stats};
+use crsh_scene::{AnimatedScene, Scene};
 use crsh_wgpu::Wgpu;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::plan::{Cell, Plan};
-use super::results::{CellAccuracy, CellRays, CellResult, CellTests, Measures, TimeSummary};
+use super::results::{
+    CellAccuracy, CellFrames, CellRays, CellResult, CellTests, FrameMeasure, FramesTotals,
+    Measures, TimeSummary,
+};
 
 /// A loaded scene (or why it did not load).
 type LoadedScene = Result<Arc<Scene>, String>;
@@ -39,6 +48,8 @@ type ReferenceImages = HashMap<String, Result<Arc<Vec<u8>>, String>>;
 struct SceneState<'r> {
     spec: String,
     scene: LoadedScene,
+    /// The scene as an animated scene (plans with `frames`; `scene` is its frame 0).
+    anim: Option<Arc<AnimatedScene>>,
     cpu: Option<Renderer<'r>>,
     gpu: Option<Result<Renderer<'r>, String>>,
     ref_images: ReferenceImages,
@@ -64,9 +75,15 @@ pub fn run_cells(
         // One scene at a time: the previous one (and its reference images) is freed here.
         if state.as_ref().is_none_or(|s| s.spec != cell.scene_spec) {
             drop(state.take()); // before the next scene loads: one scene in memory at a time
+            let (scene, anim) = if plan.frames.is_some() {
+                load_animated(cell)
+            } else {
+                (load_scene(cell), None)
+            };
             state = Some(SceneState {
                 spec: cell.scene_spec.clone(),
-                scene: load_scene(cell),
+                scene,
+                anim,
                 cpu: None,
                 gpu: None,
                 ref_images: HashMap::new(),
@@ -97,6 +114,29 @@ fn load_scene(cell: &Cell) -> LoadedScene {
             cell.scene_spec,
             crsh_core::panic_message(p.as_ref())
         )),
+    }
+}
+
+/// Loads the cell's scene as an animated scene: its frame 0 as the scene, and the animation.
+fn load_animated(cell: &Cell) -> (LoadedScene, Option<Arc<AnimatedScene>>) {
+    let path = match &cell.scene {
+        Ok(p) => p.clone(),
+        Err(e) => return (Err(e.clone()), None),
+    };
+    match catch_unwind(|| crsh_scene::load_animated(&path)) {
+        Ok(Ok((anim, _))) => (Ok(Arc::new(anim.scene().clone())), Some(Arc::new(anim))),
+        Ok(Err(e)) => (
+            Err(format!("cannot load scene {}: {e}", cell.scene_spec)),
+            None,
+        ),
+        Err(p) => (
+            Err(format!(
+                "loading scene {} panicked: {}",
+                cell.scene_spec,
+                crsh_core::panic_message(p.as_ref())
+            )),
+            None,
+        ),
     }
 }
 
@@ -153,16 +193,32 @@ fn run_cell<'r>(
     if let Some(reason) = &cell.unsupported {
         return failed(cell, &st.scene, threads, plan, reason.clone());
     }
+    let open_device = |device: &mut Option<Result<Wgpu, String>>| {
+        device
+            .get_or_insert_with(|| {
+                Wgpu::new().map_err(|e| format!("backend wgpu: cannot open a device: {e}"))
+            })
+            .clone()
+    };
+    if let Some(frames) = plan.frames {
+        let measured = catch_unwind(AssertUnwindSafe(|| {
+            let anim = st
+                .anim
+                .as_ref()
+                .ok_or("the scene did not load as an animated scene")?;
+            let gpu = match cell.backend.as_str() {
+                "wgpu" => Some(open_device(device)?),
+                _ => None,
+            };
+            measure_frames(plan, cell, registries, anim, gpu.as_ref(), frames)
+        }));
+        return outcome(plan, cell, &st.scene, threads, measured);
+    }
     let measured = catch_unwind(AssertUnwindSafe(|| {
         let renderer: &Renderer<'r> = match cell.backend.as_str() {
             "wgpu" => {
                 let gpu = st.gpu.get_or_insert_with(|| {
-                    let device = device
-                        .get_or_insert_with(|| {
-                            Wgpu::new()
-                                .map_err(|e| format!("backend wgpu: cannot open a device: {e}"))
-                        })
-                        .clone()?;
+                    let device = open_device(device)?;
                     Renderer::on_wgpu(registries, Arc::clone(&scene), &device)
                         .map_err(|e| format!("uploading the scene to the device: {e}"))
                 });
@@ -174,16 +230,27 @@ fn run_cell<'r>(
         };
         measure(plan, cell, renderer, &mut st.ref_images)
     }));
+    outcome(plan, cell, &st.scene, threads, measured)
+}
+
+/// The cell's result from what measuring it returned (or its panic).
+fn outcome(
+    plan: &Plan,
+    cell: &Cell,
+    scene: &LoadedScene,
+    threads: usize,
+    measured: std::thread::Result<Result<Measures, String>>,
+) -> CellResult {
     match measured {
         Ok(Ok(m)) => CellResult {
             status: "ok".to_string(),
             measures: Some(m),
-            ..failed(cell, &st.scene, threads, plan, String::new())
+            ..failed(cell, scene, threads, plan, String::new())
         },
-        Ok(Err(reason)) => failed(cell, &st.scene, threads, plan, reason),
+        Ok(Err(reason)) => failed(cell, scene, threads, plan, reason),
         Err(p) => failed(
             cell,
-            &st.scene,
+            scene,
             threads,
             plan,
             format!("panicked: {}", crsh_core::panic_message(p.as_ref())),
@@ -233,40 +300,6 @@ fn measure(
     for _ in 0..plan.repeat {
         runs.push(frame(None)?.stats);
     }
-    let first = &runs[0];
-    let counters_equal = runs.iter().all(|r| counters(r) == counters(first));
-
-    let summarise = |times: &dyn Fn(&Stats) -> &BTreeMap<String, f64>| {
-        let mut keys: Vec<&String> = runs.iter().flat_map(|r| times(r).keys()).collect();
-        keys.sort();
-        keys.dedup();
-        keys.into_iter()
-            .map(|k| {
-                let v: Vec<f64> = runs
-                    .iter()
-                    .map(|r| times(r).get(k).copied().unwrap_or(0.0))
-                    .collect();
-                (k.clone(), TimeSummary::of(&v))
-            })
-            .collect::<BTreeMap<String, TimeSummary>>()
-    };
-    let timings_ms = summarise(&|r: &Stats| &r.timings_ms);
-    let device_timings_ms = summarise(&|r: &Stats| &r.device_timings_ms);
-    // The median run's view: counters from the first run (equal in all), per-kind trace times
-    // and the frame total as medians, from which Mrays/s follow.
-    let mut median = first.clone();
-    median.timings_ms = timings_ms
-        .iter()
-        .map(|(k, t)| (k.clone(), t.median))
-        .collect();
-    for (kind, ks) in median.per_kind.iter_mut() {
-        let v: Vec<f64> = runs
-            .iter()
-            .map(|r| r.per_kind.get(kind).map_or(0.0, |k: &KindStats| k.trace_ms))
-            .collect();
-        ks.trace_ms = TimeSummary::of(&v).median;
-    }
-
     let accuracy = match &cell.reference {
         None => None,
         Some(ref_cfg) => {
@@ -310,11 +343,61 @@ fn measure(
         }
     };
 
+    Ok(measures_of(
+        &runs,
+        scene.triangle_count() as u64,
+        build_stages_ms,
+        accuracy,
+    ))
+}
+
+/// The measures of a cell's timed `runs` (at least one): counters from the first (and whether
+/// every run gave the same), every time key's median, min and max, Mrays/s from the medians.
+fn measures_of(
+    runs: &[Stats],
+    triangles: u64,
+    build_stages_ms: f64,
+    accuracy: Option<CellAccuracy>,
+) -> Measures {
+    let first = &runs[0];
+    let counters_equal = runs.iter().all(|r| counters(r) == counters(first));
+
+    let summarise = |times: &dyn Fn(&Stats) -> &BTreeMap<String, f64>| {
+        let mut keys: Vec<&String> = runs.iter().flat_map(|r| times(r).keys()).collect();
+        keys.sort();
+        keys.dedup();
+        keys.into_iter()
+            .map(|k| {
+                let v: Vec<f64> = runs
+                    .iter()
+                    .map(|r| times(r).get(k).copied().unwrap_or(0.0))
+                    .collect();
+                (k.clone(), TimeSummary::of(&v))
+            })
+            .collect::<BTreeMap<String, TimeSummary>>()
+    };
+    let timings_ms = summarise(&|r: &Stats| &r.timings_ms);
+    let device_timings_ms = summarise(&|r: &Stats| &r.device_timings_ms);
+    // The median run's view: counters from the first run (equal in all), per-kind trace times
+    // and the frame total as medians, from which Mrays/s follow.
+    let mut median = first.clone();
+    median.timings_ms = timings_ms
+        .iter()
+        .map(|(k, t)| (k.clone(), t.median))
+        .collect();
+    for (kind, ks) in median.per_kind.iter_mut() {
+        let v: Vec<f64> = runs
+            .iter()
+            .map(|r| r.per_kind.get(kind).map_or(0.0, |k: &KindStats| k.trace_ms))
+            .collect();
+        ks.trace_ms = TimeSummary::of(&v).median;
+    }
+
     let t = &first.tests;
     let traced = first.traced_rays;
     let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { 0.0 };
-    Ok(Measures {
-        triangles: scene.triangle_count() as u64,
+    Measures {
+        triangles,
         rays: CellRays {
             primary: first.rays.primary,
             shadow: first.rays.shadow,
@@ -340,6 +423,272 @@ fn measure(
         mrays_per_s: mrays_per_s(&median),
         build_stages_ms,
         accuracy,
+        frames: None,
+    }
+}
+
+/// What a sequence keeps of one frame (not its image or scene, so that nothing holds the
+/// scene buffers `render_frames` alternates).
+struct FrameRun {
+    frame: u32,
+    time_s: f32,
+    update: UpdateReport,
+    stats: Stats,
+    trace_ms: f64,
+    render_ms: f64,
+    frame_ms: f64,
+    accuracy: Option<AccuracyReport>,
+}
+
+/// The counters of a frame of a sequence, without its times: equal across sequences.
+fn frame_counters(f: &FrameRun) -> (Stats, String, u64) {
+    (
+        counters(&f.stats),
+        f.update.structure.clone(),
+        f.update.moved_triangles,
+    )
+}
+
+/// Adds the counters and times of `s` to `sum` (a sequence's frames as one run: counters and
+/// times summed, the peak candidate bytes the largest).
+fn add_stats(sum: &mut Stats, s: &Stats) {
+    sum.stages.clone_from(&s.stages);
+    sum.rays.primary += s.rays.primary;
+    sum.rays.shadow += s.rays.shadow;
+    sum.rays.reflection += s.rays.reflection;
+    sum.rays.refraction += s.rays.refraction;
+    sum.tests.bounds += s.tests.bounds;
+    sum.tests.ray_triangle += s.tests.ray_triangle;
+    sum.tests.total += s.tests.total;
+    sum.tests.brute_force += s.tests.brute_force;
+    sum.traced_rays += s.traced_rays;
+    for (kind, k) in &s.per_kind {
+        let e = sum.per_kind.entry(kind.clone()).or_default();
+        e.rays += k.rays;
+        e.bounds += k.bounds;
+        e.ray_triangle += k.ray_triangle;
+        e.trace_ms += k.trace_ms;
+    }
+    for l in &s.levels {
+        match sum
+            .levels
+            .iter_mut()
+            .find(|x| x.ray_kind == l.ray_kind && x.level == l.level)
+        {
+            Some(x) => {
+                x.tests += l.tests;
+                x.hits += l.hits;
+                x.misses += l.misses;
+            }
+            None => sum.levels.push(l.clone()),
+        }
+    }
+    for (kind, c) in &s.mesh_culling {
+        let e = sum.mesh_culling.entry(kind.clone()).or_default();
+        e.tests += c.tests;
+        e.hits += c.hits;
+        e.misses += c.misses;
+    }
+    for (k, v) in &s.timings_ms {
+        *sum.timings_ms.entry(k.clone()).or_default() += v;
+    }
+    for (k, v) in &s.device_timings_ms {
+        *sum.device_timings_ms.entry(k.clone()).or_default() += v;
+    }
+    sum.peak_candidate_bytes = sum.peak_candidate_bytes.max(s.peak_candidate_bytes);
+}
+
+/// A sequence of frames as one run: [`add_stats`] over its frames, each frame's update under
+/// `update`, and `total` every frame's update and render.
+fn sequence_stats(seq: &[FrameRun]) -> Stats {
+    let mut sum = Stats::default();
+    for f in seq {
+        add_stats(&mut sum, &f.stats);
+    }
+    let update: f64 = seq.iter().map(|f| f.update.total_ms).sum();
+    sum.timings_ms.insert("update".into(), update);
+    sum.timings_ms
+        .insert("total".into(), seq.iter().map(|f| f.frame_ms).sum());
+    sum
+}
+
+/// Runs a frames cell: `warmup` untimed sequences of `frames` frames, `repeat` timed ones,
+/// then one with the reference on every `reference_every`-th frame (see the module
+/// documentation). The measures are over the whole sequence ([`sequence_stats`]), with one
+/// [`FrameMeasure`] per frame.
+fn measure_frames(
+    plan: &Plan,
+    cell: &Cell,
+    registries: &Registries,
+    anim: &AnimatedScene,
+    device: Option<&Wgpu>,
+    frames: u32,
+) -> Result<Measures, String> {
+    let scene = anim.scene();
+    let base = RenderRequest::new()
+        .with_width(cell.width)
+        .with_height(height_of(cell, scene))
+        .with_max_depth(cell.depth);
+    let sequence = |request: &FramesRequest| -> Result<Vec<FrameRun>, String> {
+        let mut out = Vec::with_capacity(frames as usize);
+        crsh::render_frames(
+            registries,
+            anim,
+            device,
+            &cell.config,
+            request,
+            &mut |_, _| {},
+            &mut |f| {
+                out.push(FrameRun {
+                    frame: f.frame,
+                    time_s: f.time_s,
+                    trace_ms: f.trace_ms(),
+                    render_ms: f.render_ms(),
+                    frame_ms: f.frame_ms(),
+                    update: f.update,
+                    stats: f.render.stats,
+                    accuracy: f.render.accuracy,
+                });
+                Ok(())
+            },
+        )
+        .map_err(|e| format!("rendering frames: {e}"))?;
+        Ok(out)
+    };
+    let plain = FramesRequest::new(base.clone(), frames);
+    for _ in 0..plan.warmup {
+        sequence(&plain)?;
+    }
+    let mut runs: Vec<Vec<FrameRun>> = Vec::with_capacity(plan.repeat as usize);
+    for _ in 0..plan.repeat {
+        runs.push(sequence(&plain)?);
+    }
+    let first = &runs[0];
+    let counters_equal = runs.iter().all(|seq| {
+        seq.len() == first.len()
+            && seq
+                .iter()
+                .zip(first)
+                .all(|(a, b)| frame_counters(a) == frame_counters(b))
+    });
+
+    // The accuracy sequence: untimed, the reference on the sampled frames.
+    let checked: Vec<FrameRun> = match &cell.reference {
+        None => Vec::new(),
+        Some(r) => {
+            let request = FramesRequest::new(base.with_reference(&r.intersect.kind), frames)
+                .with_reference_every(plan.reference_every);
+            sequence(&request)?
+        }
+    };
+    let agreement = |frame: u32| {
+        checked
+            .iter()
+            .find(|f| f.frame == frame)
+            .and_then(|f| f.accuracy.as_ref())
+            .map(|a| a.hit_agreement)
+    };
+
+    let median = |pick: &dyn Fn(&FrameRun) -> f64, i: usize| {
+        TimeSummary::of(&runs.iter().map(|seq| pick(&seq[i])).collect::<Vec<_>>()).median
+    };
+    let rows: Vec<FrameMeasure> = first
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let tests = f.stats.tests.total;
+            let traced = f.stats.traced_rays;
+            FrameMeasure {
+                frame: f.frame,
+                time_s: f.time_s,
+                structure: f.update.structure.clone(),
+                moved_triangles: f.update.moved_triangles,
+                scene_ms: median(&|f: &FrameRun| f.update.scene_ms, i),
+                spheres_ms: median(&|f: &FrameRun| f.update.spheres_ms, i),
+                upload_ms: median(&|f: &FrameRun| f.update.upload_ms, i),
+                structure_ms: median(&|f: &FrameRun| f.update.structure_ms, i),
+                update_ms: median(&|f: &FrameRun| f.update.total_ms, i),
+                trace_ms: median(&|f: &FrameRun| f.trace_ms, i),
+                render_ms: median(&|f: &FrameRun| f.render_ms, i),
+                frame_ms: median(&|f: &FrameRun| f.frame_ms, i),
+                traced_rays: traced,
+                tests,
+                tests_per_ray: if traced > 0 {
+                    tests as f64 / traced as f64
+                } else {
+                    0.0
+                },
+                hit_agreement: agreement(f.frame),
+            }
+        })
+        .collect();
+    let build_stages_ms = TimeSummary::of(
+        &runs
+            .iter()
+            .map(|seq| {
+                seq.iter()
+                    .flat_map(|f| f.update.stages.iter())
+                    .map(|b| b.ms)
+                    .sum::<f64>()
+            })
+            .collect::<Vec<_>>(),
+    )
+    .median;
+    let sequences: Vec<Stats> = runs.iter().map(|seq| sequence_stats(seq)).collect();
+    let mut m = measures_of(
+        &sequences,
+        scene.triangle_count() as u64,
+        build_stages_ms,
+        frames_accuracy(&checked),
+    );
+    m.counters_equal_across_repeats = counters_equal && m.counters_equal_across_repeats;
+    m.frames = Some(CellFrames {
+        totals: FramesTotals::of(&rows),
+        rows,
+    });
+    Ok(m)
+}
+
+/// The accuracy of the checked frames of a sequence (`None` when none was checked): the
+/// lowest hit agreement and PSNR, the counts summed, the mean |t| error over every agreeing
+/// hit.
+fn frames_accuracy(seq: &[FrameRun]) -> Option<CellAccuracy> {
+    let checked: Vec<(&AccuracyReport, AccuracyCounts)> = seq
+        .iter()
+        .filter_map(|f| {
+            let a = f.accuracy.as_ref()?;
+            Some((a, f.stats.accuracy.clone().unwrap_or_default()))
+        })
+        .collect();
+    let (first, _) = checked.first()?;
+    let mut counts = AccuracyCounts::default();
+    for (_, c) in &checked {
+        counts.rays += c.rays;
+        counts.agreeing += c.agreeing;
+        counts.hit_miss_mismatches += c.hit_miss_mismatches;
+        counts.nearest_mismatches += c.nearest_mismatches;
+        counts.t_compared += c.t_compared;
+        counts.t_abs_error_sum += c.t_abs_error_sum;
+        counts.self_hits += c.self_hits;
+    }
+    Some(CellAccuracy {
+        reference: first.reference.clone(),
+        hit_agreement: checked
+            .iter()
+            .map(|(a, _)| a.hit_agreement)
+            .fold(f64::INFINITY, f64::min),
+        psnr_db: checked
+            .iter()
+            .filter_map(|(a, _)| a.psnr_db)
+            .reduce(f64::min),
+        images_identical: checked.iter().all(|(a, _)| a.images_identical),
+        pixels_differing: checked.iter().map(|(a, _)| a.pixels_differing).sum(),
+        rays_compared: counts.rays,
+        hit_miss_mismatches: counts.hit_miss_mismatches,
+        nearest_mismatches: counts.nearest_mismatches,
+        mean_abs_t_error: counts.mean_abs_t_error(),
+        self_hits: counts.self_hits,
+        self_hit_rate: counts.self_hit_rate(),
     })
 }
 
