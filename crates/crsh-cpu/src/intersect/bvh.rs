@@ -696,6 +696,46 @@ mod tests {
         assert!(any_stats.tests.ray_triangle <= stats.tests.ray_triangle);
     }
 
+    /// A refitted BVH (kept binary tree, moved triangles) answers exactly as brute force on the
+    /// moved scene, for every test; a BVH built to rebuild keeps nothing to refit, and the
+    /// kept tree is used once.
+    #[test]
+    fn refitted_trees_are_identical_to_brute_force_on_the_moved_scene() {
+        let (anim, _) = crsh_scene::load_animated("cornell-mirrors-animated").unwrap();
+        for test in TestKind::ALL {
+            let mut bvh = CwBvh::build_with_test(anim.scene(), BuildQuality::Medium, test);
+            let rebuild_only = CwBvh {
+                refit: None,
+                ..CwBvh::build_with_test(anim.scene(), BuildQuality::Fast, test)
+            };
+            assert!(rebuild_only.refitted(anim.scene()).is_none());
+            let mut scene = anim.scene().clone();
+            for frame in [3, 7, 11] {
+                anim.update(&mut scene, frame, false).unwrap();
+                let refitted = bvh.refitted(&scene).expect("a kept tree");
+                assert!(bvh.refitted(&scene).is_none(), "the kept tree moved on");
+                let rays = random_rays(&scene, frame as u64, 3000);
+                let brute = BruteForce::with_test(&scene, test);
+                for mode in [HitMode::Closest, HitMode::Any] {
+                    let (want, _) = run(&brute, &rays, mode);
+                    let (got, stats) = run(&refitted, &rays, mode);
+                    assert!(stats.tests.bounds > 0);
+                    for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                        match mode {
+                            HitMode::Closest => assert_eq!(
+                                (g.tri, g.t.to_bits(), g.u.to_bits(), g.v.to_bits()),
+                                (w.tri, w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
+                                "{test:?} frame {frame} ray {i}"
+                            ),
+                            HitMode::Any => assert_eq!(g.is_hit(), w.is_hit()),
+                        }
+                    }
+                }
+                bvh = refitted;
+            }
+        }
+    }
+
     #[test]
     fn identical_to_brute_force_on_random_soups() {
         for (seed, n) in [(21u64, 500usize), (22, 60), (23, 1)] {
@@ -807,6 +847,15 @@ mod tests {
         ));
         spec.params
             .insert("test".into(), ParamValue::Str("watertight".into()));
+        assert!(CwBvh::new(&scene, &spec).is_err(), "no update given");
+        spec.params
+            .insert("update".into(), ParamValue::Str("sometimes".into()));
+        assert!(matches!(
+            CwBvh::new(&scene, &spec),
+            Err(CoreError::InvalidParam { .. })
+        ));
+        spec.params
+            .insert("update".into(), ParamValue::Str("rebuild".into()));
         let bvh = CwBvh::new(&scene, &spec).unwrap();
         assert_eq!(bvh.test(), TestKind::Watertight);
         assert_eq!(bvh.quality(), BuildQuality::Fast);

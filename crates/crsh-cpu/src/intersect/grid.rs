@@ -493,57 +493,66 @@ pub fn slot_primitive(scan: &[u32], slot: u32) -> usize {
     scan.partition_point(|&s| s <= slot) - 1
 }
 
-/// Pass 3 (§3.2.3): one task per output slot writes its (cell, primitive) pair, sorted by
-/// primitive (fig. 5c). Returns `(cells, primitives)`.
+/// Output slots per task of [`write_pairs_pass`].
+const SLOT_CHUNK: u32 = 4096;
+
+/// Pass 3 (§3.2.3): every output slot gets its (cell, primitive) pair, sorted by primitive
+/// (fig. 5c). Returns `(cells, primitives)`. The slots are split into chunks of
+/// [`SLOT_CHUNK`]; a chunk finds the primitive of its first slot by the binary search of
+/// §3.2.3 ([`slot_primitive`]) and walks on from there (the GPU twin searches for every slot),
+/// so each slot's pair is computed from the scan alone, whatever the thread count.
 pub fn write_pairs_pass(scan: &[u32], cells: &impl PrimitiveCells) -> (Vec<u32>, Vec<u32>) {
-    let total = scan.last().copied().unwrap_or(0);
-    (0..total)
-        .into_par_iter()
-        .map(|slot| {
-            let p = slot_primitive(scan, slot);
-            (cells.nth_cell(p, slot - scan[p]), p as u32)
-        })
-        .unzip()
+    let total = scan.last().copied().unwrap_or(0) as usize;
+    let mut pair_cells = vec![0u32; total];
+    let mut pair_prims = vec![0u32; total];
+    pair_cells
+        .par_chunks_mut(SLOT_CHUNK as usize)
+        .zip(pair_prims.par_chunks_mut(SLOT_CHUNK as usize))
+        .enumerate()
+        .for_each(|(chunk, (out_c, out_p))| {
+            let first = chunk as u32 * SLOT_CHUNK;
+            let mut p = slot_primitive(scan, first);
+            for (i, (c, q)) in out_c.iter_mut().zip(out_p.iter_mut()).enumerate() {
+                let slot = first + i as u32;
+                while scan[p + 1] <= slot {
+                    p += 1;
+                }
+                *c = cells.nth_cell(p, slot - scan[p]);
+                *q = p as u32;
+            }
+        });
+    (pair_cells, pair_prims)
 }
 
-/// Pass 4 (§3.2.4): the pairs stably sorted by cell (fig. 5d) with
-/// [`crate::sort::radix::stable_radix_order`] on `key_bits` bits. Returns `(cells,
-/// primitives)`.
+/// Pass 4 (§3.2.4): the pairs stably sorted by cell (fig. 5d) with the project's radix sort
+/// of key-value pairs ([`crate::sort::radix::stable_sort_pairs_u32`], the block radix sort the
+/// wgpu backend's sorter also runs) on `key_bits` bits. Returns `(cells, primitives)`.
 ///
 /// # Errors
-/// Those of the radix sort (a cell id above `key_bits`), or mismatched lengths.
+/// Those of the radix sort (a cell id above `key_bits`, mismatched lengths).
 pub fn sort_pass(cells: &[u32], prims: &[u32], key_bits: u32) -> Result<(Vec<u32>, Vec<u32>)> {
-    if cells.len() != prims.len() {
-        return Err(CoreError::InvalidInput(format!(
-            "{} pair cells but {} pair primitives",
-            cells.len(),
-            prims.len()
-        )));
-    }
-    let keys: Vec<u64> = cells.par_iter().map(|&c| c as u64).collect();
-    let order = crate::sort::radix::stable_radix_order(&keys, key_bits)?;
-    Ok(order
-        .par_iter()
-        .map(|&i| (cells[i as usize], prims[i as usize]))
-        .unzip())
+    crate::sort::radix::stable_sort_pairs_u32(cells, prims, key_bits)
 }
 
-/// Pass 5 (§3.2.5): per cell, `(start, count)` in the sorted pairs by binary search; `(0, 0)`
-/// for empty cells (fig. 5e).
+/// Pass 5 (§3.2.5): per cell, `(start, count)` in the sorted pairs; `(0, 0)` for empty cells
+/// (fig. 5e). The paper binary-searches every cell id (as the GPU twin does); here the runs of
+/// equal cells are found in one parallel sweep of the sorted pairs (a run starts where the
+/// cell differs from its predecessor) and each run is written to its cell: the same table in
+/// time linear in the pairs rather than in cells × log pairs.
 pub fn ranges_pass(sorted_cells: &[u32], cell_count: usize) -> Vec<[u32; 2]> {
-    (0..cell_count)
+    let n = sorted_cells.len();
+    let starts: Vec<u32> = (0..n as u32)
         .into_par_iter()
-        .map(|c| {
-            let c = c as u32;
-            let lo = sorted_cells.partition_point(|&x| x < c);
-            let hi = lo + sorted_cells[lo..].partition_point(|&x| x == c);
-            if hi > lo {
-                [lo as u32, (hi - lo) as u32]
-            } else {
-                [0, 0]
-            }
-        })
-        .collect()
+        .filter(|&i| i == 0 || sorted_cells[i as usize] != sorted_cells[i as usize - 1])
+        .collect();
+    let mut ranges = vec![[0u32, 0u32]; cell_count];
+    for (k, &start) in starts.iter().enumerate() {
+        let end = starts.get(k + 1).copied().unwrap_or(n as u32);
+        if let Some(r) = ranges.get_mut(sorted_cells[start as usize] as usize) {
+            *r = [start, end - start];
+        }
+    }
+    ranges
 }
 
 /// Every pass's output of one build (for tests and the GPU twin's checks).
@@ -608,7 +617,26 @@ impl GridData {
     /// # Errors
     /// Those of [`run_passes`] (a grid too large for 32-bit indices).
     pub fn build(scene: &Scene, k: f64, test: TestKind) -> Result<GridData> {
-        Ok(GridData::build_passes(scene, k, test)?.0)
+        let keep = hittable(scene, test);
+        let binned = keep.iter().filter(|&&h| h).count();
+        let geometry = GridGeometry::new(&scene.bounds, binned, k);
+        let boxes = triangle_boxes(&geometry, scene, &keep);
+        let cells = BoxCells {
+            geometry: &geometry,
+            boxes: &boxes,
+        };
+        // The passes of `run_passes`, keeping only what the grid stores.
+        let counts = count_pass(&cells);
+        let scan = scan_pass(&counts)?;
+        let (pair_cells, pair_prims) = write_pairs_pass(&scan, &cells);
+        let (sorted_cells, cell_tris) = sort_pass(&pair_cells, &pair_prims, geometry.key_bits())?;
+        drop((pair_cells, pair_prims));
+        let cell_ranges = ranges_pass(&sorted_cells, geometry.cell_count());
+        Ok(GridData {
+            geometry,
+            cell_ranges,
+            cell_tris,
+        })
     }
 
     /// [`GridData::build`], also returning every pass's output.
