@@ -49,6 +49,37 @@ pub fn add_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<
     Ok(())
 }
 
+/// Name of the uniform-grid preset ([`add_grid_preset`]).
+pub const GRID_PRESET: &str = "grid";
+
+/// Adds the preset `grid` — the Whitted pipeline of `bvh` with `intersect.kind = "grid"`, the
+/// uniform grid of seed 002 (§3-4; see [`crate::intersect::grid`]) — to `registry` when it has
+/// the `grid` intersector and no preset of that name yet. Returns whether it was added.
+///
+/// It is not part of [`add_presets`] (which both backends call and whose presets must exist on
+/// both: crsh-wgpu's tests check it) while only the CPU has a `grid` intersector;
+/// `crsh::Registries::builtin` calls it for each backend, so the preset appears on wgpu as
+/// soon as that backend registers its twin. Once it does, this can move into `add_presets`.
+///
+/// # Errors
+/// Those of [`Registry::add_preset`] (the variants it names do not resolve).
+pub fn add_grid_preset<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<bool> {
+    if registry
+        .variant(crsh_core::StageKind::Intersect, "grid")
+        .is_none()
+        || registry.preset(GRID_PRESET).is_some()
+    {
+        return Ok(false);
+    }
+    registry.add_preset(
+        GRID_PRESET,
+        "seed 002's uniform grid (eq. 1 resolution, five-pass build, 3D-DDA): the spatial \
+         subdivision baseline, weak on a detailed object in a huge sparse scene",
+        PipelineConfig::whitted(GRID_PRESET, "grid"),
+    )?;
+    Ok(true)
+}
+
 /// The preset definitions (unresolved): `(name, doc, config)`.
 fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
     let hierarchy_pipeline = |name: &str, sorted: bool| {
@@ -132,6 +163,22 @@ mod tests {
             assert_eq!(cfg.shade.f64("ambient").unwrap(), 0.05);
         }
         assert!(registry.preset("kdtree").is_none());
+    }
+
+    #[test]
+    fn grid_preset_only_where_the_grid_is() {
+        let mut registry = Registry::<Cpu>::builtin();
+        assert!(registry.preset(GRID_PRESET).is_none());
+        assert!(add_grid_preset(&mut registry).unwrap());
+        let cfg = registry.preset(GRID_PRESET).unwrap();
+        assert_eq!(cfg.intersect.kind, "grid");
+        assert!(cfg.hierarchy.is_none() && cfg.hash.is_none());
+        assert_eq!(cfg.raygen, registry.preset("bvh").unwrap().raygen);
+        // Once only; a registry without the variant gets nothing.
+        assert!(!add_grid_preset(&mut registry).unwrap());
+        let mut bare = Registry::<Cpu>::new();
+        assert!(!add_grid_preset(&mut bare).unwrap());
+        assert!(bare.preset(GRID_PRESET).is_none());
     }
 
     #[test]
