@@ -136,9 +136,10 @@ mod tests {
             // the circumcentre of the triangle, in its plane.
             let n = (b - a).cross(c - a);
             let area = 0.5 * n.length();
-            let cc = a + ((c - a).length_squared() * n.cross(b - a)
-                + (b - a).length_squared() * (c - a).cross(n))
-                / (2.0 * n.length_squared());
+            let cc = a
+                + ((c - a).length_squared() * n.cross(b - a)
+                    + (b - a).length_squared() * (c - a).cross(n))
+                    / (2.0 * n.length_squared());
             let r = (a - cc).length();
             assert!(((b - cc).length() - r).abs() < 1e-4 && ((c - cc).length() - r).abs() < 1e-4);
             // The circumradius is at most the sphere's radius (equal when the centre is in
@@ -156,7 +157,10 @@ mod tests {
         // Spread over the whole box.
         let lo = tris.iter().flatten().fold(Vec3::MAX, |m, v| m.min(*v));
         let hi = tris.iter().flatten().fold(Vec3::MIN, |m, v| m.max(*v));
-        assert!(lo.max_element() < -48.0 && hi.min_element() > 48.0, "{lo} {hi}");
+        assert!(
+            lo.max_element() < -48.0 && hi.min_element() > 48.0,
+            "{lo} {hi}"
+        );
     }
 
     #[test]
