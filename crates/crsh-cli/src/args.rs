@@ -42,6 +42,9 @@ pub enum Command {
     /// scenes, wide bundles, invalid rays) against pipelines × intersect tests × offset
     /// policies; print the table and write CSV / Markdown / JSON.
     Stress(crate::stress::StressArgs),
+    /// Time the uniform grid's rebuild (serial, parallel, per pass) on random triangle soups
+    /// of 5K-500K triangles and print it next to seed 002's table 1 (§5.1).
+    GridBuild(crate::grid_build::GridBuildArgs),
 }
 
 /// Where a pipeline runs.

@@ -7,7 +7,8 @@
 //! prints seed 000's evaluation tables for any scenes and hierarchy configurations; `crsh
 //! ablate` runs a matrix of pipelines and parameters (sharded over processes if need be) and
 //! writes data, charts and a report; `crsh stress` runs the stability suite (procedural cases
-//! with known answers) against every pipeline.
+//! with known answers) against every pipeline; `crsh grid-build` times the uniform grid's
+//! rebuild on seed 002's random soups next to its table 1.
 //!
 //! Every command resolves pipeline, variant and parameter names through the
 //! [`crsh::Registries`] it is given, so a program that registers its own stage variants and
@@ -30,6 +31,7 @@
 mod ablate;
 mod args;
 mod error;
+mod grid_build;
 mod listing;
 mod output;
 mod render;
@@ -53,6 +55,7 @@ fn dispatch(registries: &Registries, cli: Cli) -> CliResult<()> {
         Command::Tables(a) => tables::run(&a, registries),
         Command::Ablate(a) => ablate::run(&a, registries),
         Command::Stress(a) => stress::run(&a, registries),
+        Command::GridBuild(a) => grid_build::run(&a),
     }
 }
 

@@ -2,7 +2,9 @@
 //! `crsh_scene::stress::cases` runs under every pipeline × `intersect.test` × `raygen.offset`
 //! (`crsh_cpu::stress`), and the command prints a Markdown table (false misses, false hits,
 //! wrong nearest hits, self-intersections and escapes, each as a count and a rate, plus time)
-//! and a summary of which method fails where; `--out DIR` also writes `stress.csv`,
+//! and a summary of which method fails where, with the tests (bounding + ray-triangle) per traced
+//! ray of each row, so an acceleration structure's cost on a case shows (seed 002's teapot in a
+//! stadium: `--cases stadium --pipelines grid,bvh,crsh`); `--out DIR` also writes `stress.csv`,
 //! `stress.md` and `stress.json`.
 
 use std::collections::BTreeMap;
@@ -261,25 +263,27 @@ fn markdown(cases: &[StressCase], rows: &[StressRow], threads: usize) -> String 
         "# crsh stress\n\n{} cases × {} configurations = {} rows, CPU backend, {threads} threads. \
          Rates are per traced ray; `escapes` are misses of rays that had to hit (closed meshes, \
          shared edges and vertices), `false miss` the other misses of rays the truth says hit; \
-         offset `-`: explicit rays, no ray generator involved; time: tracing only.\n",
+         offset `-`: explicit rays, no ray generator involved; tests/ray: bounding (BVH nodes, \
+         hierarchy nodes, grid cells) plus ray-triangle tests per traced ray; time: tracing only.\n",
         cases.len(),
         rows.iter().map(|r| &r.variant).collect::<std::collections::BTreeSet<_>>().len(),
         rows.len()
     );
     s.push_str(
-        "| case | pipeline | test | offset | rays | false miss | rate | false hit | rate | wrong nearest | rate | self-int. | rate | escapes | rate | ms | status |\n\
-         |---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n",
+        "| case | pipeline | test | offset | rays | tests/ray | false miss | rate | false hit | rate | wrong nearest | rate | self-int. | rate | escapes | rate | ms | status |\n\
+         |---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n",
     );
     for r in rows {
         let o = &r.outcome;
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {} |",
+            "| {} | {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.2} | {} |",
             r.case,
             r.variant.pipeline,
             shown(&r.variant.test),
             offset_cell(r, frame(&r.case)),
             o.rays,
+            o.tests_per_ray(),
             o.false_misses,
             pct(o, o.false_misses),
             o.false_hits,
@@ -296,15 +300,15 @@ fn markdown(cases: &[StressCase], rows: &[StressRow], threads: usize) -> String 
     }
     s.push_str(
         "\n## Summary per pipeline × test × offset\n\n\
-         | pipeline | test | offset | rows | rays | false miss | false hit | wrong nearest | self-int. | escapes | errors | panics | ms |\n\
-         |---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+         | pipeline | test | offset | rows | rays | tests/ray | false miss | false hit | wrong nearest | self-int. | escapes | errors | panics | ms |\n\
+         |---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
     );
     for (v, o) in summary(rows) {
         let mine: Vec<&StressRow> = rows.iter().filter(|r| r.variant == v).collect();
         let of = |_: &Variant| mine.iter().copied();
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} |",
+            "| {} | {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {} | {:.1} |",
             v.pipeline,
             shown(&v.test),
             if v.offset.is_none() && of(&v).all(|r| !frame(&r.case)) {
@@ -314,6 +318,7 @@ fn markdown(cases: &[StressCase], rows: &[StressRow], threads: usize) -> String 
             },
             of(&v).count(),
             o.rays,
+            o.tests_per_ray(),
             o.false_misses,
             o.false_hits,
             o.wrong_nearest,
@@ -375,7 +380,7 @@ fn csv_field(s: &str) -> String {
 fn csv(cases: &[StressCase], rows: &[StressRow]) -> String {
     let frame = |name: &str| cases.iter().any(|c| c.name == name && c.probe.is_frame());
     let mut s = String::from(
-        "case,family,pipeline,test,offset,rays,false_misses,false_miss_rate,false_hits,false_hit_rate,\
+        "case,family,pipeline,test,offset,rays,bounds_tests,triangle_tests,tests_per_ray,false_misses,false_miss_rate,false_hits,false_hit_rate,\
          wrong_nearest,wrong_nearest_rate,self_intersections,self_intersection_rate,escapes,escape_rate,\
          time_ms,panicked,error\n",
     );
@@ -383,13 +388,16 @@ fn csv(cases: &[StressCase], rows: &[StressRow]) -> String {
         let o = &r.outcome;
         let _ = writeln!(
             s,
-            "{},{},{},{},{},{},{},{:e},{},{:e},{},{:e},{},{:e},{},{:e},{:.4},{},{}",
+            "{},{},{},{},{},{},{},{},{:.4},{},{:e},{},{:e},{},{:e},{},{:e},{},{:e},{:.4},{},{}",
             csv_field(&r.case),
             r.family,
             r.variant.pipeline,
             shown(&r.variant.test),
             offset_cell(r, frame(&r.case)),
             o.rays,
+            o.bounds_tests,
+            o.triangle_tests,
+            o.tests_per_ray(),
             o.false_misses,
             o.rate(o.false_misses),
             o.false_hits,

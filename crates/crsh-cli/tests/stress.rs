@@ -103,9 +103,17 @@ fn writes_consistent_csv_markdown_and_json() {
                 "wrong_nearest",
                 "self_intersections",
                 "escapes",
+                "bounds_tests",
+                "triangle_tests",
             ] {
                 assert_eq!(r[key], o[key].to_string(), "{key}");
             }
+            let tests: f64 = r["bounds_tests"].parse::<f64>().unwrap()
+                + r["triangle_tests"].parse::<f64>().unwrap();
+            let per_ray: f64 = r["tests_per_ray"].parse().unwrap();
+            assert!(
+                tests > 0.0 && (per_ray - tests / r["rays"].parse::<f64>().unwrap()).abs() < 1e-3
+            );
             let rays: f64 = r["rays"].parse().unwrap();
             assert!(rays > 0.0);
             let self_int: f64 = r["self_intersections"].parse().unwrap();
@@ -161,6 +169,44 @@ fn writes_consistent_csv_markdown_and_json() {
             .collect::<Vec<_>>()
     };
     assert_eq!(strip("out2"), strip("out3"));
+}
+
+/// Seed 002's known worst case for a uniform grid: a detailed object in a huge sparse scene.
+/// The counts are deterministic, so the grid's penalty against the BVH is a fact to check.
+#[test]
+fn teapot_in_a_stadium_shows_tests_per_ray_per_pipeline() {
+    let dir = scratch("stadium");
+    let o = crsh(
+        &dir,
+        &[
+            "stress",
+            "--cases",
+            "stadium/teapot",
+            "--pipelines",
+            "grid,bvh,crsh",
+            "--tests",
+            "mt",
+            "--offsets",
+            "normal",
+            "--out",
+            "out",
+        ],
+    );
+    assert_ok(&o);
+    let rows = csv(&dir.join("out/stress.csv"));
+    assert_eq!(rows.len(), 3);
+    let per_ray = |p: &str| -> f64 {
+        let r = rows.iter().find(|r| r["pipeline"] == p).expect(p);
+        assert_eq!(r["error"], "", "{p}");
+        r["tests_per_ray"].parse().unwrap()
+    };
+    let (grid, bvh, crsh) = (per_ray("grid"), per_ray("bvh"), per_ray("crsh"));
+    assert!(grid > 0.0 && bvh > 0.0 && crsh > 0.0);
+    // The whole teapot falls into a few cells, each tested triangle by triangle.
+    assert!(grid > 10.0 * bvh, "grid {grid} bvh {bvh}");
+    let md = text(&o.stdout);
+    assert!(md.contains("| tests/ray |"), "{md}");
+    assert!(md.contains("| stadium/teapot | grid |"), "{md}");
 }
 
 #[test]

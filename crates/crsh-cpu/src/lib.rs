@@ -34,10 +34,13 @@
 //! - [`hash`], [`sort`], [`hierarchy`], [`traverse`]: the ray-space hierarchy stages
 //!   (seed 000 §3.2.3-3.2.8); [`trim`]: head-flag scan compaction (fig. 3.10).
 //! - [`stress`]: runs the stability suite of `crsh_scene::stress` against pipelines.
+//! - [`grid_timing`]: timed rebuilds of the uniform grid, pass by pass (seed 002 §5.1,
+//!   table 1; `crsh grid-build`).
 
 #![warn(missing_docs)]
 
 pub mod backend;
+pub mod grid_timing;
 pub mod hash;
 pub mod hierarchy;
 pub mod intersect;

@@ -77,6 +77,12 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
             PipelineConfig::whitted("bvh", "bvh"),
         ),
         (
+            "grid",
+            "seed 002's uniform grid (eq. 1 resolution, five-pass build, 3D-DDA): the spatial \
+             subdivision rebuilt every frame, weak on a detailed object in a huge sparse scene",
+            PipelineConfig::whitted("grid", "grid"),
+        ),
+        (
             "crsh",
             "seed 000's Coherent Ray-Space Hierarchy: thesis hashes, compress-sort-decompress, \
              sphere-cone hierarchy (subdivision 8, depth 2), traversal with whole-mesh culling, \
@@ -112,12 +118,12 @@ mod tests {
     fn presets_resolve_against_the_registry() {
         let registry = Registry::<Cpu>::builtin();
         let names: Vec<&str> = registry.presets().iter().map(|p| p.name.as_str()).collect();
-        assert_eq!(names, ["brute", "bvh", "crsh", "rah"]);
+        assert_eq!(names, ["brute", "bvh", "grid", "crsh", "rah"]);
         for p in registry.presets() {
             let cfg = &p.config;
             let name = p.name.as_str();
             assert_eq!(cfg.name, name);
-            let expect = if ["brute", "bvh"].contains(&name) {
+            let expect = if ["brute", "bvh", "grid"].contains(&name) {
                 name
             } else {
                 "brute"
@@ -132,6 +138,15 @@ mod tests {
             assert_eq!(cfg.shade.f64("ambient").unwrap(), 0.05);
         }
         assert!(registry.preset("kdtree").is_none());
+    }
+
+    #[test]
+    fn the_grid_preset_is_the_whitted_pipeline_on_the_grid() {
+        let registry = Registry::<Cpu>::builtin();
+        let cfg = registry.preset("grid").unwrap();
+        assert_eq!(cfg.intersect.kind, "grid");
+        assert!(cfg.hierarchy.is_none() && cfg.hash.is_none());
+        assert_eq!(cfg.raygen, registry.preset("bvh").unwrap().raygen);
     }
 
     #[test]

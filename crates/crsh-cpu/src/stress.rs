@@ -50,6 +50,13 @@ pub struct StressOutcome {
     pub self_intersections: u64,
     /// Rays that had to hit (closed mesh, shared edge or vertex) and missed.
     pub escapes: u64,
+    /// Bounding tests of the tracing (BVH nodes, hierarchy nodes, grid cells visited; the
+    /// truth excluded).
+    #[serde(default)]
+    pub bounds_tests: u64,
+    /// Ray-triangle tests of the tracing (the truth excluded).
+    #[serde(default)]
+    pub triangle_tests: u64,
     /// Wall time of the tracing (stage construction, primary visibility and ray generation
     /// excluded; the truth excluded), milliseconds.
     pub time_ms: f64,
@@ -78,6 +85,13 @@ impl StressOutcome {
         }
     }
 
+    /// Bounding plus ray-triangle tests per traced ray (0 when no rays were traced): the cost
+    /// of an acceleration structure on the case, e.g. a uniform grid's on a detailed object in
+    /// a huge sparse scene (seed 002's teapot in a stadium, `stadium/teapot`).
+    pub fn tests_per_ray(&self) -> f64 {
+        self.rate(self.bounds_tests + self.triangle_tests)
+    }
+
     /// Adds `other`'s counts and time (not its error or panic flag).
     pub fn accumulate(&mut self, other: &StressOutcome) {
         self.rays += other.rays;
@@ -86,6 +100,8 @@ impl StressOutcome {
         self.wrong_nearest += other.wrong_nearest;
         self.self_intersections += other.self_intersections;
         self.escapes += other.escapes;
+        self.bounds_tests += other.bounds_tests;
+        self.triangle_tests += other.triangle_tests;
         self.time_ms += other.time_ms;
     }
 }
@@ -238,6 +254,8 @@ fn run_probe(
     let mut out = StressOutcome::default();
     let mut stats = Stats::default();
     let mut traced = Duration::ZERO;
+    // Tests made before tracing (a primary stage that casts rays) are not the probe's.
+    let mut base = stats.tests;
     match probe {
         Probe::Rays { kind, rays, expect } => {
             out.rays = rays.len() as u64;
@@ -263,6 +281,7 @@ fn run_probe(
                 .primary
                 .gbuffer(&Cpu, *width, *height, &mut stats)
                 .map_err(|e| (e, 0))?;
+            base = stats.tests;
             for kind in [RayKind::Shadow, RayKind::Reflection, RayKind::Refraction] {
                 let rays = stages
                     .raygen
@@ -291,6 +310,9 @@ fn run_probe(
         }
     }
     out.time_ms = traced.as_secs_f64() * 1e3;
+    // Only the traced batches count (the reference has its own stats).
+    out.bounds_tests = stats.tests.bounds - base.bounds;
+    out.triangle_tests = stats.tests.ray_triangle - base.ray_triangle;
     Ok(out)
 }
 

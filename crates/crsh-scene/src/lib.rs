@@ -15,6 +15,8 @@
 //!   per-triangle and per-mesh minimal bounding spheres ([`bounding`]) and bounds.
 //!
 //! - [`stress`]: the procedural cases of the stability suite (`crsh stress`).
+//! - [`random`]: the random triangle soups of seed 002 §5.1 (grid build time, `crsh
+//!   grid-build`).
 //!
 //! Every error names the file and line, or the mesh, where the problem is.
 //!
@@ -59,6 +61,7 @@ pub mod error;
 pub mod manifest;
 pub mod model;
 pub mod obj;
+pub mod random;
 mod rng;
 pub mod stress;
 
