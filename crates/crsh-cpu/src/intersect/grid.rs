@@ -331,8 +331,8 @@ impl GridGeometry {
     pub fn axis_cell(&self, a: usize, x: f32) -> u32 {
         let p = &self.planes[a];
         let last = p.len() - 2; // the highest cell
-        // A guess by one division, corrected against the planes themselves, so the answer is
-        // exactly the plane count (the DDA's and the GPU's), whatever the rounding of the guess.
+                                // A guess by one division, corrected against the planes themselves, so the answer is
+                                // exactly the plane count (the DDA's and the GPU's), whatever the rounding of the guess.
         let guess = (x - p[0]) / self.cell_size[a];
         let mut c = if guess.is_finite() && guess > 0.0 {
             (guess as usize).min(last)
