@@ -3,7 +3,7 @@
 //! triangle soups of [`crsh_scene::random`], with the time of every pass.
 //!
 //! [`timed_build`] runs exactly the steps of [`GridData::build`] — the binning set and eq. 1
-//! ([`PassTimes::setup`]), then the five passes of §3.1 — with a clock around each, and
+//! ([`PassTimes::setup_ms`]), then the five passes of §3.1 — with a clock around each, and
 //! returns the same grid. [`measure`] repeats it inside a rayon pool of a given size (1: the
 //! serial build, the same code; 0: one thread per core) after warm-up builds and keeps the
 //! median of each column. `crsh grid-build` prints the table next to the paper's figures
@@ -73,7 +73,7 @@ pub struct PassTimes {
     pub write_pairs_ms: f64,
     /// Pass 4 (§3.2.4): stable radix sort of the pairs by cell.
     pub sort_ms: f64,
-    /// Pass 5 (§3.2.5): `(start, count)` per cell by binary search.
+    /// Pass 5 (§3.2.5): `(start, count)` per cell from the runs of the sorted pairs.
     pub ranges_ms: f64,
 }
 

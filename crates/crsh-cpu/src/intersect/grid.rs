@@ -509,7 +509,7 @@ pub fn slot_primitive(scan: &[u32], slot: u32) -> usize {
 }
 
 /// Output slots per task of [`write_pairs_pass`].
-const SLOT_CHUNK: u32 = 4096;
+pub const SLOT_CHUNK: u32 = 4096;
 
 /// Pass 3 (§3.2.3): every output slot gets its (cell, primitive) pair, sorted by primitive
 /// (fig. 5c). Returns `(cells, primitives)`. The slots are split into chunks of

@@ -105,12 +105,12 @@ pub fn stable_radix_order(keys: &[u64], key_bits: u32) -> Result<Vec<u32>> {
 
 /// Pairs per block of [`stable_sort_pairs_u32`]: each block histograms and scatters its keys
 /// on its own, so blocks run in parallel and the order is the same for any thread count.
-const PAIR_BLOCK: usize = 1 << 16;
+pub const PAIR_BLOCK: usize = 1 << 16;
 
 /// Digit width of [`stable_sort_pairs_u32`]: 8 bits, so a digit's 256 write streams stay
 /// within the caches and the TLB (11-bit digits, two passes for a 4M-cell grid, measured 3×
 /// slower: 2048 streams over a 25 MB array miss the TLB on nearly every write).
-const PAIR_DIGIT: u32 = 8;
+pub const PAIR_DIGIT: u32 = 8;
 
 /// `(keys, values)` sorted by the low `key_bits` bits of `keys`, stably (equal keys keep
 /// their input order): a least-significant-digit radix sort of `u32` key-value pairs packed in
