@@ -44,11 +44,22 @@ fn prints_table_1_with_the_paper_and_the_per_pass_split() {
     let out = text(&o.stdout);
     let rows = table_rows(&out, "| #tri | cells | pairs |");
     assert_eq!(rows.len(), 2, "{out}");
-    assert_eq!(rows[0].len(), 7, "{out}");
+    // A wgpu column when the machine has an adapter (lavapipe in CI), none otherwise.
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("g.json")).unwrap()).unwrap();
+    let gpu = !json["rows"][0]["wgpu_ms"].is_null();
+    let width = if gpu { 8 } else { 7 };
+    assert_eq!(rows[0].len(), width, "{out}");
     assert_eq!(rows[0][0], "5000");
-    // The paper's figures for 5K (table 1), none for a size it lacks.
-    assert_eq!((rows[0][5].as_str(), rows[0][6].as_str()), ("0.8", "1.7"));
-    assert_eq!((rows[1][5].as_str(), rows[1][6].as_str()), ("-", "-"));
+    // The paper's figures for 5K (table 1), none for a size it lacks: the last two columns.
+    assert_eq!(
+        (rows[0][width - 2].as_str(), rows[0][width - 1].as_str()),
+        ("0.8", "1.7")
+    );
+    assert_eq!(
+        (rows[1][width - 2].as_str(), rows[1][width - 1].as_str()),
+        ("-", "-")
+    );
     let split = table_rows(&out, "| #tri | threads | setup |");
     assert_eq!(split.len(), 4, "serial and parallel per size: {out}");
     assert_eq!(
@@ -56,8 +67,6 @@ fn prints_table_1_with_the_paper_and_the_per_pass_split() {
         ["1", "2", "1", "2"]
     );
     // The JSON has the same grids; serial and parallel builds give the same grid.
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("g.json")).unwrap()).unwrap();
     let jrows = json["rows"].as_array().unwrap();
     assert_eq!(jrows.len(), 2);
     for (r, j) in rows.iter().zip(jrows) {
@@ -73,15 +82,17 @@ fn prints_table_1_with_the_paper_and_the_per_pass_split() {
         }
         assert_eq!(j["serial"]["threads"], 1);
         assert_eq!(j["parallel"]["threads"], 2);
-        // eq. 1: about k·P cells (k = 2); every triangle in at least one cell.
+        // eq. 1: about k·P cells (the default k = 5); every triangle in at least one cell.
         let (n, cells, pairs) = (
             j["triangles"].as_u64().unwrap(),
             j["cells"].as_u64().unwrap(),
             j["pairs"].as_u64().unwrap(),
         );
-        assert!(cells >= n && cells <= 4 * n, "{cells} cells for {n}");
+        assert!(cells >= 2 * n && cells <= 10 * n, "{cells} cells for {n}");
         assert!(pairs >= n, "{pairs} pairs for {n}");
-        assert!(j["wgpu_ms"].is_null());
+        // The wgpu rebuild time where there is an adapter, else nothing.
+        assert_eq!(j["wgpu_ms"].is_null(), !gpu);
+        assert!(j["wgpu_ms"].is_null() || j["wgpu_ms"].as_f64().unwrap() > 0.0);
     }
     assert_eq!(jrows[0]["paper_cpu_ms"], 0.8);
     assert!(jrows[1]["paper_gpu_ms"].is_null());
