@@ -292,7 +292,9 @@ pub fn render_frame<B: Backend>(
             ..Stats::default()
         },
         step: 0,
-        total_steps: 1 + (opts.max_depth + 1) + 2 * opts.max_depth,
+        total_steps: 1
+            + (opts.max_depth + 1)
+            + stages.raygen.bounce_kinds().len() as u32 * opts.max_depth,
     };
     if reference.is_some() {
         driver.stats.accuracy = Some(AccuracyCounts::default());
@@ -319,18 +321,33 @@ pub fn render_frame<B: Backend>(
     ks.rays += pixels as u64;
     ks.bounds += after.bounds - tests_before.bounds;
     ks.ray_triangle += after.ray_triangle - tests_before.ray_triangle;
+    ks.inner_nodes += after.inner_nodes - tests_before.inner_nodes;
+    ks.leaves += after.leaves - tests_before.leaves;
     if casts {
         ks.trace_ms += primary_ms;
     }
 
+    let visibility = stages.raygen.visibility_kind();
+    if visibility.hit_mode() != HitMode::Any {
+        return Err(CoreError::Incompatible {
+            slots: "raygen".into(),
+            reason: format!(
+                "raygen `{}` shades with {} rays, which need the nearest hit; direct light needs an any-hit kind",
+                stages.raygen.name(),
+                visibility.name()
+            ),
+        });
+    }
+    let bounce_kinds = stages.raygen.bounce_kinds().to_vec();
     for depth in 0..=opts.max_depth {
-        driver.report(progress, format!("shadow rays, bounce {depth}"));
+        driver.report(
+            progress,
+            format!("{} rays, bounce {depth}", visibility.name()),
+        );
         let shadow = driver.timed("ray_creation", |s| {
-            stages
-                .raygen
-                .generate(backend, &surfaces, RayKind::Shadow, s)
+            stages.raygen.generate(backend, &surfaces, visibility, s)
         })?;
-        let shadow_hits = driver.trace(RayKind::Shadow, &shadow, &surfaces)?;
+        let shadow_hits = driver.trace(visibility, &shadow, &surfaces)?;
         driver.timed("shading", |s| {
             stages
                 .shader
@@ -339,8 +356,11 @@ pub fn render_frame<B: Backend>(
         if depth == opts.max_depth {
             break;
         }
+        if bounce_kinds.is_empty() {
+            break;
+        }
         let mut next = Vec::new();
-        for kind in [RayKind::Reflection, RayKind::Refraction] {
+        for &kind in &bounce_kinds {
             driver.report(
                 progress,
                 format!("{} rays, bounce {}", kind.name(), depth + 1),
@@ -425,6 +445,8 @@ impl<B: Backend> Driver<'_, B> {
         ks.rays += n as u64;
         ks.bounds += after.bounds - tests_before.bounds;
         ks.ray_triangle += after.ray_triangle - tests_before.ray_triangle;
+        ks.inner_nodes += after.inner_nodes - tests_before.inner_nodes;
+        ks.leaves += after.leaves - tests_before.leaves;
         ks.trace_ms += elapsed;
 
         if let (Some(reference), true) = (self.reference, n > 0) {

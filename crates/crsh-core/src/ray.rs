@@ -11,7 +11,8 @@ use serde::{Deserialize, Serialize};
 /// Triangle id of a miss (in [`Hit::tri`] and [`Surface::tri`]).
 pub const NO_HIT: u32 = u32::MAX;
 
-/// The kinds of rays a Whitted pipeline traces (seed 000 §3.2.3).
+/// The kinds of rays the pipelines trace: a Whitted pipeline's (seed 000 §3.2.3), and the
+/// ambient-occlusion and diffuse rays of seed 001's measurements.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 #[repr(u32)]
@@ -24,15 +25,21 @@ pub enum RayKind {
     Reflection = 2,
     /// Refraction rays (eq. 3.5-3.7).
     Refraction = 3,
+    /// Ambient-occlusion rays: cosine-weighted, of a fixed length, any hit (seed 001 §4).
+    Ao = 4,
+    /// Diffuse bounce rays: cosine-weighted, nearest hit (seed 001 §4).
+    Diffuse = 5,
 }
 
 impl RayKind {
     /// Every kind, in the order the driver processes batches.
-    pub const ALL: [RayKind; 4] = [
+    pub const ALL: [RayKind; 6] = [
         RayKind::Primary,
         RayKind::Shadow,
         RayKind::Reflection,
         RayKind::Refraction,
+        RayKind::Ao,
+        RayKind::Diffuse,
     ];
 
     /// Lower-case name as used in stats keys.
@@ -42,6 +49,8 @@ impl RayKind {
             RayKind::Shadow => "shadow",
             RayKind::Reflection => "reflection",
             RayKind::Refraction => "refraction",
+            RayKind::Ao => "ao",
+            RayKind::Diffuse => "diffuse",
         }
     }
 
@@ -52,14 +61,17 @@ impl RayKind {
             1 => Some(RayKind::Shadow),
             2 => Some(RayKind::Reflection),
             3 => Some(RayKind::Refraction),
+            4 => Some(RayKind::Ao),
+            5 => Some(RayKind::Diffuse),
             _ => None,
         }
     }
 
-    /// The hit query this kind needs: any hit for shadows, nearest for the others.
+    /// The hit query this kind needs: any hit for shadow and ambient-occlusion rays, nearest
+    /// for the others.
     pub fn hit_mode(self) -> HitMode {
         match self {
-            RayKind::Shadow => HitMode::Any,
+            RayKind::Shadow | RayKind::Ao => HitMode::Any,
             _ => HitMode::Closest,
         }
     }
@@ -96,7 +108,9 @@ pub struct Ray {
     pub kind: u32,
     /// Pixel index (`y * width + x`) the ray contributes to.
     pub pixel: u32,
-    /// Light index for shadow rays; [`u32::MAX`] for other kinds.
+    /// Light index for shadow rays; the sample index (the `s` of the random-number key
+    /// (pixel, sample, bounce)) for ambient-occlusion and diffuse rays; [`u32::MAX`] for other
+    /// kinds.
     pub light: u32,
     /// Bounce depth: 0 for primary rays and for rays spawned from primary hits' surfaces
     /// counts as 1, and so on.
@@ -195,7 +209,8 @@ pub struct Surface {
     pub depth: u32,
     /// Geometric (face) normal, unit length, on the side the ray came from.
     pub geo_normal: Vec3,
-    /// Bit flags: [`Surface::FRONT_FACE`].
+    /// Bit flags: [`Surface::FRONT_FACE`]; bits 8-31 hold the sample index of a diffuse path
+    /// vertex ([`Surface::sample`]).
     pub flags: u32,
 }
 
@@ -224,6 +239,15 @@ impl Surface {
     pub fn is_hit(&self) -> bool {
         self.tri != NO_HIT
     }
+
+    /// The sample index of a diffuse path vertex (0 for other records): which of a pixel's
+    /// paths it lies on, part of the random-number key.
+    pub fn sample(&self) -> u32 {
+        self.flags >> Self::SAMPLE_SHIFT
+    }
+
+    /// Where [`Surface::sample`] starts in [`Surface::flags`].
+    pub const SAMPLE_SHIFT: u32 = 8;
 
     /// Whether the arriving ray hit the front face.
     pub fn front_face(&self) -> bool {

@@ -41,10 +41,25 @@ pub trait PrimaryVisibility<B: Backend>: Send + Sync {
     ) -> Result<B::Buffer<Surface>>;
 }
 
-/// Secondary ray creation (seed 000 §3.2.3, eq. 3.1-3.7).
+/// Secondary ray creation (seed 000 §3.2.3, eq. 3.1-3.7; seed 001's AO and diffuse rays).
+///
+/// A variant names the kinds it makes: at every path vertex the driver asks for one batch of
+/// [`RayGen::visibility_kind`] (any hit; [`Shader::shade_direct`] turns them into light), then
+/// one batch per [`RayGen::bounce_kinds`] entry (nearest hit; [`Shader::resolve`] turns them
+/// into the next vertices), up to the frame's bounce depth.
 pub trait RayGen<B: Backend>: Send + Sync {
     /// Variant name.
     fn name(&self) -> &str;
+    /// The any-hit kind shaded at every vertex: shadow rays (the default) or ambient-occlusion
+    /// rays.
+    fn visibility_kind(&self) -> RayKind {
+        RayKind::Shadow
+    }
+    /// The nearest-hit kinds that continue paths, in batch order: reflection and refraction
+    /// (the default, Whitted), diffuse bounces, or none (paths end at the first vertex).
+    fn bounce_kinds(&self) -> &[RayKind] {
+        &[RayKind::Reflection, RayKind::Refraction]
+    }
     /// The rays of one `kind` spawned by `surfaces`, compacted (no empty slots), in surface
     /// order; shadow rays light-major (all rays of light 0 in surface order, then light 1, ...).
     /// `Ray::source` indexes `surfaces`.

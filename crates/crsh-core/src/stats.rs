@@ -35,6 +35,12 @@ pub struct RayCounts {
     pub reflection: u64,
     /// Refraction rays.
     pub refraction: u64,
+    /// Ambient-occlusion rays.
+    #[serde(default)]
+    pub ao: u64,
+    /// Diffuse bounce rays.
+    #[serde(default)]
+    pub diffuse: u64,
 }
 
 impl RayCounts {
@@ -50,6 +56,8 @@ impl RayCounts {
             RayKind::Shadow => self.shadow,
             RayKind::Reflection => self.reflection,
             RayKind::Refraction => self.refraction,
+            RayKind::Ao => self.ao,
+            RayKind::Diffuse => self.diffuse,
         }
     }
 
@@ -59,12 +67,14 @@ impl RayCounts {
             RayKind::Shadow => &mut self.shadow,
             RayKind::Reflection => &mut self.reflection,
             RayKind::Refraction => &mut self.refraction,
+            RayKind::Ao => &mut self.ao,
+            RayKind::Diffuse => &mut self.diffuse,
         }
     }
 
     /// Sum over kinds.
     pub fn total(&self) -> u64 {
-        self.primary + self.shadow + self.reflection + self.refraction
+        self.primary + self.shadow + self.reflection + self.refraction + self.ao + self.diffuse
     }
 }
 
@@ -79,6 +89,15 @@ pub struct TestCounts {
     pub total: u64,
     /// What brute force would need: Σ over traced rays × scene triangles.
     pub brute_force: u64,
+    /// Inner nodes an object hierarchy (BVH) visited: nodes whose children were tested. Not
+    /// part of `total` (their child tests are in `bounds`). Seed 001's "visited internal
+    /// nodes"; 0 for intersectors without a hierarchy.
+    #[serde(default)]
+    pub inner_nodes: u64,
+    /// Leaves an object hierarchy visited: leaf nodes whose primitives were tested (seed 001's
+    /// "visited leaves"). Not part of `total`.
+    #[serde(default)]
+    pub leaves: u64,
 }
 
 /// Per hierarchy level counters (tables 4.1-4.24 of seed 000).
@@ -120,6 +139,12 @@ pub struct KindStats {
     pub ray_triangle: u64,
     /// Wall time of the tracing stages (hash to final tests) for this kind, ms.
     pub trace_ms: f64,
+    /// Object-hierarchy inner nodes visited ([`TestCounts::inner_nodes`]).
+    #[serde(default)]
+    pub inner_nodes: u64,
+    /// Object-hierarchy leaves visited ([`TestCounts::leaves`]).
+    #[serde(default)]
+    pub leaves: u64,
 }
 
 /// Agreement of the traced rays with a reference intersector tracing the very same rays.
@@ -235,6 +260,13 @@ impl Stats {
     pub fn add_ray_triangle(&mut self, n: u64) {
         self.tests.ray_triangle += n;
         self.tests.total += n;
+    }
+
+    /// Adds `inner` visited inner nodes and `leaves` visited leaves of an object hierarchy
+    /// (counted beside, not in, [`TestCounts::total`]).
+    pub fn add_visits(&mut self, inner: u64, leaves: u64) {
+        self.tests.inner_nodes += inner;
+        self.tests.leaves += leaves;
     }
 
     /// Adds `d` to the stage timer `key`.

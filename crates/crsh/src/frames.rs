@@ -451,6 +451,8 @@ impl FramesReport {
             ray_triangle: t.tests.ray_triangle + r.stats.tests.ray_triangle,
             total: t.tests.total + r.stats.tests.total,
             brute_force: t.tests.brute_force + r.stats.tests.brute_force,
+            inner_nodes: t.tests.inner_nodes + r.stats.tests.inner_nodes,
+            leaves: t.tests.leaves + r.stats.tests.leaves,
         };
         t.tests = TestsReport::new(&sum, t.traced_rays);
         if let Some(a) = &r.accuracy {

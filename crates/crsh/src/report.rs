@@ -63,6 +63,10 @@ pub struct RaysReport {
     pub reflection: u64,
     /// Refraction rays.
     pub refraction: u64,
+    /// Ambient-occlusion rays.
+    pub ao: u64,
+    /// Diffuse bounce rays (counted per ray, not per path).
+    pub diffuse: u64,
     /// Rays the frame driver traced through intersection stages (shadow + reflection +
     /// refraction, plus the camera rays when the primary variant casts them): the rays that
     /// `tests.brute_force` and `tests.per_traced_ray` count.
@@ -85,7 +89,15 @@ pub struct TestsReport {
     /// `total / rays.traced` (0 when nothing was traced).
     pub per_traced_ray: f64,
     /// `total / brute_force` (0 when nothing was traced): the fraction of the brute-force work done.
-    pub fraction_of_brute_force: f64,
+    pub fraction_of_brute_force: f64,    /// Object-hierarchy inner nodes visited (seed 001's "visited internal nodes"; 0 without
+    /// an object hierarchy).
+    pub inner_nodes: u64,
+    /// Object-hierarchy leaves visited.
+    pub leaves: u64,
+    /// `inner_nodes / rays.traced`.
+    pub inner_nodes_per_ray: f64,
+    /// `leaves / rays.traced`.
+    pub leaves_per_ray: f64,
 }
 
 impl TestsReport {
@@ -98,6 +110,10 @@ impl TestsReport {
             brute_force: t.brute_force,
             per_traced_ray: ratio(t.total as f64, traced as f64),
             fraction_of_brute_force: ratio(t.total as f64, t.brute_force as f64),
+            inner_nodes: t.inner_nodes,
+            leaves: t.leaves,
+            inner_nodes_per_ray: ratio(t.inner_nodes as f64, traced as f64),
+            leaves_per_ray: ratio(t.leaves as f64, traced as f64),
         }
     }
 }
@@ -298,6 +314,8 @@ impl StatsReport {
                 shadow: r.shadow,
                 reflection: r.reflection,
                 refraction: r.refraction,
+                ao: r.ao,
+                diffuse: r.diffuse,
                 traced,
                 total: r.total(),
             },
@@ -554,6 +572,7 @@ mod tests {
                 bounds: 20,
                 ray_triangle: 8,
                 trace_ms: 2.0,
+                ..Default::default()
             },
         );
         s.per_kind.insert(
@@ -563,6 +582,7 @@ mod tests {
                 bounds: 10,
                 ray_triangle: 4,
                 trace_ms: 0.5,
+                ..Default::default()
             },
         );
         s.timings_ms.insert("total".into(), 10.0);

@@ -597,11 +597,14 @@ impl Whitted {
     /// where the surface spawns none (background, culled light, absorbed bounce); empty
     /// slots hold a zeroed ray.
     pub fn slots(&self, surfaces: &[Surface], kind: RayKind) -> Result<(Vec<Ray>, Vec<u32>)> {
-        if kind == RayKind::Primary {
+        if matches!(kind, RayKind::Primary | RayKind::Ao | RayKind::Diffuse) {
             return Err(CoreError::Unsupported {
                 stage: "raygen",
                 variant: "whitted".into(),
-                what: "primary rays (primary visibility makes those)".into(),
+                what: format!(
+                    "{} rays (primary visibility makes camera rays; raygen `ao` and `diffuse` the others)",
+                    kind.name()
+                ),
             });
         }
         let per_surface = if kind == RayKind::Shadow {
