@@ -47,6 +47,7 @@ pub mod pipeline;
 pub mod quantize;
 pub mod ray;
 pub mod registry;
+pub mod rng;
 pub mod stage;
 pub mod stats;
 

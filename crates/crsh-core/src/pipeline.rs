@@ -78,6 +78,18 @@ impl<B: Backend> Stages<B> {
                 "hashing and sorting order the rays of a ray-space hierarchy; add one".into(),
             ));
         }
+        let visibility = self.raygen.visibility_kind();
+        if !self.shader.shades(visibility) {
+            return Err(incompatible(
+                "raygen, shade",
+                format!(
+                    "shade `{}` does not shade the {} rays of raygen `{}` (pair `ao` with `ao`)",
+                    self.shader.name(),
+                    visibility.name(),
+                    self.raygen.name()
+                ),
+            ));
+        }
         if let Some(h) = &self.hierarchy {
             if !self.intersector.supports_candidates() {
                 return Err(incompatible(

@@ -223,6 +223,11 @@ pub trait Intersector<B: Backend>: Send + Sync {
 pub trait Shader<B: Backend>: Send + Sync {
     /// Variant name.
     fn name(&self) -> &str;
+    /// Whether [`Shader::shade_direct`] understands rays of `kind` (the ray generator's
+    /// [`RayGen::visibility_kind`]): shadow rays by default.
+    fn shades(&self, kind: RayKind) -> bool {
+        kind == RayKind::Shadow
+    }
     /// Adds the direct light at `surfaces` (and the background where a surface is a miss) to
     /// `image`, with each light's visibility taken from the shadow rays and their hits
     /// (`shadow_rays[i].source` indexes `surfaces`).

@@ -145,6 +145,10 @@ pub struct KindStats {
     /// Object-hierarchy leaves visited ([`TestCounts::leaves`]).
     #[serde(default)]
     pub leaves: u64,
+    /// Rays of this kind whose origin offset (seed 001) passed their end, so they were traced
+    /// with an empty interval and ended without traversal (seed 001 fig. 4's fraction).
+    #[serde(default)]
+    pub offset_ended: u64,
 }
 
 /// Agreement of the traced rays with a reference intersector tracing the very same rays.
@@ -267,6 +271,17 @@ impl Stats {
     pub fn add_visits(&mut self, inner: u64, leaves: u64) {
         self.tests.inner_nodes += inner;
         self.tests.leaves += leaves;
+    }
+
+    /// Adds `n` rays of `kind` that an origin offset ended before traversal
+    /// ([`KindStats::offset_ended`]).
+    pub fn add_offset_ended(&mut self, kind: RayKind, n: u64) {
+        if n > 0 {
+            self.per_kind
+                .entry(kind.name().to_string())
+                .or_default()
+                .offset_ended += n;
+        }
     }
 
     /// Adds `d` to the stage timer `key`.

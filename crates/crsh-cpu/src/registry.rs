@@ -24,6 +24,8 @@ impl BuiltinVariants for Cpu {
         crate::primary::raster::register(registry)?;
         crate::primary::raycast::register(registry)?;
         crate::raygen::whitted::register(registry)?;
+        crate::raygen::ao::register(registry)?;
+        crate::raygen::diffuse::register(registry)?;
         crate::hash::thesis::register(registry)?;
         crate::hash::morton_octa::register(registry)?;
         crate::sort::compress::register(registry)?;
@@ -35,6 +37,8 @@ impl BuiltinVariants for Cpu {
         crate::intersect::bvh::register(registry)?;
         crate::intersect::grid::register(registry)?;
         crate::shade::phong::register(registry)?;
+        crate::shade::ao::register(registry)?;
+        crate::shade::diffuse::register(registry)?;
         add_presets(registry)
     }
 }

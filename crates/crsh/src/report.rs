@@ -89,7 +89,8 @@ pub struct TestsReport {
     /// `total / rays.traced` (0 when nothing was traced).
     pub per_traced_ray: f64,
     /// `total / brute_force` (0 when nothing was traced): the fraction of the brute-force work done.
-    pub fraction_of_brute_force: f64,    /// Object-hierarchy inner nodes visited (seed 001's "visited internal nodes"; 0 without
+    pub fraction_of_brute_force: f64,
+    /// Object-hierarchy inner nodes visited (seed 001's "visited internal nodes"; 0 without
     /// an object hierarchy).
     pub inner_nodes: u64,
     /// Object-hierarchy leaves visited.

@@ -99,6 +99,7 @@ use crsh_scene::Scene;
 use rayon::prelude::*;
 
 use crate::backend::Cpu;
+use crate::raygen::offsets::{self, Offsets};
 use crate::trim::trim;
 
 /// Surfaces per parallel work item.
@@ -138,6 +139,7 @@ pub struct Whitted {
     min_throughput: f32,
     offset: f32,
     policy: OffsetPolicy,
+    offsets: Offsets,
 }
 
 /// Where a secondary ray goes, relative to the surface point it belongs to.
@@ -351,32 +353,45 @@ pub fn refraction_direction(incident: Vec3, normal: Vec3, ior: f32, front_face: 
 
 /// The catalogue entry of the `whitted` ray generator.
 pub fn info() -> StageVariantInfo {
-    StageVariantInfo::new(
+    offsets::offsets_param(surface_ray_params(StageVariantInfo::new(
         StageKind::Raygen,
         "whitted",
         "shadow, reflection and refraction rays with total internal reflection, seed 000 \
          §3.2.3 eq. 3.1-3.7",
+    )))
+}
+
+/// The parameters of [`Whitted::new`] (`shadow_origin`, `cull_backfacing`, `min_throughput`
+/// and [`offset_params`]), added to `info`: generators that make shadow rays the Whitted way
+/// (`diffuse`) share them.
+pub fn surface_ray_params(info: StageVariantInfo) -> StageVariantInfo {
+    offset_params(
+        info.param(ParamInfo::choice(
+            "shadow_origin",
+            "light",
+            &["light", "surface"],
+            "shadow rays start at the light (thesis, eq. 3.1-3.2) or at the surface",
+        ))
+        .param(ParamInfo::bool(
+            "cull_backfacing",
+            true,
+            "no shadow ray to a light behind the geometric normal (it lights nothing)",
+        ))
+        .param(
+            ParamInfo::float(
+                "min_throughput",
+                1e-3,
+                "rays whose largest throughput component is below this are not spawned",
+            )
+            .range(0.0, f64::INFINITY),
+        ),
     )
-    .param(ParamInfo::choice(
-        "shadow_origin",
-        "light",
-        &["light", "surface"],
-        "shadow rays start at the light (thesis, eq. 3.1-3.2) or at the surface",
-    ))
-    .param(ParamInfo::bool(
-        "cull_backfacing",
-        true,
-        "no shadow ray to a light behind the geometric normal (it lights nothing)",
-    ))
-    .param(
-        ParamInfo::float(
-            "min_throughput",
-            1e-3,
-            "rays whose largest throughput component is below this are not spawned",
-        )
-        .range(0.0, f64::INFINITY),
-    )
-    .param(
+}
+
+/// The self-intersection parameters every surface-leaving generator shares (`epsilon`,
+/// `offset`, `fixed_epsilon`; see [`policy_from_spec`]), added to `info`.
+pub fn offset_params(info: StageVariantInfo) -> StageVariantInfo {
+    info.param(
         ParamInfo::float(
             "epsilon",
             1e-5,
@@ -401,6 +416,48 @@ pub fn info() -> StageVariantInfo {
         )
         .range(0.0, f64::INFINITY),
     )
+}
+
+/// The offset distance (`epsilon × scene diagonal`) and the self-intersection policy of a
+/// resolved `spec` carrying [`offset_params`]: `epsilon` (relative to the scene's bounding-box
+/// diagonal, in `[0, 0.1]`), `offset` (`normal`|`scaled`|`fixed`|`wachter`, see
+/// [`OffsetPolicy`]) and `fixed_epsilon` (an absolute distance ≥ 0).
+pub fn policy_from_spec(scene: &Scene, spec: &StageSpec) -> Result<(f32, OffsetPolicy)> {
+    let epsilon = spec.f64("epsilon")?;
+    if !epsilon.is_finite() || !(0.0..=0.1).contains(&epsilon) {
+        return Err(CoreError::InvalidParam {
+            key: "raygen.epsilon".into(),
+            reason: format!("{epsilon} is outside 0..=0.1 (a fraction of the scene diagonal)"),
+        });
+    }
+    let fixed_epsilon = spec.f64("fixed_epsilon")?;
+    if !fixed_epsilon.is_finite() || fixed_epsilon < 0.0 {
+        return Err(CoreError::InvalidParam {
+            key: "raygen.fixed_epsilon".into(),
+            reason: format!("{fixed_epsilon} must be a finite distance ≥ 0"),
+        });
+    }
+    let diagonal = scene.bounds.diagonal();
+    if !diagonal.is_finite() {
+        return Err(CoreError::InvalidInput(format!(
+            "scene `{}` has non-finite bounds",
+            scene.name
+        )));
+    }
+    let offset = (epsilon * diagonal as f64) as f32;
+    let policy = match spec.str("offset")? {
+        "normal" => OffsetPolicy::Normal(offset),
+        "scaled" => OffsetPolicy::Scaled(offset),
+        "fixed" => OffsetPolicy::Fixed(fixed_epsilon as f32),
+        "wachter" => OffsetPolicy::Wachter,
+        other => {
+            return Err(CoreError::InvalidParam {
+                key: "raygen.offset".into(),
+                reason: format!("`{other}` is not one of normal, scaled, fixed, wachter"),
+            })
+        }
+    };
+    Ok((offset, policy))
 }
 
 /// Registers `whitted` ([`info`], [`Whitted::new`]).
@@ -436,27 +493,7 @@ impl Whitted {
                 reason: format!("{min_throughput} must be a finite number ≥ 0"),
             });
         }
-        let epsilon = spec.f64("epsilon")?;
-        if !epsilon.is_finite() || !(0.0..=0.1).contains(&epsilon) {
-            return Err(CoreError::InvalidParam {
-                key: "raygen.epsilon".into(),
-                reason: format!("{epsilon} is outside 0..=0.1 (a fraction of the scene diagonal)"),
-            });
-        }
-        let fixed_epsilon = spec.f64("fixed_epsilon")?;
-        if !fixed_epsilon.is_finite() || fixed_epsilon < 0.0 {
-            return Err(CoreError::InvalidParam {
-                key: "raygen.fixed_epsilon".into(),
-                reason: format!("{fixed_epsilon} must be a finite distance ≥ 0"),
-            });
-        }
-        let diagonal = scene.bounds.diagonal();
-        if !diagonal.is_finite() {
-            return Err(CoreError::InvalidInput(format!(
-                "scene `{}` has non-finite bounds",
-                scene.name
-            )));
-        }
+        let (offset, policy) = policy_from_spec(scene, spec)?;
         let mut materials = Vec::with_capacity(scene.materials.len());
         for m in &scene.materials {
             if m.transparency > 0.0 && !(m.ior.is_finite() && m.ior > 0.0) {
@@ -483,19 +520,6 @@ impl Whitted {
                 "light at {l} is not finite"
             )));
         }
-        let offset = (epsilon * diagonal as f64) as f32;
-        let policy = match spec.str("offset")? {
-            "normal" => OffsetPolicy::Normal(offset),
-            "scaled" => OffsetPolicy::Scaled(offset),
-            "fixed" => OffsetPolicy::Fixed(fixed_epsilon as f32),
-            "wachter" => OffsetPolicy::Wachter,
-            other => {
-                return Err(CoreError::InvalidParam {
-                    key: "raygen.offset".into(),
-                    reason: format!("`{other}` is not one of normal, scaled, fixed, wachter"),
-                })
-            }
-        };
         Ok(Whitted {
             lights,
             materials,
@@ -504,7 +528,30 @@ impl Whitted {
             min_throughput: min_throughput as f32,
             offset,
             policy,
+            offsets: Offsets::from_spec(scene, spec)?,
         })
+    }
+
+    /// The same generator with origin offsets `offsets` ([`super::offsets`]).
+    pub fn with_offsets(mut self, offsets: Offsets) -> Self {
+        self.offsets = offsets;
+        self
+    }
+
+    /// The origin offsets in use (param `offsets`).
+    pub fn offsets(&self) -> &Offsets {
+        &self.offsets
+    }
+
+    /// The same generator with every material treated as opaque and purely diffuse
+    /// (reflectivity and transparency 0): shadow rays then carry the surface's whole
+    /// throughput, as the diffuse path tracer (`raygen = diffuse`) needs.
+    pub fn lambertian(mut self) -> Self {
+        for m in &mut self.materials {
+            m.reflectivity = 0.0;
+            m.transparency = 0.0;
+        }
+        self
     }
 
     /// The relative policies' distance, `epsilon × scene diagonal` (whatever the policy).
@@ -538,7 +585,7 @@ impl Whitted {
         };
         // `None`: the light sits on the surface point; nothing can lie in between.
         let seg = offset_segment(s.position, s.geo_normal, leg, &self.policy)?;
-        Some(Ray {
+        let mut ray = Ray {
             origin: seg.origin,
             t_min: seg.t_min,
             dir: seg.dir,
@@ -549,7 +596,12 @@ impl Whitted {
             light,
             depth: s.depth + 1,
             source,
-        })
+        };
+        match self.shadow_origin {
+            ShadowOrigin::Light => self.offsets.cut_end(s.tri, &mut ray),
+            ShadowOrigin::Surface => self.offsets.apply(s.tri, &mut ray),
+        };
+        Some(ray)
     }
 
     /// The reflection (eq. 3.3-3.4) or refraction (eq. 3.5-3.7) ray from surface `s`.
@@ -570,7 +622,7 @@ impl Whitted {
             return None;
         }
         let seg = offset_segment(s.position, s.geo_normal, Leg::Along(dir), &self.policy)?;
-        Some(Ray {
+        let mut ray = Ray {
             origin: seg.origin,
             t_min: seg.t_min,
             dir: seg.dir,
@@ -581,7 +633,9 @@ impl Whitted {
             light: u32::MAX,
             depth: s.depth + 1,
             source,
-        })
+        };
+        self.offsets.apply(s.tri, &mut ray);
+        Some(ray)
     }
 
     /// The rays of `kind` spawned by `surfaces`, compacted, in surface order, light-major for
@@ -597,6 +651,17 @@ impl Whitted {
     /// where the surface spawns none (background, culled light, absorbed bounce); empty
     /// slots hold a zeroed ray.
     pub fn slots(&self, surfaces: &[Surface], kind: RayKind) -> Result<(Vec<Ray>, Vec<u32>)> {
+        self.slots_counted(surfaces, kind)
+            .map(|(slots, flags, _)| (slots, flags))
+    }
+
+    /// [`Whitted::slots`], plus the number of rays whose interval the origin offsets emptied
+    /// ([`super::offsets`]).
+    pub fn slots_counted(
+        &self,
+        surfaces: &[Surface],
+        kind: RayKind,
+    ) -> Result<(Vec<Ray>, Vec<u32>, u64)> {
         if matches!(kind, RayKind::Primary | RayKind::Ao | RayKind::Diffuse) {
             return Err(CoreError::Unsupported {
                 stage: "raygen",
@@ -633,11 +698,12 @@ impl Whitted {
         let n = surfaces.len();
         let mut slots = vec![<Ray as bytemuck::Zeroable>::zeroed(); n * per_surface];
         let mut flags = vec![0u32; n * per_surface];
-        slots
+        let ended = slots
             .par_chunks_mut(CHUNK)
             .zip(flags.par_chunks_mut(CHUNK))
             .enumerate()
-            .for_each(|(c, (rays, heads))| {
+            .map(|(c, (rays, heads))| {
+                let mut ended = 0u64;
                 for (j, (ray, head)) in rays.iter_mut().zip(heads.iter_mut()).enumerate() {
                     let slot = c * CHUNK + j;
                     let (source, light) = (slot % n, slot / n);
@@ -652,12 +718,15 @@ impl Whitted {
                         self.bounce_ray(source as u32, s, m, kind)
                     };
                     if let Some(r) = made {
+                        ended += u64::from(r.t_min >= r.t_max && self.offsets.is_some());
                         *ray = r;
                         *head = 1;
                     }
                 }
-            });
-        Ok((slots, flags))
+                ended
+            })
+            .sum();
+        Ok((slots, flags, ended))
     }
 }
 
@@ -673,7 +742,8 @@ impl RayGen<Cpu> for Whitted {
         kind: RayKind,
         stats: &mut Stats,
     ) -> Result<Vec<Ray>> {
-        let (slots, flags) = self.slots(surfaces, kind)?;
+        let (slots, flags, ended) = self.slots_counted(surfaces, kind)?;
+        stats.add_offset_ended(kind, ended);
         let t = Instant::now();
         let rays = trim(&slots, &flags)?;
         stats.add_time("trimming", t.elapsed());
@@ -748,18 +818,7 @@ pub(crate) mod tests {
     }
 
     fn spec(params: &[(&str, ParamValue)]) -> StageSpec {
-        let mut s = StageSpec::new("whitted");
-        s.params
-            .insert("shadow_origin".into(), ParamValue::Str("light".into()));
-        s.params
-            .insert("cull_backfacing".into(), ParamValue::Bool(true));
-        s.params
-            .insert("min_throughput".into(), ParamValue::Float(1e-3));
-        s.params.insert("epsilon".into(), ParamValue::Float(1e-5));
-        s.params
-            .insert("offset".into(), ParamValue::Str("normal".into()));
-        s.params
-            .insert("fixed_epsilon".into(), ParamValue::Float(1e-4));
+        let mut s = info().defaults();
         for (k, v) in params {
             s.params.insert(k.to_string(), v.clone());
         }

@@ -161,6 +161,19 @@ pub struct Phong {
     lights: Vec<LightShade>,
     ambient: f32,
     background: f32,
+    model: Model,
+}
+
+/// The local reflection model of [`Phong::shade`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Model {
+    /// Eq. 3.19 with ambient fill, weighted by the material's local weight (the `phong`
+    /// shader).
+    Phong,
+    /// A Lambertian BRDF `diffuse / π` under each visible light (eq. 3.19h divided by π,
+    /// no specular, no ambient, every material opaque): the direct light of a diffuse path
+    /// vertex (the `diffuse` shader).
+    Lambert,
 }
 
 /// The catalogue entry of the `phong` shader.
@@ -258,7 +271,19 @@ impl Phong {
             lights,
             ambient,
             background,
+            model: Model::Phong,
         })
+    }
+
+    /// The same shader with the reflection model `model`.
+    pub fn with_model(mut self, model: Model) -> Self {
+        self.model = model;
+        self
+    }
+
+    /// The scene shaded.
+    pub fn scene(&self) -> &Arc<Scene> {
+        &self.scene
     }
 
     /// The radiance record `s` adds to its pixel, given which lights are visible from it.
@@ -268,6 +293,21 @@ impl Phong {
         }
         let m = &self.materials[s.material as usize];
         let emitted = m.emission * s.throughput;
+        if self.model == Model::Lambert {
+            let lambert = MatShade {
+                diffuse: m.diffuse * std::f32::consts::FRAC_1_PI,
+                specular: Vec3::ZERO,
+                ..*m
+            };
+            let mut color = Vec3::ZERO;
+            for (li, l) in self.lights.iter().enumerate() {
+                if visible(li) {
+                    color +=
+                        light_term(s.position, s.normal, s.geo_normal, s.incident, &lambert, l);
+                }
+            }
+            return emitted + color * s.throughput;
+        }
         if m.local_weight <= 0.0 {
             return emitted;
         }
