@@ -43,7 +43,7 @@ fn cpu_rays(s: &Arc<Scene>, kind: RayKind) -> (Vec<Ray>, Vec<u32>) {
 }
 
 fn spec(sub: i64, depth: i64) -> StageSpec {
-    let mut s = StageSpec::new("sphere_cone");
+    let mut s = crsh_cpu::hierarchy::sphere_cone::info().defaults();
     s.params
         .insert("subdivision".into(), crsh_core::ParamValue::Int(sub));
     s.params
@@ -143,6 +143,74 @@ fn hierarchy_nodes_match_the_cpu_and_contain_their_rays() {
                         break;
                     }
                 }
+            }
+        }
+    }
+}
+
+/// `origins = start` (seed 001's offset rays): the GPU nodes bound the segment starts as the
+/// CPU's do, within the same tolerance, and contain every moved ray; its reach covers every
+/// segment end.
+#[test]
+fn hierarchy_over_segment_starts_matches_the_cpu() {
+    let Some(b) =
+        crsh_wgpu::testing::shared_backend("hierarchy_over_segment_starts_matches_the_cpu")
+    else {
+        return;
+    };
+    let s = scene("cornell-mirrors");
+    let g = GpuScene::new(&b, &s).unwrap();
+    let diag = s.bounds.diagonal();
+    for kind in [RayKind::Shadow, RayKind::Reflection] {
+        let (mut rays, order) = cpu_rays(&s, kind);
+        // Offset-like starts: a third of each finite segment, or 5 % of the diagonal.
+        for r in &mut rays {
+            let len = if r.t_max.is_finite() {
+                r.t_max
+            } else {
+                0.15 * diag
+            };
+            r.t_min = r.t_min.max(len / 3.0);
+        }
+        let cpu = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(8, 2)
+            .unwrap()
+            .bounding_starts(true);
+        let want = cpu
+            .build(&Cpu, &rays, order.clone(), &mut Stats::default())
+            .unwrap();
+        let mut sp = spec(8, 2);
+        sp.params
+            .insert("origins".into(), crsh_core::ParamValue::Str("start".into()));
+        let got = SphereConeBuilder::new(&g, &sp)
+            .unwrap()
+            .build(
+                &b,
+                &b.upload(&rays).unwrap(),
+                b.upload(&order).unwrap(),
+                &mut Stats::default(),
+            )
+            .unwrap();
+        let moved = crsh_cpu::hierarchy::sphere_cone::segment_starts(&rays);
+        let gl = b.download(&got.levels[0]).unwrap();
+        let reach = b.download(&got.reach[0]).unwrap();
+        for (i, (gn, wn)) in gl.iter().zip(&want.levels[0]).enumerate() {
+            let tol = 2e-4 * diag.max(1.0);
+            assert!(
+                (gn.sphere.center - wn.sphere.center).length() <= tol
+                    && (gn.sphere.radius - wn.sphere.radius).abs() <= tol,
+                "{kind:?} node {i}: gpu {gn:?} cpu {wn:?}"
+            );
+        }
+        for (leaf, &r) in order.iter().enumerate() {
+            let node = &gl[leaf / 8];
+            let m = &moved[r as usize];
+            assert!(covers(node, m.origin, m.dir), "{kind:?} leaf {leaf}");
+            if m.t_max.is_finite() {
+                let end = m.origin.as_dvec3() + m.dir.as_dvec3() * m.t_max as f64;
+                assert!(
+                    (end - node.sphere.center.as_dvec3()).length() <= reach[leaf / 8] as f64,
+                    "{kind:?} leaf {leaf}: reach"
+                );
             }
         }
     }

@@ -370,15 +370,24 @@ impl StatsReport {
             },
         );
         let r = &self.rays;
-        let _ = writeln!(
-            s,
-            "rays      primary {} | shadow {} | reflection {} | refraction {} | traced {}",
+        let mut kinds = format!(
+            "primary {} | shadow {} | reflection {} | refraction {}",
             group(r.primary),
             group(r.shadow),
             group(r.reflection),
             group(r.refraction),
-            group(r.traced),
         );
+        // Seed 001's kinds only where a generator made them, so Whitted lines stay as they were.
+        for (name, n) in [("ao", r.ao), ("diffuse", r.diffuse)] {
+            if n > 0 {
+                let _ = write!(kinds, " | {name} {}", group(n));
+            }
+        }
+        let offset_ended: u64 = self.per_kind.values().map(|k| k.offset_ended).sum();
+        if offset_ended > 0 {
+            let _ = write!(kinds, " | ended by offsets {}", group(offset_ended));
+        }
+        let _ = writeln!(s, "rays      {kinds} | traced {}", group(r.traced));
         let t = &self.tests;
         let _ = writeln!(
             s,
@@ -390,6 +399,16 @@ impl StatsReport {
             t.per_traced_ray,
             t.fraction_of_brute_force * 100.0,
         );
+        if t.inner_nodes + t.leaves > 0 {
+            let _ = writeln!(
+                s,
+                "visits    inner nodes {} | leaves {} | per traced ray {:.2} / {:.2}",
+                group(t.inner_nodes),
+                group(t.leaves),
+                t.inner_nodes_per_ray,
+                t.leaves_per_ray,
+            );
+        }
         let _ = writeln!(
             s,
             "setup ms  scene load {:.1} | build stages {:.1}",

@@ -113,6 +113,13 @@ pub fn info() -> StageVariantInfo {
         *DEPTH_RANGE.end() as i64,
         "node levels kept above the leaves (fewer when a level already has a single node)",
     ))
+    .param(ParamInfo::choice(
+        "origins",
+        "ray",
+        &["ray", "start"],
+        "what the spheres bound: the rays' origins (the thesis), or their segments' starts \
+         `o + t_min·d` (seed 001's origin offsets then narrow every node)",
+    ))
 }
 
 /// Registers `sphere_cone` ([`info`], [`SphereConeBuilder::new`]).
@@ -128,16 +135,40 @@ pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
 pub struct SphereConeBuilder {
     subdivision: u32,
     depth: u32,
+    starts: bool,
 }
 
 impl SphereConeBuilder {
     /// The builder configured by a resolved `spec` (`subdivision`, `depth`).
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<SphereConeBuilder> {
         let _ = scene;
-        SphereConeBuilder::with_params(
+        let starts = match spec.str("origins")? {
+            "ray" => false,
+            "start" => true,
+            other => {
+                return Err(CoreError::InvalidParam {
+                    key: "sphere_cone.origins".into(),
+                    reason: format!("`{other}` is not one of ray, start"),
+                })
+            }
+        };
+        Ok(SphereConeBuilder::with_params(
             spec.u32_in("subdivision", SUBDIVISION_RANGE)?,
             spec.u32_in("depth", DEPTH_RANGE)?,
-        )
+        )?
+        .bounding_starts(starts))
+    }
+
+    /// The same builder bounding the rays' segment starts `o + t_min·d` instead of their
+    /// origins (`origins = start`, see [`segment_starts`]).
+    pub fn bounding_starts(mut self, starts: bool) -> SphereConeBuilder {
+        self.starts = starts;
+        self
+    }
+
+    /// Whether the spheres bound segment starts (`origins = start`).
+    pub fn bounds_starts(&self) -> bool {
+        self.starts
     }
 
     /// The builder with `subdivision` children per node and at most `depth` node levels.
@@ -154,7 +185,11 @@ impl SphereConeBuilder {
         };
         check("subdivision", subdivision, &SUBDIVISION_RANGE)?;
         check("depth", depth, &DEPTH_RANGE)?;
-        Ok(SphereConeBuilder { subdivision, depth })
+        Ok(SphereConeBuilder {
+            subdivision,
+            depth,
+            starts: false,
+        })
     }
 
     /// Children per node.
@@ -205,6 +240,13 @@ impl HierarchyBuilder<Cpu> for SphereConeBuilder {
         order: Vec<u32>,
         _stats: &mut Stats,
     ) -> Result<RayHierarchy<Cpu>> {
+        let starts;
+        let rays = if self.starts {
+            starts = segment_starts(rays);
+            &starts
+        } else {
+            rays
+        };
         let levels = self.build_levels(rays, &order)?;
         let reach = reach_levels(rays, &order, &levels, self.subdivision);
         Ok(RayHierarchy {
@@ -214,6 +256,30 @@ impl HierarchyBuilder<Cpu> for SphereConeBuilder {
             reach,
         })
     }
+}
+
+/// The rays as segments from their starts (`origins = start`): origin `o + t·d` with
+/// `t = clamp(t_min, 0, t_max)` (0 when `t_min` is not finite), interval `(0, t_max − t)`.
+/// Every point a ray reaches in `(t_min, t_max)` is a point of its moved version, so a
+/// hierarchy over the moved rays bounds the same hits; with seed 001's origin offsets (a
+/// raised `t_min`) its spheres and reaches are narrower. The traverser reads only the
+/// hierarchy, and the final tests run on the original rays.
+pub fn segment_starts(rays: &[Ray]) -> Vec<Ray> {
+    rays.par_iter()
+        .map(|r| {
+            let t = if r.t_min.is_finite() {
+                r.t_min.clamp(0.0, r.t_max.max(0.0))
+            } else {
+                0.0
+            };
+            Ray {
+                origin: r.origin + r.dir * t,
+                t_min: 0.0,
+                t_max: r.t_max - t,
+                ..*r
+            }
+        })
+        .collect()
 }
 
 /// [`RayHierarchy::reach`] for `levels` built over `rays` in `order`: for a lowest-level node,

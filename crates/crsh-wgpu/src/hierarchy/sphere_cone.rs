@@ -22,7 +22,7 @@ use bytemuck::{Pod, Zeroable};
 use crsh_core::{
     CoreError, HierarchyBuilder, Ray, RayHierarchy, Registry, Result, SphereCone, StageSpec, Stats,
 };
-use crsh_cpu::hierarchy::sphere_cone::{level_sizes, DEPTH_RANGE, SUBDIVISION_RANGE};
+use crsh_cpu::hierarchy::sphere_cone::level_sizes;
 
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
@@ -38,7 +38,8 @@ struct Params {
     nodes: u32,
     sub: u32,
     below: u32,
-    pad: u32,
+    /// 1: bound the segment starts (`origins = start`).
+    starts: u32,
 }
 
 struct SphereConeKernels {
@@ -67,6 +68,7 @@ pub struct SphereConeBuilder {
     scene: Arc<GpuScene>,
     subdivision: u32,
     depth: u32,
+    starts: bool,
 }
 
 /// Registers the wgpu `sphere_cone` under its CPU twin's catalogue entry (same name, parameters,
@@ -79,13 +81,15 @@ pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
 }
 
 impl SphereConeBuilder {
-    /// The builder configured by a resolved `spec` (`subdivision`, `depth`), checked as on the
-    /// CPU.
+    /// The builder configured by a resolved `spec` (`subdivision`, `depth`, `origins`),
+    /// checked by the CPU twin's constructor.
     pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<SphereConeBuilder> {
+        let cpu = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::new(&scene.scene, spec)?;
         Ok(SphereConeBuilder {
             scene: Arc::clone(scene),
-            subdivision: spec.u32_in("subdivision", SUBDIVISION_RANGE)?,
-            depth: spec.u32_in("depth", DEPTH_RANGE)?,
+            subdivision: cpu.subdivision(),
+            depth: cpu.depth(),
+            starts: cpu.bounds_starts(),
         })
     }
 }
@@ -132,7 +136,7 @@ impl HierarchyBuilder<Wgpu> for SphereConeBuilder {
                 nodes: size as u32,
                 sub: self.subdivision,
                 below: below as u32,
-                pad: 0,
+                starts: u32::from(self.starts),
             };
             let u = uniform(ctx, "crsh sphere-cone params", &params);
             let (children, child_reach) = if li == 0 {

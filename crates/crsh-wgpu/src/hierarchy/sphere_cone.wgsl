@@ -17,7 +17,9 @@ struct Params {
     nodes: u32,
     sub: u32,
     below: u32,
-    _a: u32,
+    // 1: spheres bound the segment starts o + clamp(t_min, 0, t_max)·d (`origins = start`,
+    // crsh_cpu's segment_starts), and reach runs from there.
+    starts: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -168,6 +170,19 @@ fn round_up(x: f32, rel: f32) -> f32 {
     return bitcast<f32>(bitcast<u32>(y) + 1u);
 }
 
+// The point a leaf ray's sphere bounds and the length its reach adds (segment_starts).
+fn leaf_start(r: Ray) -> vec4<f32> {
+    let o = ray_origin(r);
+    if (p.starts == 0u) {
+        return vec4<f32>(o, r.t_max);
+    }
+    var t = 0.0;
+    if (abs(r.t_min) <= 3.40282347e38) {
+        t = clamp(r.t_min, 0.0, max(r.t_max, 0.0));
+    }
+    return vec4<f32>(o + ray_dir(r) * t, r.t_max - t);
+}
+
 // Lowest level: node i over leaves i·sub .. min((i+1)·sub, below).
 @compute @workgroup_size(WG)
 fn leaves(@builtin(global_invocation_id) gid: vec3<u32>,
@@ -183,10 +198,10 @@ fn leaves(@builtin(global_invocation_id) gid: vec3<u32>,
     var phi = 0.0;
     var cos_phi = 1.0;
     var same = true;
-    let o0 = ray_origin(rays[order[first]]);
+    let o0 = leaf_start(rays[order[first]]).xyz;
     for (var k = 0u; k < n; k++) {
         let r = rays[order[first + k]];
-        pts[k] = ray_origin(r);
+        pts[k] = leaf_start(r).xyz;
         same = same && all(pts[k] == o0);
         let d = unit3(ray_dir(r));
         if (k > 0u && dot(axis, d) < cos_phi) {
@@ -220,7 +235,7 @@ fn leaves(@builtin(global_invocation_id) gid: vec3<u32>,
         far = max(far, length(pts[k] - c));
         scale = max(scale, max_abs3(pts[k]));
         let r = rays[order[first + k]];
-        reach = max(reach, length(pts[k] - c) + r.t_max * length(ray_dir(r)));
+        reach = max(reach, length(pts[k] - c) + leaf_start(r).w * length(ray_dir(r)));
     }
     var radius = 0.0;
     if (!same || any(c != o0)) {
