@@ -52,10 +52,21 @@
 //!
 //! # Counting
 //!
-//! `stats.add_bounds`: one per non-empty child box tested (each node visited tests all its
-//! children at once). `stats.add_ray_triangle`: one per leaf primitive tested. Any-hit rays
-//! stop at the first hit found (traversal order), so their counts are the tests done.
-//! Rays whose stored hit is already a hit are skipped in any-hit mode.
+//! - `stats.add_bounds`: one per non-empty child box tested (each node visited tests all its
+//!   children at once).
+//! - `stats.add_ray_triangle`: one per leaf primitive tested.
+//! - `stats.add_visits(inner, leaves)` (seed 001's "visited internal nodes / visited leaves"
+//!   per ray): `inner` counts the nodes visited, i.e. the nodes whose children's boxes are
+//!   tested (every run of the `traverse!` node block; the root is visited by every ray traced,
+//!   so `inner >= 1` per ray on a non-empty tree). `leaves` counts the leaf children (CWBVH
+//!   primitive clusters of 1 to 3 triangles: a non-empty `child_meta` whose `imask` bit is
+//!   clear) whose primitives get tested: a cluster is counted when its first primitive is
+//!   tested, so `leaves <= ray_triangle`, and a cluster left untested because an any-hit ray
+//!   stopped first is not counted. A leaf is not a node of its own here: its box is one of
+//!   its parent's child boxes, so a leaf visit adds no `bounds` test.
+//!
+//! Any-hit rays stop at the first hit found (traversal order), so their counts are the tests
+//! done. Rays whose stored hit is already a hit are skipped in any-hit mode (nothing counted).
 //!
 //! Rays are traced in parallel with rayon, each independently, so results and counts do not
 //! depend on the thread count. [`Query::Candidates`] is not supported (a BVH tests the whole
@@ -428,7 +439,7 @@ impl CwBvh {
     }
 
     /// Traces one ray with test `T` on `leaf_tris` (this BVH's leaves, prepared for `T`);
-    /// merges into `best` and returns `(bounds, triangle)` test counts.
+    /// merges into `best` and returns the counts (module doc, "Counting").
     #[inline]
     fn trace<T: TriangleTest>(
         &self,
@@ -436,16 +447,18 @@ impl CwBvh {
         ray: &Ray,
         mode: HitMode,
         best: &mut Hit,
-    ) -> (u64, u64) {
+    ) -> Counts {
+        let mut n = Counts::default();
         if self.bvh.nodes.is_empty() || (mode == HitMode::Any && best.is_hit()) {
-            return (0, 0);
+            return n;
         }
         let r = T::ray_of(ray);
         let nr = NodeRay::new(ray.origin, ray.dir);
         let t_lo = ray.t_min - ray.t_min.abs() * T_SLACK;
         let mut t_hi = cull_distance(ray.t_max.min(best.t));
-        let mut bounds = 0u64;
-        let mut prims = 0u64;
+        // The last primitive slot (relative to the node's primitive base) of each leaf child
+        // of the node visited last: the first one `traverse!` tests (highest bit first).
+        let mut leaf_tops = 0u32;
         let bvh = &self.bvh;
         let mut state = bvh.new_traversal(Vec3A::from(ray.dir));
         let mut node: &CwBvhNode;
@@ -455,12 +468,17 @@ impl CwBvh {
                 node,
                 state,
                 {
-                    bounds += node.child_meta.iter().filter(|&&m| m != 0).count() as u64;
+                    n.inner += 1;
+                    n.bounds += node.child_meta.iter().filter(|&&m| m != 0).count() as u64;
+                    leaf_tops = leaf_top_bits(node);
                     child_hits(node, &nr, state.oct_inv4, t_lo, t_hi)
                 },
                 {
                     let slot = state.primitive_id as usize;
-                    prims += 1;
+                    n.prims += 1;
+                    n.leaves += u64::from(
+                        (leaf_tops >> (state.primitive_id - state.primitive_group.x)) & 1,
+                    );
                     let id = self.leaf_ids[slot];
                     if let Some(h) = T::hit(&leaf_tris[slot], &r, ray.t_min, ray.t_max, id) {
                         if mode == HitMode::Any {
@@ -475,8 +493,57 @@ impl CwBvh {
                 }
             );
         }
-        (bounds, prims)
+        n
     }
+}
+
+/// Per-ray (or summed) traversal counts (module doc, "Counting").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct Counts {
+    /// Child boxes tested.
+    pub bounds: u64,
+    /// Leaf primitives tested.
+    pub prims: u64,
+    /// Inner nodes visited (children tested).
+    pub inner: u64,
+    /// Leaves whose primitives were tested.
+    pub leaves: u64,
+}
+
+impl Counts {
+    /// The sum of two counts.
+    #[inline]
+    pub fn add(self, o: Counts) -> Counts {
+        Counts {
+            bounds: self.bounds + o.bounds,
+            prims: self.prims + o.prims,
+            inner: self.inner + o.inner,
+            leaves: self.leaves + o.leaves,
+        }
+    }
+
+    /// Adds these counts to `stats`.
+    pub fn record(self, stats: &mut Stats) {
+        stats.add_bounds(self.bounds);
+        stats.add_ray_triangle(self.prims);
+        stats.add_visits(self.inner, self.leaves);
+    }
+}
+
+/// Bit `first + count - 1` (relative to the node's `primitive_base_idx`) for each leaf child
+/// of `node` holding primitives `first .. first + count`: the primitive of that leaf that
+/// `traverse!` tests first (it tests the hit mask's highest bit first).
+#[inline(always)]
+fn leaf_top_bits(node: &CwBvhNode) -> u32 {
+    let mut tops = 0u32;
+    for (c, &m) in node.child_meta.iter().enumerate() {
+        if m != 0 && node.is_leaf(c) {
+            let first = u32::from(m & 0b1_1111);
+            let count = (m >> 5).count_ones();
+            tops |= 1 << (first + count - 1);
+        }
+    }
+    tops
 }
 
 /// The node test's far distance for a best hit (or `t_max`) at `t`.
@@ -588,27 +655,24 @@ impl Intersector<Cpu> for CwBvh {
             rays: &[Ray],
             mode: HitMode,
             hits: &mut [Hit],
-        ) -> (u64, u64) {
+        ) -> Counts {
             rays.par_chunks(CHUNK)
                 .zip(hits.par_chunks_mut(CHUNK))
                 .map(|(rs, hs)| {
-                    let mut n = (0u64, 0u64);
-                    for (ray, h) in rs.iter().zip(hs.iter_mut()) {
-                        let (b, p) = bvh.trace::<T>(leaf_tris, ray, mode, h);
-                        n.0 += b;
-                        n.1 += p;
-                    }
-                    n
+                    rs.iter()
+                        .zip(hs.iter_mut())
+                        .fold(Counts::default(), |n, (ray, h)| {
+                            n.add(bvh.trace::<T>(leaf_tris, ray, mode, h))
+                        })
                 })
-                .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+                .reduce(Counts::default, Counts::add)
         }
-        let (bounds, prims) = match &self.leaf_tris {
+        let counts = match &self.leaf_tris {
             LeafTriangles::MollerTrumbore(t) => all::<MollerTrumbore>(self, t, rays, mode, hits),
             LeafTriangles::Watertight(t) => all::<Watertight>(self, t, rays, mode, hits),
             LeafTriangles::Projected(t) => all::<Projected>(self, t, rays, mode, hits),
         };
-        stats.add_bounds(bounds);
-        stats.add_ray_triangle(prims);
+        counts.record(stats);
         Ok(())
     }
 }
@@ -620,7 +684,7 @@ mod tests {
     use crate::intersect::brute::BruteForce;
     use crate::surface::tests::raw_scene;
     use crate::triangle::tests::TestRng;
-    use crsh_core::{CandidateBatch, ParamValue, RayHierarchy, RayKind};
+    use crsh_core::{CandidateBatch, ParamValue, RayHierarchy, RayKind, TestCounts};
 
     fn run(x: &dyn Intersector<Cpu>, rays: &Vec<Ray>, mode: HitMode) -> (Vec<Hit>, Stats) {
         let mut hits = vec![Hit::MISS; rays.len()];
@@ -914,14 +978,170 @@ mod tests {
         let scene = soup(51, 400);
         let bvh = CwBvh::build(&scene, BuildQuality::Medium);
         let rays = random_rays(&scene, 52, 700);
-        for mode in [HitMode::Closest, HitMode::Any] {
-            let a = crate::with_threads(1, || run(&bvh, &rays, mode)).unwrap();
-            let b = crate::with_threads(3, || run(&bvh, &rays, mode)).unwrap();
-            assert_eq!(a.0, b.0);
-            assert_eq!(a.1.tests, b.1.tests);
-        }
+        same_for_one_and_two_threads(&bvh, &rays);
         // The BVH does far fewer triangle tests than brute force.
         let (_, stats) = run(&bvh, &rays, HitMode::Closest);
         assert!(stats.tests.ray_triangle * 5 < (rays.len() * scene.triangle_count()) as u64);
+    }
+
+    /// `x` gives the same hits and counts (all of them, visits included) on pools of 1 and 2
+    /// threads, and visits nodes and leaves.
+    pub(crate) fn same_for_one_and_two_threads(x: &dyn Intersector<Cpu>, rays: &Vec<Ray>) {
+        for mode in [HitMode::Closest, HitMode::Any] {
+            let a = crate::with_threads(1, || run(x, rays, mode)).unwrap();
+            let b = crate::with_threads(2, || run(x, rays, mode)).unwrap();
+            assert_eq!(a.0, b.0, "{mode:?}");
+            assert_eq!(a.1.tests, b.1.tests, "{mode:?}");
+            assert!(
+                a.1.tests.inner_nodes > 0 && a.1.tests.leaves > 0,
+                "{mode:?}"
+            );
+        }
+    }
+
+    /// The counts of `ray` traced alone.
+    fn one(x: &dyn Intersector<Cpu>, ray: &Ray, mode: HitMode) -> (Hit, TestCounts) {
+        let (h, s) = run(x, &vec![*ray], mode);
+        (h[0], s.tests)
+    }
+
+    /// Per-ray visit invariants of `x` on `rays` (module doc, "Counting"): every ray traced
+    /// visits at least `min_inner` inner nodes (the root), a leaf is counted only when a
+    /// primitive of it is tested, a closest hit was found in a visited leaf, and the batch
+    /// counts are the sums of the rays' own.
+    pub(crate) fn check_visit_counts(x: &dyn Intersector<Cpu>, rays: &Vec<Ray>, min_inner: u64) {
+        for mode in [HitMode::Closest, HitMode::Any] {
+            let mut sum = TestCounts::default();
+            for (i, ray) in rays.iter().enumerate() {
+                let (h, c) = one(x, ray, mode);
+                assert!(c.inner_nodes >= min_inner, "{mode:?} ray {i}: {c:?}");
+                assert!(c.leaves <= c.ray_triangle, "{mode:?} ray {i}: {c:?}");
+                assert!(
+                    c.leaves > 0 || c.ray_triangle == 0,
+                    "{mode:?} ray {i}: {c:?}"
+                );
+                if h.is_hit() {
+                    assert!(c.leaves >= 1, "{mode:?} ray {i} hit without a leaf: {c:?}");
+                }
+                sum.bounds += c.bounds;
+                sum.ray_triangle += c.ray_triangle;
+                sum.inner_nodes += c.inner_nodes;
+                sum.leaves += c.leaves;
+            }
+            let (_, batch) = run(x, rays, mode);
+            assert_eq!(
+                (
+                    batch.tests.bounds,
+                    batch.tests.ray_triangle,
+                    batch.tests.inner_nodes,
+                    batch.tests.leaves
+                ),
+                (sum.bounds, sum.ray_triangle, sum.inner_nodes, sum.leaves),
+                "{mode:?}"
+            );
+        }
+    }
+
+    /// Built-in scenes: rays from random points and rays leaving surfaces.
+    pub(crate) fn builtin_rays(scene: &Scene, seed: u64, n: usize) -> Vec<Ray> {
+        let mut rays = random_rays(scene, seed, n);
+        let eps = scene.bounds.diagonal() * 1e-5;
+        for r in rays.iter_mut().skip(1).step_by(4) {
+            r.t_min = eps;
+        }
+        rays
+    }
+
+    #[test]
+    fn visit_counts_on_builtin_scenes() {
+        for name in crsh_scene::builtin::STATIC_NAMES {
+            let scene = crsh_scene::builtin::build(name).unwrap();
+            let bvh = CwBvh::build(&scene, BuildQuality::Medium);
+            let rays = builtin_rays(&scene, 71, 300);
+            check_visit_counts(&bvh, &rays, 1);
+            same_for_one_and_two_threads(&bvh, &rays);
+        }
+    }
+
+    /// For closest hits every leaf child in a visited node's hit mask has all its primitives
+    /// tested: an independent recount from the hit masks (leaf children whose primitive bits
+    /// are set) gives the same inner and leaf visits, and those leaves' sizes add up to the
+    /// primitives tested. A ray that misses every box visits the root alone.
+    #[test]
+    fn leaf_visits_are_the_hit_leaf_children() {
+        let scene = soup(81, 300);
+        let bvh = CwBvh::build(&scene, BuildQuality::Medium);
+        let leaf_tris = bvh.leaf_triangles_mt().unwrap();
+        let mut rays = random_rays(&scene, 82, 400);
+        rays.push(crate::intersect::brute::tests::test_ray(
+            Vec3::splat(5.0),
+            Vec3::ONE.normalize(),
+            0.0,
+            f32::INFINITY,
+            0,
+        ));
+        let mut seen_multi = false;
+        for (i, ray) in rays.iter().enumerate() {
+            let (hit, c) = one(&bvh, ray, HitMode::Closest);
+            let r = MollerTrumbore::ray_of(ray);
+            let nr = NodeRay::new(ray.origin, ray.dir);
+            let t_lo = ray.t_min - ray.t_min.abs() * T_SLACK;
+            let mut best = Hit::MISS;
+            let mut t_hi = cull_distance(ray.t_max);
+            let (mut inner, mut leaves, mut cluster_prims, mut prims) = (0u64, 0u64, 0u64, 0u64);
+            let tree = &bvh.bvh;
+            let mut state = tree.new_traversal(Vec3A::from(ray.dir));
+            let mut node: &CwBvhNode;
+            obvhs::traverse!(
+                tree,
+                node,
+                state,
+                {
+                    inner += 1;
+                    let mask = child_hits(node, &nr, state.oct_inv4, t_lo, t_hi);
+                    for c in 0..8 {
+                        let m = node.child_meta[c];
+                        if m != 0 && node.is_leaf(c) && (mask >> (m & 0x1f)) & 1 != 0 {
+                            leaves += 1;
+                            cluster_prims += u64::from((m >> 5).count_ones());
+                            seen_multi |= m >> 5 != 1;
+                        }
+                    }
+                    mask
+                },
+                {
+                    let slot = state.primitive_id as usize;
+                    prims += 1;
+                    let id = bvh.leaf_ids()[slot];
+                    if let Some(h) =
+                        MollerTrumbore::hit(&leaf_tris[slot], &r, ray.t_min, ray.t_max, id)
+                    {
+                        if h.closer_than(&best) {
+                            best = h;
+                            t_hi = cull_distance(ray.t_max.min(best.t));
+                        }
+                    }
+                }
+            );
+            assert_eq!(best, hit, "ray {i}");
+            assert_eq!(
+                (c.inner_nodes, c.leaves, c.ray_triangle),
+                (inner, leaves, prims),
+                "ray {i}"
+            );
+            assert_eq!(cluster_prims, prims, "ray {i}");
+        }
+        assert!(seen_multi, "no leaf of 2 or 3 primitives was visited");
+        let away = rays.last().unwrap();
+        let (_, c) = one(&bvh, away, HitMode::Closest);
+        let root = bvh.nodes()[0]
+            .child_meta
+            .iter()
+            .filter(|&&m| m != 0)
+            .count() as u64;
+        assert_eq!(
+            (c.inner_nodes, c.leaves, c.ray_triangle, c.bounds),
+            (1, 0, 0, root)
+        );
     }
 }
