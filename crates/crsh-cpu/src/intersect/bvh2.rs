@@ -466,6 +466,45 @@ mod tests {
         }
     }
 
+    /// On the same rays, the binary tree visits more inner nodes per ray than the 8-wide
+    /// CWBVH `bvh` compresses from the same PLOC tree (a CWBVH node replaces up to seven
+    /// binary ones) and tests two boxes per visit; both count leaves no more than triangle
+    /// tests. Prints the per-ray figures (`--nocapture`).
+    #[test]
+    fn binary_tree_visits_more_inner_nodes_than_the_wide_one() {
+        use crate::intersect::bvh::CwBvh;
+        for name in crsh_scene::builtin::STATIC_NAMES {
+            let scene = builtin(name);
+            let rays = builtin_rays(&scene, 91, 2000);
+            let wide = CwBvh::build(&scene, BuildQuality::Medium);
+            let binary =
+                BinaryBvh::build(&scene, BuildQuality::Medium, 4, TestKind::MollerTrumbore);
+            for mode in [HitMode::Closest, HitMode::Any] {
+                let per_ray = |x: &dyn Intersector<Cpu>| {
+                    let t = run(x, &rays, mode).1.tests;
+                    let n = rays.len() as f64;
+                    [t.inner_nodes, t.leaves, t.bounds, t.ray_triangle].map(|c| c as f64 / n)
+                };
+                let (w, b) = (per_ray(&wide), per_ray(&binary));
+                println!(
+                    "{name} {mode:?} ({} triangles) per ray: bvh inner {:.2} leaves {:.2} \
+                     bounds {:.2} triangles {:.2} | bvh2 inner {:.2} leaves {:.2} bounds {:.2} \
+                     triangles {:.2}",
+                    scene.triangle_count(),
+                    w[0],
+                    w[1],
+                    w[2],
+                    w[3],
+                    b[0],
+                    b[1],
+                    b[2],
+                    b[3]
+                );
+                assert!(b[0] > w[0], "{name} {mode:?}: bvh2 {b:?} bvh {w:?}");
+            }
+        }
+    }
+
     /// Leaves hold at most `max_prims_per_leaf` triangles, collapsing does merge leaves, and
     /// leaf size 1 keeps PLOC's single-triangle leaves; every hittable triangle is in one leaf.
     #[test]
