@@ -28,7 +28,9 @@
 //! - [`triangle`]: the ray-triangle tests and their epsilon policy.
 //! - [`intersect::brute`]: every ray against every triangle (the exact reference);
 //!   [`intersect::brute64`]: the same in f64 (the accuracy reference);
-//!   [`intersect::bvh`]: the obvhs CWBVH (closest and any hit).
+//!   [`intersect::bvh`]: the obvhs CWBVH (closest and any hit);
+//!   [`intersect::bvh2`]: obvhs's binary BVH with a stack traversal written here (seed 001's
+//!   visited inner nodes and leaves on a binary tree).
 //! - [`raygen::whitted`]: shadow, reflection and refraction rays (eq. 3.1-3.7).
 //! - [`shade::phong`]: barycentric normals and Phong with attenuation (eq. 3.17-3.19).
 //! - [`hash`], [`sort`], [`hierarchy`], [`traverse`]: the ray-space hierarchy stages

@@ -35,6 +35,7 @@ impl BuiltinVariants for Cpu {
         crate::intersect::brute::register(registry)?;
         crate::intersect::brute64::register(registry)?;
         crate::intersect::bvh::register(registry)?;
+        crate::intersect::bvh2::register(registry)?;
         crate::intersect::grid::register(registry)?;
         crate::shade::phong::register(registry)?;
         crate::shade::ao::register(registry)?;
@@ -172,7 +173,12 @@ mod tests {
             );
         }
         // Whole-scene-only intersectors are marked so before anything is built.
-        for (name, scene_only) in [("brute", false), ("bvh", true), ("brute64", true)] {
+        for (name, scene_only) in [
+            ("brute", false),
+            ("bvh", true),
+            ("bvh2", true),
+            ("brute64", true),
+        ] {
             let v = registry.variant(StageKind::Intersect, name).unwrap();
             assert_eq!(v.scene_only, scene_only, "{name}");
         }

@@ -8,8 +8,8 @@ use std::sync::Arc;
 
 use crsh_core::glam::{DVec3, Vec3};
 use crsh_core::{
-    Backend, CandidateBatch, HierarchyBuilder, Hit, HitMode, Intersector, Query, Ray, RayHierarchy,
-    RayKind, StageSpec, Stats, Traverser,
+    Backend, CandidateBatch, FrameSize, HierarchyBuilder, Hit, HitMode, Intersector, Query, Ray,
+    RayHierarchy, RayKind, Registry, StageContext, StageSpec, Stats, Traverser,
 };
 use crsh_cpu::Cpu;
 use crsh_scene::Scene;
@@ -128,6 +128,47 @@ fn gpu_scene(b: &Wgpu, s: &Arc<Scene>) -> Arc<GpuScene> {
     GpuScene::new(b, s).unwrap()
 }
 
+/// Hits to merge into: a mix of misses and an existing hit (triangle 3 at `t = 0.05`) on every
+/// fifth ray, as candidate batches leave them.
+fn start_hits(n: usize) -> Vec<Hit> {
+    (0..n)
+        .map(|i| {
+            if i % 5 == 0 {
+                Hit {
+                    t: 0.05,
+                    tri: 3,
+                    u: 0.1,
+                    v: 0.1,
+                }
+            } else {
+                Hit::MISS
+            }
+        })
+        .collect()
+}
+
+/// A whole-scene query of `rays` in `mode`, merging into `start`, on the GPU intersector and
+/// its CPU twin: `(gpu hits, cpu hits, gpu stats, cpu stats)`.
+fn scene_query(
+    b: &Wgpu,
+    gpu: &dyn Intersector<Wgpu>,
+    cpu: &dyn Intersector<Cpu>,
+    rays: &Vec<Ray>,
+    start: &[Hit],
+    mode: HitMode,
+) -> (Vec<Hit>, Vec<Hit>, Stats, Stats) {
+    let mut want = start.to_vec();
+    let mut cpu_stats = Stats::default();
+    cpu.intersect(&Cpu, rays, Query::Scene, mode, &mut want, &mut cpu_stats)
+        .unwrap();
+    let buf = b.upload(rays).unwrap();
+    let mut hits = b.upload(start).unwrap();
+    let mut stats = Stats::default();
+    gpu.intersect(b, &buf, Query::Scene, mode, &mut hits, &mut stats)
+        .unwrap();
+    (b.download(&hits).unwrap(), want, stats, cpu_stats)
+}
+
 #[test]
 fn brute_scene_queries_match_the_cpu() {
     let Some(b) = crsh_wgpu::testing::shared_backend("brute_scene_queries_match_the_cpu") else {
@@ -141,31 +182,9 @@ fn brute_scene_queries_match_the_cpu() {
         let cpu = crsh_wgpu::testing::cpu_intersector(&StageSpec::new("brute"), &s);
         let rays = rays(&s, 5, 700, RayKind::Reflection);
         // Start from a mix of misses and existing hits (merging), as candidate batches do.
-        let start: Vec<Hit> = (0..rays.len())
-            .map(|i| {
-                if i % 5 == 0 {
-                    Hit {
-                        t: 0.05,
-                        tri: 3,
-                        u: 0.1,
-                        v: 0.1,
-                    }
-                } else {
-                    Hit::MISS
-                }
-            })
-            .collect();
+        let start = start_hits(rays.len());
         for mode in [HitMode::Closest, HitMode::Any] {
-            let mut want = start.clone();
-            let mut cpu_stats = Stats::default();
-            cpu.intersect(&Cpu, &rays, Query::Scene, mode, &mut want, &mut cpu_stats)
-                .unwrap();
-            let buf = b.upload(&rays).unwrap();
-            let mut hits = b.upload(&start).unwrap();
-            let mut stats = Stats::default();
-            gpu.intersect(&b, &buf, Query::Scene, mode, &mut hits, &mut stats)
-                .unwrap();
-            let got = b.download(&hits).unwrap();
+            let (got, want, stats, cpu_stats) = scene_query(&b, &gpu, &*cpu, &rays, &start, mode);
             let bad = compare(&s, &rays, &got, &want, mode);
             assert!(
                 bad * 10_000 <= rays.len(),
@@ -285,6 +304,52 @@ fn brute_candidate_queries_match_the_cpu() {
             }
         }
     }
+}
+
+/// The wgpu `bvh` against the CPU `bvh` (both with the registry's defaults: the same host
+/// tree) on the built-in scenes, merging into a mix of misses and existing hits: the same hits
+/// up to edge rounding and, where every hit agrees, the same counters, node and leaf visits
+/// included (the CPU module doc's "Counting").
+#[test]
+fn bvh_scene_queries_match_the_cpu() {
+    let Some(b) = crsh_wgpu::testing::shared_backend("bvh_scene_queries_match_the_cpu") else {
+        return;
+    };
+    let gpu_registry = Registry::<Wgpu>::builtin();
+    let mut counters_compared = 0;
+    for name in crsh_scene::builtin::STATIC_NAMES {
+        let s = scene(name);
+        let g = gpu_scene(&b, &s);
+        let frame = FrameSize::new(1, 1).unwrap();
+        let gpu = gpu_registry
+            .build_intersector(&StageContext::new(&b, &g, frame), &StageSpec::new("bvh"))
+            .unwrap();
+        let cpu = crsh_wgpu::testing::cpu_intersector(&StageSpec::new("bvh"), &s);
+        let rays = rays(&s, 9, 1500, RayKind::Reflection);
+        let start = start_hits(rays.len());
+        for mode in [HitMode::Closest, HitMode::Any] {
+            let (got, want, stats, cpu_stats) = scene_query(&b, &*gpu, &*cpu, &rays, &start, mode);
+            let bad = compare(&s, &rays, &got, &want, mode);
+            assert!(
+                bad * 10_000 <= rays.len(),
+                "{name} {mode:?}: {bad} mismatches"
+            );
+            let t = &cpu_stats.tests;
+            assert!(
+                t.inner_nodes >= rays.len() as u64 * 4 / 5,
+                "{name} {mode:?}: {t:?}"
+            );
+            assert!(
+                t.leaves > 0 && t.leaves <= t.ray_triangle,
+                "{name} {mode:?}: {t:?}"
+            );
+            if bad == 0 {
+                assert_eq!(stats.tests, cpu_stats.tests, "{name} {mode:?}: counters");
+                counters_compared += 1;
+            }
+        }
+    }
+    assert!(counters_compared > 0, "no run to compare counters on");
 }
 
 #[test]

@@ -52,10 +52,21 @@
 //!
 //! # Counting
 //!
-//! `stats.add_bounds`: one per non-empty child box tested (each node visited tests all its
-//! children at once). `stats.add_ray_triangle`: one per leaf primitive tested. Any-hit rays
-//! stop at the first hit found (traversal order), so their counts are the tests done.
-//! Rays whose stored hit is already a hit are skipped in any-hit mode.
+//! - `stats.add_bounds`: one per non-empty child box tested (each node visited tests all its
+//!   children at once).
+//! - `stats.add_ray_triangle`: one per leaf primitive tested.
+//! - `stats.add_visits(inner, leaves)` (seed 001's "visited internal nodes / visited leaves"
+//!   per ray): `inner` counts the nodes visited, i.e. the nodes whose children's boxes are
+//!   tested (every run of the `traverse!` node block; the root is visited by every ray traced,
+//!   so `inner >= 1` per ray on a non-empty tree). `leaves` counts the leaf children (CWBVH
+//!   primitive clusters of 1 to 3 triangles: a non-empty `child_meta` whose `imask` bit is
+//!   clear) whose primitives get tested: a cluster is counted when its first primitive is
+//!   tested, so `leaves <= ray_triangle`, and a cluster left untested because an any-hit ray
+//!   stopped first is not counted. A leaf is not a node of its own here: its box is one of
+//!   its parent's child boxes, so a leaf visit adds no `bounds` test.
+//!
+//! Any-hit rays stop at the first hit found (traversal order), so their counts are the tests
+//! done. Rays whose stored hit is already a hit are skipped in any-hit mode (nothing counted).
 //!
 //! Rays are traced in parallel with rayon, each independently, so results and counts do not
 //! depend on the thread count. [`Query::Candidates`] is not supported (a BVH tests the whole
@@ -84,16 +95,16 @@ use crate::intersect::brute::{check_batch, test_kind};
 use crate::triangle::{MollerTrumbore, Projected, TestKind, TriangleSet, TriangleTest, Watertight};
 
 /// Rays per rayon task.
-const CHUNK: usize = 64;
+pub(crate) const CHUNK: usize = 64;
 
 /// Relative slab widening for the rounding of the node test (see the module doc).
-const SLAB_SLACK: f32 = 1e-6;
+pub(crate) const SLAB_SLACK: f32 = 1e-6;
 
 /// Relative widening of the node test's distance interval (rounding of the triangle's `t`).
-const T_SLACK: f32 = 1e-5;
+pub(crate) const T_SLACK: f32 = 1e-5;
 
 /// Smallest direction component magnitude used in the node test.
-const MIN_DIR: f32 = 1e-25;
+pub(crate) const MIN_DIR: f32 = 1e-25;
 
 /// BVH build presets (`build_quality`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -136,10 +147,8 @@ impl BuildQuality {
 /// The CWBVH intersector (variant `bvh`).
 pub struct CwBvh {
     bvh: obvhs::cwbvh::CwBvh,
-    /// Prepared triangle per BVH primitive slot, for the configured test.
-    leaf_tris: LeafTriangles,
-    /// Scene triangle id per BVH primitive slot.
-    leaf_ids: Vec<u32>,
+    /// Prepared triangle and scene triangle id per BVH primitive slot.
+    leaves: Leaves,
     quality: BuildQuality,
     build_time: Duration,
     /// The binary tree and its primitives' scene ids, kept for the next frame's refit
@@ -156,17 +165,53 @@ struct RefitState {
 
 /// The leaf triangles prepared for one ray-triangle test (matched once per query).
 #[derive(Clone, Debug)]
-enum LeafTriangles {
+pub(crate) enum LeafTriangles {
     MollerTrumbore(Vec<<MollerTrumbore as TriangleTest>::Tri>),
     Watertight(Vec<<Watertight as TriangleTest>::Tri>),
     Projected(Vec<<Projected as TriangleTest>::Tri>),
+}
+
+/// A tree's primitives in slot (leaf) order: each slot's triangle prepared for the configured
+/// test, and its scene triangle id.
+#[derive(Clone, Debug)]
+pub(crate) struct Leaves {
+    pub tris: LeafTriangles,
+    pub ids: Vec<u32>,
+}
+
+impl Leaves {
+    /// The scene triangles `ids` (in slot order) of `scene`, prepared for `test`.
+    pub fn new(scene: &Scene, ids: Vec<u32>, test: TestKind) -> Leaves {
+        fn prepare<T: TriangleTest>(scene: &Scene, ids: &[u32]) -> Vec<T::Tri> {
+            TriangleSet::<T>::from_triangles(ids.iter().map(|&t| scene.triangle(t as usize)))
+                .triangles()
+                .to_vec()
+        }
+        let tris = match test {
+            TestKind::MollerTrumbore => {
+                LeafTriangles::MollerTrumbore(prepare::<MollerTrumbore>(scene, &ids))
+            }
+            TestKind::Watertight => LeafTriangles::Watertight(prepare::<Watertight>(scene, &ids)),
+            TestKind::Projected => LeafTriangles::Projected(prepare::<Projected>(scene, &ids)),
+        };
+        Leaves { tris, ids }
+    }
+
+    /// The ray-triangle test the triangles are prepared for.
+    pub fn test(&self) -> TestKind {
+        match self.tris {
+            LeafTriangles::MollerTrumbore(_) => TestKind::MollerTrumbore,
+            LeafTriangles::Watertight(_) => TestKind::Watertight,
+            LeafTriangles::Projected(_) => TestKind::Projected,
+        }
+    }
 }
 
 impl std::fmt::Debug for CwBvh {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("CwBvh")
             .field("nodes", &self.bvh.nodes.len())
-            .field("primitives", &self.leaf_ids.len())
+            .field("primitives", &self.leaves.ids.len())
             .field("quality", &self.quality)
             .field("test", &self.test())
             .field("build_time", &self.build_time)
@@ -182,28 +227,64 @@ pub fn info() -> StageVariantInfo {
         "obvhs compressed-wide BVH (CWBVH), closest and any hit, node and triangle tests \
          counted; whole-scene queries only",
     )
-    .param(ParamInfo::choice(
-        "build_quality",
-        "medium",
-        &["fast", "medium", "slow"],
-        "obvhs build preset: faster builds or better trees",
-    ))
-    .param(ParamInfo::choice(
-        "update",
-        "rebuild",
-        &["rebuild", "refit"],
+    .param(quality_param())
+    .param(update_param(
         "per frame of a moving scene: build anew with `build_quality`, or refit the boxes of \
          the first frame's tree (obvhs `Bvh2::refit_all`, then re-compression to 8-wide nodes)",
     ))
-    .param(ParamInfo::choice(
+    .param(test_param())
+    .scene_only()
+}
+
+/// Parameter `build_quality` of the obvhs intersectors.
+pub(crate) fn quality_param() -> ParamInfo {
+    ParamInfo::choice(
+        "build_quality",
+        "medium",
+        &BuildQuality::NAMES,
+        "obvhs build preset: faster builds or better trees",
+    )
+}
+
+/// Parameter `update` (`rebuild` | `refit`) of the obvhs intersectors, documented by `doc`.
+pub(crate) fn update_param(doc: &'static str) -> ParamInfo {
+    ParamInfo::choice("update", "rebuild", &["rebuild", "refit"], doc)
+}
+
+/// Parameter `test` (the ray-triangle test) of the obvhs intersectors.
+pub(crate) fn test_param() -> ParamInfo {
+    ParamInfo::choice(
         "test",
         "mt",
         crate::triangle::TEST_NAMES,
         "ray-triangle test: `mt` Möller-Trumbore (f32), `watertight` Woop, Benthin and Wald \
          2013 (no ray slips through shared edges), `projected` RTTest's projected \
          barycentrics (seed 003 §4.2)",
-    ))
-    .scene_only()
+    )
+}
+
+/// The parameters [`quality_param`], [`update_param`] (whether to refit) and [`test_param`]
+/// of `spec`, for intersector `variant`.
+pub(crate) fn build_params(
+    spec: &StageSpec,
+    variant: &str,
+) -> Result<(BuildQuality, bool, TestKind)> {
+    let name = spec.str("build_quality")?;
+    let quality = BuildQuality::from_name(name).ok_or_else(|| CoreError::InvalidParam {
+        key: format!("{variant}.build_quality"),
+        reason: format!("`{name}` is not one of {}", BuildQuality::NAMES.join(", ")),
+    })?;
+    let refit = match spec.str("update")? {
+        "rebuild" => false,
+        "refit" => true,
+        other => {
+            return Err(CoreError::InvalidParam {
+                key: format!("{variant}.update"),
+                reason: format!("`{other}` is not one of rebuild, refit"),
+            })
+        }
+    };
+    Ok((quality, refit, test_kind(spec, variant)?))
 }
 
 /// Registers `bvh` ([`info`], [`CwBvh::new`]).
@@ -216,7 +297,7 @@ pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
 
 /// The scene ids of the triangles test `test` can hit (degenerate ones stay out of the tree)
 /// and those triangles in obvhs's form.
-fn hittable_triangles(scene: &Scene, test: TestKind) -> (Vec<u32>, Vec<Triangle>) {
+pub(crate) fn hittable_triangles(scene: &Scene, test: TestKind) -> (Vec<u32>, Vec<Triangle>) {
     fn hittable<T: TriangleTest>(tri: [Vec3; 3]) -> bool {
         !T::is_degenerate(&T::prepare(tri[0], tri[1], tri[2]))
     }
@@ -244,26 +325,45 @@ fn hittable_triangles(scene: &Scene, test: TestKind) -> (Vec<u32>, Vec<Triangle>
         .unzip()
 }
 
+/// obvhs's binary tree over `tris` (not empty) with the preset `params`: PLOC, then
+/// reinsertion (what obvhs's CWBVH builder does before compressing, without pre-splits).
+pub(crate) fn build_bvh2(tris: &[Triangle], params: &BvhBuildParams) -> Bvh2 {
+    let mut bvh2 = PlocBuilder::with_capacity(tris.len()).build(
+        params.ploc_search_distance,
+        tris,
+        (0..tris.len() as u32).collect::<Vec<_>>(),
+        params.sort_precision,
+        params.search_depth_threshold,
+    );
+    ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
+    bvh2
+}
+
+/// Refits `bvh2` to the moved triangles `tris` (indexed by its primitive indices): each
+/// leaf's box recomputed from its triangles, then the inner boxes bottom-up.
+pub(crate) fn refit_bvh2(bvh2: &mut Bvh2, tris: &[Triangle]) {
+    let prims = &bvh2.primitive_indices;
+    bvh2.nodes.par_iter_mut().for_each(|node| {
+        if node.is_leaf() {
+            let first = node.first_index as usize;
+            let count = node.prim_count as usize;
+            let aabb = prims[first..first + count]
+                .iter()
+                .map(|&p| tris[p as usize].aabb())
+                .reduce(|a, b| a.union(&b))
+                .unwrap_or_else(|| *node.aabb());
+            node.set_aabb(aabb);
+        }
+    });
+    bvh2.refit_all();
+}
+
 impl CwBvh {
     /// Builds the BVH of `scene` with `spec.build_quality` (`fast` | `medium` | `slow`), its
     /// leaves prepared for `spec.test` (`mt` | `watertight` | `projected`).
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<CwBvh, CoreError> {
-        let name = spec.str("build_quality")?;
-        let quality = BuildQuality::from_name(name).ok_or_else(|| CoreError::InvalidParam {
-            key: "bvh.build_quality".into(),
-            reason: format!("`{name}` is not one of {}", BuildQuality::NAMES.join(", ")),
-        })?;
-        let refit = match spec.str("update")? {
-            "rebuild" => false,
-            "refit" => true,
-            other => {
-                return Err(CoreError::InvalidParam {
-                    key: "bvh.update".into(),
-                    reason: format!("`{other}` is not one of rebuild, refit"),
-                })
-            }
-        };
-        let mut bvh = CwBvh::build_with_test(scene, quality, test_kind(spec, "bvh")?);
+        let (quality, refit, test) = build_params(spec, "bvh")?;
+        let mut bvh = CwBvh::build_with_test(scene, quality, test);
         if !refit {
             bvh.refit = None;
         }
@@ -283,20 +383,7 @@ impl CwBvh {
             return None;
         }
         let t0 = std::time::Instant::now();
-        let prims = &bvh2.primitive_indices;
-        bvh2.nodes.par_iter_mut().for_each(|node| {
-            if node.is_leaf() {
-                let first = node.first_index as usize;
-                let count = node.prim_count as usize;
-                let aabb = prims[first..first + count]
-                    .iter()
-                    .map(|&p| tris[p as usize].aabb())
-                    .reduce(|a, b| a.union(&b))
-                    .unwrap_or_else(|| *node.aabb());
-                node.set_aabb(aabb);
-            }
-        });
-        bvh2.refit_all();
+        refit_bvh2(&mut bvh2, &tris);
         let bvh = bvh2_to_cwbvh(
             &bvh2,
             self.quality.params().max_prims_per_leaf.clamp(1, 3),
@@ -328,14 +415,7 @@ impl CwBvh {
             // see the module doc), keeping the binary tree for a refit.
             let params = quality.params();
             let t0 = std::time::Instant::now();
-            let mut bvh2 = PlocBuilder::with_capacity(tris.len()).build(
-                params.ploc_search_distance,
-                &tris,
-                (0..tris.len() as u32).collect::<Vec<_>>(),
-                params.sort_precision,
-                params.search_depth_threshold,
-            );
-            ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
+            let bvh2 = build_bvh2(&tris, &params);
             let bvh = bvh2_to_cwbvh(&bvh2, params.max_prims_per_leaf.clamp(1, 3), true, false);
             build_time = t0.elapsed();
             (bvh, Some(bvh2))
@@ -360,24 +440,9 @@ impl CwBvh {
             .iter()
             .map(|&i| ids[i as usize])
             .collect();
-        fn leaves<T: TriangleTest>(scene: &Scene, ids: &[u32]) -> Vec<T::Tri> {
-            TriangleSet::<T>::from_triangles(ids.iter().map(|&t| scene.triangle(t as usize)))
-                .triangles()
-                .to_vec()
-        }
-        let leaf_tris = match test {
-            TestKind::MollerTrumbore => {
-                LeafTriangles::MollerTrumbore(leaves::<MollerTrumbore>(scene, &leaf_ids))
-            }
-            TestKind::Watertight => {
-                LeafTriangles::Watertight(leaves::<Watertight>(scene, &leaf_ids))
-            }
-            TestKind::Projected => LeafTriangles::Projected(leaves::<Projected>(scene, &leaf_ids)),
-        };
         CwBvh {
             bvh,
-            leaf_tris,
-            leaf_ids,
+            leaves: Leaves::new(scene, leaf_ids, test),
             quality,
             build_time,
             refit: None,
@@ -391,11 +456,7 @@ impl CwBvh {
 
     /// The ray-triangle test of the leaves.
     pub fn test(&self) -> TestKind {
-        match self.leaf_tris {
-            LeafTriangles::MollerTrumbore(_) => TestKind::MollerTrumbore,
-            LeafTriangles::Watertight(_) => TestKind::Watertight,
-            LeafTriangles::Projected(_) => TestKind::Projected,
-        }
+        self.leaves.test()
     }
 
     /// The CWBVH nodes (obvhs's `Pod` layout, 80 bytes each; the GPU twin uploads them).
@@ -405,13 +466,13 @@ impl CwBvh {
 
     /// Scene triangle id per BVH primitive slot.
     pub fn leaf_ids(&self) -> &[u32] {
-        &self.leaf_ids
+        &self.leaves.ids
     }
 
     /// The leaf triangles prepared for Möller-Trumbore, per primitive slot (`None` when the
     /// BVH was built for another test).
     pub fn leaf_triangles_mt(&self) -> Option<&[crate::triangle::PreparedTriangle]> {
-        match &self.leaf_tris {
+        match &self.leaves.tris {
             LeafTriangles::MollerTrumbore(t) => Some(t),
             _ => None,
         }
@@ -426,9 +487,15 @@ impl CwBvh {
     pub fn build_time(&self) -> Duration {
         self.build_time
     }
+}
 
-    /// Traces one ray with test `T` on `leaf_tris` (this BVH's leaves, prepared for `T`);
-    /// merges into `best` and returns `(bounds, triangle)` test counts.
+impl LeafTracer for CwBvh {
+    type Scratch = ();
+
+    fn leaves(&self) -> &Leaves {
+        &self.leaves
+    }
+
     #[inline]
     fn trace<T: TriangleTest>(
         &self,
@@ -436,16 +503,19 @@ impl CwBvh {
         ray: &Ray,
         mode: HitMode,
         best: &mut Hit,
-    ) -> (u64, u64) {
+        _: &mut (),
+    ) -> Counts {
+        let mut n = Counts::default();
         if self.bvh.nodes.is_empty() || (mode == HitMode::Any && best.is_hit()) {
-            return (0, 0);
+            return n;
         }
         let r = T::ray_of(ray);
         let nr = NodeRay::new(ray.origin, ray.dir);
-        let t_lo = ray.t_min - ray.t_min.abs() * T_SLACK;
+        let t_lo = entry_bound(ray.t_min);
         let mut t_hi = cull_distance(ray.t_max.min(best.t));
-        let mut bounds = 0u64;
-        let mut prims = 0u64;
+        // The last primitive slot (relative to the node's primitive base) of each leaf child
+        // of the node visited last: the first one `traverse!` tests (highest bit first).
+        let mut leaf_tops = 0u32;
         let bvh = &self.bvh;
         let mut state = bvh.new_traversal(Vec3A::from(ray.dir));
         let mut node: &CwBvhNode;
@@ -455,13 +525,18 @@ impl CwBvh {
                 node,
                 state,
                 {
-                    bounds += node.child_meta.iter().filter(|&&m| m != 0).count() as u64;
+                    n.inner += 1;
+                    n.bounds += node.child_meta.iter().filter(|&&m| m != 0).count() as u64;
+                    leaf_tops = leaf_top_bits(node);
                     child_hits(node, &nr, state.oct_inv4, t_lo, t_hi)
                 },
                 {
                     let slot = state.primitive_id as usize;
-                    prims += 1;
-                    let id = self.leaf_ids[slot];
+                    n.prims += 1;
+                    n.leaves += u64::from(
+                        (leaf_tops >> (state.primitive_id - state.primitive_group.x)) & 1,
+                    );
+                    let id = self.leaves.ids[slot];
                     if let Some(h) = T::hit(&leaf_tris[slot], &r, ray.t_min, ray.t_max, id) {
                         if mode == HitMode::Any {
                             *best = h;
@@ -475,22 +550,148 @@ impl CwBvh {
                 }
             );
         }
-        (bounds, prims)
+        n
     }
+}
+
+/// Per-ray (or summed) traversal counts (module doc, "Counting").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(crate) struct Counts {
+    /// Child boxes tested.
+    pub bounds: u64,
+    /// Leaf primitives tested.
+    pub prims: u64,
+    /// Inner nodes visited (children tested).
+    pub inner: u64,
+    /// Leaves whose primitives were tested.
+    pub leaves: u64,
+}
+
+impl Counts {
+    /// The sum of two counts.
+    #[inline]
+    pub fn add(self, o: Counts) -> Counts {
+        Counts {
+            bounds: self.bounds + o.bounds,
+            prims: self.prims + o.prims,
+            inner: self.inner + o.inner,
+            leaves: self.leaves + o.leaves,
+        }
+    }
+
+    /// Adds these counts to `stats`.
+    pub fn record(self, stats: &mut Stats) {
+        stats.add_bounds(self.bounds);
+        stats.add_ray_triangle(self.prims);
+        stats.add_visits(self.inner, self.leaves);
+    }
+}
+
+/// An object hierarchy over [`Leaves`] that traces one ray at a time: what
+/// [`intersect_scene`] needs of `bvh` and `bvh2`.
+pub(crate) trait LeafTracer: Sync {
+    /// Per-task scratch space (a traversal stack), reused by the rays of a rayon task.
+    type Scratch: Default;
+
+    /// The tree's primitives.
+    fn leaves(&self) -> &Leaves;
+
+    /// Traces `ray` with test `T` on `leaf_tris` (this tree's leaves, prepared for `T`),
+    /// merging into `best` (any hit: skipped when `best` is a hit, stops at the first hit);
+    /// returns its counts.
+    fn trace<T: TriangleTest>(
+        &self,
+        leaf_tris: &[T::Tri],
+        ray: &Ray,
+        mode: HitMode,
+        best: &mut Hit,
+        scratch: &mut Self::Scratch,
+    ) -> Counts;
+}
+
+/// [`Intersector::intersect`] of the tree `x` (variant `variant`): whole-scene queries traced
+/// ray by ray in parallel (each ray independently, so hits and counts do not depend on the
+/// thread count), counts recorded in `stats`; candidate queries are unsupported.
+pub(crate) fn intersect_scene<X: LeafTracer>(
+    x: &X,
+    variant: &str,
+    rays: &[Ray],
+    query: &Query<'_, Cpu>,
+    mode: HitMode,
+    hits: &mut [Hit],
+    stats: &mut Stats,
+) -> Result<()> {
+    if let Query::Candidates { .. } = query {
+        return Err(CoreError::Unsupported {
+            stage: "intersect",
+            variant: variant.into(),
+            what: "candidate-pair queries (it tests the whole scene)".into(),
+        });
+    }
+    check_batch(rays, hits)?;
+    fn all<T: TriangleTest, X: LeafTracer>(
+        x: &X,
+        leaf_tris: &[T::Tri],
+        rays: &[Ray],
+        mode: HitMode,
+        hits: &mut [Hit],
+    ) -> Counts {
+        rays.par_chunks(CHUNK)
+            .zip(hits.par_chunks_mut(CHUNK))
+            .map(|(rs, hs)| {
+                let mut scratch = X::Scratch::default();
+                rs.iter()
+                    .zip(hs.iter_mut())
+                    .fold(Counts::default(), |n, (ray, h)| {
+                        n.add(x.trace::<T>(leaf_tris, ray, mode, h, &mut scratch))
+                    })
+            })
+            .reduce(Counts::default, Counts::add)
+    }
+    let counts = match &x.leaves().tris {
+        LeafTriangles::MollerTrumbore(t) => all::<MollerTrumbore, X>(x, t, rays, mode, hits),
+        LeafTriangles::Watertight(t) => all::<Watertight, X>(x, t, rays, mode, hits),
+        LeafTriangles::Projected(t) => all::<Projected, X>(x, t, rays, mode, hits),
+    };
+    counts.record(stats);
+    Ok(())
+}
+
+/// Bit `first + count - 1` (relative to the node's `primitive_base_idx`) for each leaf child
+/// of `node` holding primitives `first .. first + count`: the primitive of that leaf that
+/// `traverse!` tests first (it tests the hit mask's highest bit first).
+#[inline(always)]
+fn leaf_top_bits(node: &CwBvhNode) -> u32 {
+    let mut tops = 0u32;
+    for (c, &m) in node.child_meta.iter().enumerate() {
+        if m != 0 && node.is_leaf(c) {
+            let first = u32::from(m & 0b1_1111);
+            let count = (m >> 5).count_ones();
+            tops |= 1 << (first + count - 1);
+        }
+    }
+    tops
+}
+
+/// The node test's near distance for a ray starting at `t_min` (widened for the rounding of
+/// the triangle test's `t`).
+#[inline(always)]
+pub(crate) fn entry_bound(t_min: f32) -> f32 {
+    t_min - t_min.abs() * T_SLACK
 }
 
 /// The node test's far distance for a best hit (or `t_max`) at `t`.
 #[inline(always)]
-fn cull_distance(t: f32) -> f32 {
+pub(crate) fn cull_distance(t: f32) -> f32 {
     t + t.abs() * T_SLACK
 }
 
 /// Per-ray values of the node test.
 #[derive(Clone, Copy, Debug)]
 pub struct NodeRay {
-    origin: Vec3A,
-    inv_dir: Vec3A,
-    negative: [bool; 3],
+    pub(crate) origin: Vec3A,
+    pub(crate) inv_dir: Vec3A,
+    pub(crate) negative: [bool; 3],
 }
 
 impl NodeRay {
@@ -551,78 +752,63 @@ pub fn child_hits(node: &CwBvhNode, nr: &NodeRay, oct_inv4: u32, t_lo: f32, t_hi
     mask
 }
 
-impl Intersector<Cpu> for CwBvh {
-    fn name(&self) -> &str {
-        "bvh"
-    }
+/// `impl Intersector<Cpu>` for the obvhs tree `$tree` (a [`LeafTracer`] with a method
+/// `refitted(&self, &Scene) -> Option<$tree>`), variant `$name`: whole-scene queries through
+/// [`intersect_scene`], per-frame refits through `refitted`, no candidate queries.
+macro_rules! obvhs_intersector {
+    ($tree:ty, $name:literal) => {
+        impl Intersector<Cpu> for $tree {
+            fn name(&self) -> &str {
+                $name
+            }
 
-    fn refit(&self, ctx: &StageContext<'_, Cpu>) -> Option<Result<Box<dyn Intersector<Cpu>>>> {
-        self.refitted(ctx.scene)
-            .map(|b| Ok(Box::new(b) as Box<dyn Intersector<Cpu>>))
-    }
+            fn refit(
+                &self,
+                ctx: &StageContext<'_, Cpu>,
+            ) -> Option<Result<Box<dyn Intersector<Cpu>>>> {
+                self.refitted(ctx.scene)
+                    .map(|b| Ok(Box::new(b) as Box<dyn Intersector<Cpu>>))
+            }
 
-    fn supports_candidates(&self) -> bool {
-        false
-    }
+            fn supports_candidates(&self) -> bool {
+                false
+            }
 
-    fn intersect(
-        &self,
-        _backend: &Cpu,
-        rays: &Vec<Ray>,
-        query: Query<'_, Cpu>,
-        mode: HitMode,
-        hits: &mut Vec<Hit>,
-        stats: &mut Stats,
-    ) -> Result<()> {
-        if let Query::Candidates { .. } = query {
-            return Err(CoreError::Unsupported {
-                stage: "intersect",
-                variant: "bvh".into(),
-                what: "candidate-pair queries (it tests the whole scene)".into(),
-            });
+            fn intersect(
+                &self,
+                _backend: &Cpu,
+                rays: &Vec<Ray>,
+                query: Query<'_, Cpu>,
+                mode: HitMode,
+                hits: &mut Vec<Hit>,
+                stats: &mut Stats,
+            ) -> Result<()> {
+                $crate::intersect::bvh::intersect_scene(
+                    self, $name, rays, &query, mode, hits, stats,
+                )
+            }
         }
-        check_batch(rays, hits)?;
-        fn all<T: TriangleTest>(
-            bvh: &CwBvh,
-            leaf_tris: &[T::Tri],
-            rays: &[Ray],
-            mode: HitMode,
-            hits: &mut [Hit],
-        ) -> (u64, u64) {
-            rays.par_chunks(CHUNK)
-                .zip(hits.par_chunks_mut(CHUNK))
-                .map(|(rs, hs)| {
-                    let mut n = (0u64, 0u64);
-                    for (ray, h) in rs.iter().zip(hs.iter_mut()) {
-                        let (b, p) = bvh.trace::<T>(leaf_tris, ray, mode, h);
-                        n.0 += b;
-                        n.1 += p;
-                    }
-                    n
-                })
-                .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
-        }
-        let (bounds, prims) = match &self.leaf_tris {
-            LeafTriangles::MollerTrumbore(t) => all::<MollerTrumbore>(self, t, rays, mode, hits),
-            LeafTriangles::Watertight(t) => all::<Watertight>(self, t, rays, mode, hits),
-            LeafTriangles::Projected(t) => all::<Projected>(self, t, rays, mode, hits),
-        };
-        stats.add_bounds(bounds);
-        stats.add_ray_triangle(prims);
-        Ok(())
-    }
+    };
 }
+pub(crate) use obvhs_intersector;
+
+obvhs_intersector!(CwBvh, "bvh");
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
-    use crate::intersect::brute::tests::{random_rays, soup};
+    use crate::intersect::brute::tests::{random_rays, soup, test_ray};
     use crate::intersect::brute::BruteForce;
     use crate::surface::tests::raw_scene;
     use crate::triangle::tests::TestRng;
-    use crsh_core::{CandidateBatch, ParamValue, RayHierarchy, RayKind};
+    use crsh_core::{CandidateBatch, ParamValue, RayHierarchy, RayKind, TestCounts};
 
-    fn run(x: &dyn Intersector<Cpu>, rays: &Vec<Ray>, mode: HitMode) -> (Vec<Hit>, Stats) {
+    /// `x`'s hits and stats for `rays` (all misses before).
+    pub(crate) fn run(
+        x: &dyn Intersector<Cpu>,
+        rays: &Vec<Ray>,
+        mode: HitMode,
+    ) -> (Vec<Hit>, Stats) {
         let mut hits = vec![Hit::MISS; rays.len()];
         let mut stats = Stats::default();
         x.intersect(&Cpu, rays, Query::Scene, mode, &mut hits, &mut stats)
@@ -651,45 +837,61 @@ mod tests {
 
     fn check_against_brute(scene: &Scene, rays: &Vec<Ray>, quality: BuildQuality) {
         for test in TestKind::ALL {
-            check_against_brute_with(scene, rays, quality, test);
+            let bvh = CwBvh::build_with_test(scene, quality, test);
+            assert_eq!(bvh.test(), test);
+            check_exact(scene, rays, test, &bvh, &format!("bvh {quality:?}"));
         }
     }
 
-    fn check_against_brute_with(
+    /// `got` (of `what`) against brute force's `want` for `rays` in `mode`: closest hits
+    /// bit for bit (triangle, `t`, `u`, `v`), any hits hit or miss alike.
+    pub(crate) fn assert_same_hits(
+        rays: &[Ray],
+        got: &[Hit],
+        want: &[Hit],
+        mode: HitMode,
+        what: &str,
+    ) {
+        for (i, (g, w)) in got.iter().zip(want).enumerate() {
+            match mode {
+                HitMode::Closest => assert_eq!(
+                    (g.tri, g.t.to_bits(), g.u.to_bits(), g.v.to_bits()),
+                    (w.tri, w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
+                    "{what} ray {i}: {:?}: got {g:?} brute {w:?}",
+                    rays[i]
+                ),
+                HitMode::Any => {
+                    assert_eq!(g.is_hit(), w.is_hit(), "{what} any ray {i}: {:?}", rays[i])
+                }
+            }
+        }
+    }
+
+    /// `x` (built on `scene` for test `test`; `what` names it) finds brute force's closest
+    /// hits bit for bit and its any-hit answers, each any hit a hit of its triangle as the
+    /// scalar test computes it; any-hit rays test no more triangles than closest-hit ones.
+    pub(crate) fn check_exact(
         scene: &Scene,
         rays: &Vec<Ray>,
-        quality: BuildQuality,
         test: TestKind,
+        x: &dyn Intersector<Cpu>,
+        what: &str,
     ) {
         let brute = BruteForce::with_test(scene, test);
-        let bvh = CwBvh::build_with_test(scene, quality, test);
-        assert_eq!(bvh.test(), test);
+        let what = format!("{what} {test:?}");
         let (want, _) = run(&brute, rays, HitMode::Closest);
-        let (got, stats) = run(&bvh, rays, HitMode::Closest);
-        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
-            assert_eq!(
-                (g.tri, g.t.to_bits(), g.u.to_bits(), g.v.to_bits()),
-                (w.tri, w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
-                "{quality:?} {test:?} ray {i}: {:?}: bvh {g:?} brute {w:?}",
-                rays[i]
-            );
-        }
+        let (got, stats) = run(x, rays, HitMode::Closest);
+        assert_same_hits(rays, &got, &want, HitMode::Closest, &what);
         assert!(stats.tests.bounds > 0);
         let (want, _) = run(&brute, rays, HitMode::Any);
-        let (got, any_stats) = run(&bvh, rays, HitMode::Any);
-        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
-            assert_eq!(
-                g.is_hit(),
-                w.is_hit(),
-                "{quality:?} any ray {i}: {:?}",
-                rays[i]
-            );
+        let (got, any_stats) = run(x, rays, HitMode::Any);
+        assert_same_hits(rays, &got, &want, HitMode::Any, &what);
+        for (i, g) in got.iter().enumerate() {
             if g.is_hit() {
-                // The any hit found is a hit of that triangle, as the scalar test computes it.
                 assert_eq!(
                     single_hit(scene, test, g.tri, &rays[i]),
                     Some(*g),
-                    "{test:?} any ray {i}"
+                    "{what} any ray {i}"
                 );
             }
         }
@@ -714,25 +916,27 @@ mod tests {
                 anim.update(&mut scene, frame, false).unwrap();
                 let refitted = bvh.refitted(&scene).expect("a kept tree");
                 assert!(bvh.refitted(&scene).is_none(), "the kept tree moved on");
-                let rays = random_rays(&scene, frame as u64, 3000);
-                let brute = BruteForce::with_test(&scene, test);
-                for mode in [HitMode::Closest, HitMode::Any] {
-                    let (want, _) = run(&brute, &rays, mode);
-                    let (got, stats) = run(&refitted, &rays, mode);
-                    assert!(stats.tests.bounds > 0);
-                    for (i, (g, w)) in got.iter().zip(&want).enumerate() {
-                        match mode {
-                            HitMode::Closest => assert_eq!(
-                                (g.tri, g.t.to_bits(), g.u.to_bits(), g.v.to_bits()),
-                                (w.tri, w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
-                                "{test:?} frame {frame} ray {i}"
-                            ),
-                            HitMode::Any => assert_eq!(g.is_hit(), w.is_hit()),
-                        }
-                    }
-                }
+                check_moved_frame(&scene, frame, test, &refitted);
                 bvh = refitted;
             }
+        }
+    }
+
+    /// A tree refitted to `scene` (frame `frame` of an animation, for test `test`) answers
+    /// exactly as brute force on it.
+    pub(crate) fn check_moved_frame(
+        scene: &Scene,
+        frame: u32,
+        test: TestKind,
+        x: &dyn Intersector<Cpu>,
+    ) {
+        let rays = random_rays(scene, frame as u64, 3000);
+        let brute = BruteForce::with_test(scene, test);
+        for mode in [HitMode::Closest, HitMode::Any] {
+            let (want, _) = run(&brute, &rays, mode);
+            let (got, stats) = run(x, &rays, mode);
+            assert!(stats.tests.bounds > 0);
+            assert_same_hits(&rays, &got, &want, mode, &format!("{test:?} frame {frame}"));
         }
     }
 
@@ -749,8 +953,7 @@ mod tests {
 
     /// An axis-aligned box room (flat boxes: zero-thickness node slabs) with rays grazing
     /// along the walls, starting on them, and axis-parallel directions (zero components).
-    #[test]
-    fn identical_to_brute_force_on_grazing_axis_aligned_rays() {
+    pub(crate) fn box_room() -> (Scene, Vec<Ray>) {
         let mut positions = Vec::new();
         let mut indices = Vec::new();
         // A 6x6 grid of unit quads on each of three planes, plus exactly overlapping copies.
@@ -805,6 +1008,12 @@ mod tests {
                 source: 0,
             });
         }
+        (scene, rays)
+    }
+
+    #[test]
+    fn identical_to_brute_force_on_grazing_axis_aligned_rays() {
+        let (scene, rays) = box_room();
         for q in [BuildQuality::Fast, BuildQuality::Medium] {
             check_against_brute(&scene, &rays, q);
         }
@@ -814,13 +1023,9 @@ mod tests {
     /// directions, as reflection and shadow rays do.
     #[test]
     fn identical_to_brute_force_on_builtin_scenes() {
-        for name in ["cornell-mirrors", "office-boxes"] {
+        for name in crsh_scene::builtin::STATIC_NAMES {
             let scene = crsh_scene::builtin::build(name).unwrap_or_else(|e| panic!("{name}: {e}"));
-            let mut rays = random_rays(&scene, 61, 1200);
-            let eps = scene.bounds.diagonal() * 1e-5;
-            for r in rays.iter_mut().skip(1).step_by(4) {
-                r.t_min = eps;
-            }
+            let rays = builtin_rays(&scene, 61, 1200);
             check_against_brute(&scene, &rays, BuildQuality::Medium);
         }
     }
@@ -859,7 +1064,13 @@ mod tests {
         let bvh = CwBvh::new(&scene, &spec).unwrap();
         assert_eq!(bvh.test(), TestKind::Watertight);
         assert_eq!(bvh.quality(), BuildQuality::Fast);
-        let rays = random_rays(&scene, 42, 8);
+        rejects_candidates_and_bad_rays(&bvh, &scene);
+    }
+
+    /// `x` (built on `scene`) refuses candidate queries and batches with an invalid ray.
+    pub(crate) fn rejects_candidates_and_bad_rays(x: &dyn Intersector<Cpu>, scene: &Scene) {
+        assert!(!x.supports_candidates());
+        let rays = random_rays(scene, 42, 8);
         let h = RayHierarchy::<Cpu> {
             order: (0..8).collect(),
             levels: vec![vec![bytemuck::Zeroable::zeroed(); 1]],
@@ -868,7 +1079,7 @@ mod tests {
         };
         let batch = CandidateBatch::<Cpu> { pairs: vec![] };
         let mut hits = vec![Hit::MISS; 8];
-        let r = bvh.intersect(
+        let r = x.intersect(
             &Cpu,
             &rays,
             Query::Candidates {
@@ -882,7 +1093,7 @@ mod tests {
         assert!(matches!(r, Err(CoreError::Unsupported { .. })));
         let mut bad = rays.clone();
         bad[0].origin.x = f32::INFINITY;
-        assert!(bvh
+        assert!(x
             .intersect(
                 &Cpu,
                 &bad,
@@ -896,17 +1107,29 @@ mod tests {
 
     #[test]
     fn all_degenerate_scene_never_hits() {
-        let scene = raw_scene(
+        let scene = degenerate_scene();
+        let bvh = CwBvh::build(&scene, BuildQuality::Medium);
+        assert_eq!(bvh.node_count(), 0);
+        check_never_hits(&bvh, &scene);
+    }
+
+    /// A scene of one degenerate triangle (nothing to put in a tree).
+    pub(crate) fn degenerate_scene() -> Scene {
+        raw_scene(
             vec![Vec3::ZERO, Vec3::X, Vec3::X * 2.0],
             vec![Vec3::Z; 3],
             vec![[0, 1, 2]],
-        );
-        let bvh = CwBvh::build(&scene, BuildQuality::Medium);
-        assert_eq!(bvh.node_count(), 0);
-        let rays = random_rays(&scene, 43, 16);
-        let (hits, stats) = run(&bvh, &rays, HitMode::Closest);
-        assert!(hits.iter().all(|h| !h.is_hit()));
-        assert_eq!(stats.tests.total, 0);
+        )
+    }
+
+    /// `x` (an empty tree over `scene`) hits nothing and counts nothing.
+    pub(crate) fn check_never_hits(x: &dyn Intersector<Cpu>, scene: &Scene) {
+        let rays = random_rays(scene, 43, 16);
+        for mode in [HitMode::Closest, HitMode::Any] {
+            let (hits, stats) = run(x, &rays, mode);
+            assert!(hits.iter().all(|h| !h.is_hit()));
+            assert_eq!(stats.tests, TestCounts::default());
+        }
     }
 
     #[test]
@@ -914,14 +1137,170 @@ mod tests {
         let scene = soup(51, 400);
         let bvh = CwBvh::build(&scene, BuildQuality::Medium);
         let rays = random_rays(&scene, 52, 700);
-        for mode in [HitMode::Closest, HitMode::Any] {
-            let a = crate::with_threads(1, || run(&bvh, &rays, mode)).unwrap();
-            let b = crate::with_threads(3, || run(&bvh, &rays, mode)).unwrap();
-            assert_eq!(a.0, b.0);
-            assert_eq!(a.1.tests, b.1.tests);
-        }
+        same_for_one_and_two_threads(&bvh, &rays);
         // The BVH does far fewer triangle tests than brute force.
         let (_, stats) = run(&bvh, &rays, HitMode::Closest);
         assert!(stats.tests.ray_triangle * 5 < (rays.len() * scene.triangle_count()) as u64);
+    }
+
+    /// `x` gives the same hits and counts (all of them, visits included) on pools of 1 and 2
+    /// threads, and visits nodes and leaves.
+    pub(crate) fn same_for_one_and_two_threads(x: &dyn Intersector<Cpu>, rays: &Vec<Ray>) {
+        for mode in [HitMode::Closest, HitMode::Any] {
+            let a = crate::with_threads(1, || run(x, rays, mode)).unwrap();
+            let b = crate::with_threads(2, || run(x, rays, mode)).unwrap();
+            assert_eq!(a.0, b.0, "{mode:?}");
+            assert_eq!(a.1.tests, b.1.tests, "{mode:?}");
+            assert!(
+                a.1.tests.inner_nodes > 0 && a.1.tests.leaves > 0,
+                "{mode:?}"
+            );
+        }
+    }
+
+    /// The counts of `ray` traced alone.
+    pub(crate) fn one(x: &dyn Intersector<Cpu>, ray: &Ray, mode: HitMode) -> (Hit, TestCounts) {
+        let (h, s) = run(x, &vec![*ray], mode);
+        (h[0], s.tests)
+    }
+
+    /// Per-ray visit invariants of `x` on `rays` (module doc, "Counting"): every ray traced
+    /// visits at least `min_inner` inner nodes (the root), a leaf is counted only when a
+    /// primitive of it is tested, a closest hit was found in a visited leaf, and the batch
+    /// counts are the sums of the rays' own.
+    pub(crate) fn check_visit_counts(x: &dyn Intersector<Cpu>, rays: &Vec<Ray>, min_inner: u64) {
+        for mode in [HitMode::Closest, HitMode::Any] {
+            let mut sum = TestCounts::default();
+            for (i, ray) in rays.iter().enumerate() {
+                let (h, c) = one(x, ray, mode);
+                assert!(c.inner_nodes >= min_inner, "{mode:?} ray {i}: {c:?}");
+                assert!(c.leaves <= c.ray_triangle, "{mode:?} ray {i}: {c:?}");
+                assert!(
+                    c.leaves > 0 || c.ray_triangle == 0,
+                    "{mode:?} ray {i}: {c:?}"
+                );
+                if h.is_hit() {
+                    assert!(c.leaves >= 1, "{mode:?} ray {i} hit without a leaf: {c:?}");
+                }
+                sum.bounds += c.bounds;
+                sum.ray_triangle += c.ray_triangle;
+                sum.inner_nodes += c.inner_nodes;
+                sum.leaves += c.leaves;
+            }
+            let (_, batch) = run(x, rays, mode);
+            assert_eq!(
+                (
+                    batch.tests.bounds,
+                    batch.tests.ray_triangle,
+                    batch.tests.inner_nodes,
+                    batch.tests.leaves
+                ),
+                (sum.bounds, sum.ray_triangle, sum.inner_nodes, sum.leaves),
+                "{mode:?}"
+            );
+        }
+    }
+
+    /// Built-in scenes: rays from random points and rays leaving surfaces.
+    pub(crate) fn builtin_rays(scene: &Scene, seed: u64, n: usize) -> Vec<Ray> {
+        let mut rays = random_rays(scene, seed, n);
+        let eps = scene.bounds.diagonal() * 1e-5;
+        for r in rays.iter_mut().skip(1).step_by(4) {
+            r.t_min = eps;
+        }
+        rays
+    }
+
+    #[test]
+    fn visit_counts_on_builtin_scenes() {
+        for name in crsh_scene::builtin::STATIC_NAMES {
+            let scene = crsh_scene::builtin::build(name).unwrap();
+            let bvh = CwBvh::build(&scene, BuildQuality::Medium);
+            let rays = builtin_rays(&scene, 71, 300);
+            check_visit_counts(&bvh, &rays, 1);
+            same_for_one_and_two_threads(&bvh, &rays);
+        }
+    }
+
+    /// For closest hits every leaf child in a visited node's hit mask has all its primitives
+    /// tested: an independent recount from the hit masks (leaf children whose primitive bits
+    /// are set) gives the same inner and leaf visits, and those leaves' sizes add up to the
+    /// primitives tested. A ray that misses every box visits the root alone.
+    #[test]
+    fn leaf_visits_are_the_hit_leaf_children() {
+        let scene = soup(81, 300);
+        let bvh = CwBvh::build(&scene, BuildQuality::Medium);
+        let leaf_tris = bvh.leaf_triangles_mt().unwrap();
+        let mut rays = random_rays(&scene, 82, 400);
+        rays.push(test_ray(
+            Vec3::splat(5.0),
+            Vec3::ONE.normalize(),
+            0.0,
+            f32::INFINITY,
+            0,
+        ));
+        let mut seen_multi = false;
+        for (i, ray) in rays.iter().enumerate() {
+            let (hit, c) = one(&bvh, ray, HitMode::Closest);
+            let r = MollerTrumbore::ray_of(ray);
+            let nr = NodeRay::new(ray.origin, ray.dir);
+            let t_lo = entry_bound(ray.t_min);
+            let mut best = Hit::MISS;
+            let mut t_hi = cull_distance(ray.t_max);
+            let (mut inner, mut leaves, mut cluster_prims, mut prims) = (0u64, 0u64, 0u64, 0u64);
+            let tree = &bvh.bvh;
+            let mut state = tree.new_traversal(Vec3A::from(ray.dir));
+            let mut node: &CwBvhNode;
+            obvhs::traverse!(
+                tree,
+                node,
+                state,
+                {
+                    inner += 1;
+                    let mask = child_hits(node, &nr, state.oct_inv4, t_lo, t_hi);
+                    for c in 0..8 {
+                        let m = node.child_meta[c];
+                        if m != 0 && node.is_leaf(c) && (mask >> (m & 0x1f)) & 1 != 0 {
+                            leaves += 1;
+                            cluster_prims += u64::from((m >> 5).count_ones());
+                            seen_multi |= m >> 5 != 1;
+                        }
+                    }
+                    mask
+                },
+                {
+                    let slot = state.primitive_id as usize;
+                    prims += 1;
+                    let id = bvh.leaf_ids()[slot];
+                    if let Some(h) =
+                        MollerTrumbore::hit(&leaf_tris[slot], &r, ray.t_min, ray.t_max, id)
+                    {
+                        if h.closer_than(&best) {
+                            best = h;
+                            t_hi = cull_distance(ray.t_max.min(best.t));
+                        }
+                    }
+                }
+            );
+            assert_eq!(best, hit, "ray {i}");
+            assert_eq!(
+                (c.inner_nodes, c.leaves, c.ray_triangle),
+                (inner, leaves, prims),
+                "ray {i}"
+            );
+            assert_eq!(cluster_prims, prims, "ray {i}");
+        }
+        assert!(seen_multi, "no leaf of 2 or 3 primitives was visited");
+        let away = rays.last().unwrap();
+        let (_, c) = one(&bvh, away, HitMode::Closest);
+        let root = bvh.nodes()[0]
+            .child_meta
+            .iter()
+            .filter(|&&m| m != 0)
+            .count() as u64;
+        assert_eq!(
+            (c.inner_nodes, c.leaves, c.ray_triangle, c.bounds),
+            (1, 0, 0, root)
+        );
     }
 }

@@ -3,4 +3,5 @@
 pub mod brute;
 pub mod brute64;
 pub mod bvh;
+pub mod bvh2;
 pub mod grid;

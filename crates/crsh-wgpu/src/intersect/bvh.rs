@@ -10,9 +10,11 @@
 //! the CPU twin's node test (`child_hits`: the ray's own interval, zero direction components
 //! clamped to ±1e-25, slabs widened by the rounding bound of the quantized-plane arithmetic,
 //! the culling distance `min(t_max, best t)` widened by 1e-5 relative), so it returns the
-//! brute-force hits, ties included, up to the rounding of WGSL's division. Counts as the CPU:
-//! a bounds test per non-empty child of each visited node, a ray-triangle test per leaf
-//! primitive tested; any-hit rays stop at their first hit. Whole-scene queries only.
+//! brute-force hits, ties included, up to the rounding of WGSL's division. Counts as the CPU
+//! (its module doc, "Counting"): a bounds test per non-empty child of each visited node, a
+//! ray-triangle test per leaf primitive tested, an inner-node visit per node visited and a
+//! leaf visit per primitive cluster when its first primitive is tested (`Stats::add_visits`);
+//! any-hit rays stop at their first hit. Whole-scene queries only.
 //! Only `test = "mt"` has a WGSL twin.
 
 use std::sync::Arc;
@@ -154,7 +156,7 @@ impl Intersector<Wgpu> for CwBvh {
         }
         let ctx = backend.context();
         let k = ctx.kernel(BvhKernels::new)?;
-        let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh bvh counters", 6)?;
+        let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh bvh counters", 10)?;
         let mut groups = Vec::new();
         for range in chunks::<Ray>(ctx, rays.len()) {
             let params = Params {
@@ -193,8 +195,10 @@ impl Intersector<Wgpu> for CwBvh {
                 "bvh traversal stack (64 entries) overflowed".into(),
             ));
         }
-        stats.add_bounds(u64::from(c[0]) | (u64::from(c[1]) << 32));
-        stats.add_ray_triangle(u64::from(c[2]) | (u64::from(c[3]) << 32));
+        let wide = |at: usize| u64::from(c[at]) | (u64::from(c[at + 1]) << 32);
+        stats.add_bounds(wide(0));
+        stats.add_ray_triangle(wide(2));
+        stats.add_visits(wide(6), wide(8));
         let _ = &self.scene;
         Ok(())
     }

@@ -27,7 +27,8 @@ struct BvhNode {
 @group(0) @binding(3) var<storage, read> leaf_tris: array<MtTri>;
 @group(0) @binding(4) var<storage, read> leaf_ids: array<u32>;
 @group(0) @binding(5) var<storage, read_write> hits: array<Hit>;
-// [bounds lo, hi, triangle tests lo, hi, invalid ray report, stack overflow]
+// [bounds lo, hi, triangle tests lo, hi, invalid ray report, stack overflow, inner-node visits
+// lo, hi, leaf visits lo, hi]
 @group(0) @binding(6) var<storage, read_write> counters: array<atomic<u32>>;
 
 const SLAB_SLACK: f32 = 1e-6;
@@ -37,6 +38,8 @@ const STACK: u32 = 64u;
 
 var<workgroup> wg_bounds: atomic<u32>;
 var<workgroup> wg_prims: atomic<u32>;
+var<workgroup> wg_inner: atomic<u32>;
+var<workgroup> wg_leaves: atomic<u32>;
 
 // Byte `i` of the 8-byte field starting at word `w` of q.
 fn qbyte(n: BvhNode, w: u32, i: u32) -> u32 {
@@ -102,6 +105,21 @@ fn meta_count(n: BvhNode) -> u32 {
     return k;
 }
 
+// crsh_cpu::intersect::bvh::leaf_top_bits: for each leaf child (non-empty meta, imask bit
+// clear) holding primitives first .. first + count, bit first + count - 1: the primitive of
+// that leaf the traversal tests first (highest bit first), where the leaf visit is counted.
+fn leaf_top_bits(n: BvhNode) -> u32 {
+    let imask = n.e_imask >> 24u;
+    var tops = 0u;
+    for (var c = 0u; c < 8u; c++) {
+        let m = qbyte(n, 0u, c);
+        if (m != 0u && ((imask >> c) & 1u) == 0u) {
+            tops |= 1u << ((m & 0x1fu) + countOneBits(m >> 5u) - 1u);
+        }
+    }
+    return tops;
+}
+
 @compute @workgroup_size(WG)
 fn traverse(@builtin(global_invocation_id) gid: vec3<u32>,
             @builtin(local_invocation_index) lid: u32,
@@ -110,10 +128,14 @@ fn traverse(@builtin(global_invocation_id) gid: vec3<u32>,
     if (lid == 0u) {
         atomicStore(&wg_bounds, 0u);
         atomicStore(&wg_prims, 0u);
+        atomicStore(&wg_inner, 0u);
+        atomicStore(&wg_leaves, 0u);
     }
     workgroupBarrier();
     var bounds = 0u;
     var prims = 0u;
+    var inner = 0u;
+    var leaves = 0u;
     if (i < p.n) {
         let r = rays[i];
         var best = hits[i];
@@ -137,12 +159,14 @@ fn traverse(@builtin(global_invocation_id) gid: vec3<u32>,
             var stack: array<vec2<u32>, STACK>;
             var sp = 0u;
             var done = false;
+            var leaf_tops = 0u;
             loop {
                 while (prim.y != 0u) {
                     let lpi = firstLeadingBit(prim.y);
                     prim.y &= ~(1u << lpi);
                     let slot = prim.x + lpi;
                     prims += 1u;
+                    leaves += (leaf_tops >> lpi) & 1u;
                     let h = mt_hit(leaf_tris[slot], o, d, d_len, r.t_min, r.t_max);
                     if (h.x < inf()) {
                         let id = leaf_ids[slot];
@@ -177,7 +201,9 @@ fn traverse(@builtin(global_invocation_id) gid: vec3<u32>,
                     let slot_index = (off - 24u) ^ (oct_inv4 & 0xffu);
                     let rel = countOneBits(hits_imask & ~(0xffffffffu << slot_index));
                     let node = nodes[base + rel];
+                    inner += 1u;
                     bounds += meta_count(node);
+                    leaf_tops = leaf_top_bits(node);
                     let hitmask = child_hits(node, o, inv, neg, oct_inv4, t_lo, t_hi);
                     cur = vec2<u32>(node.child_base, (hitmask & 0xff000000u) | (node.e_imask >> 24u));
                     prim = vec2<u32>(node.prim_base, hitmask & 0x00ffffffu);
@@ -197,9 +223,13 @@ fn traverse(@builtin(global_invocation_id) gid: vec3<u32>,
     }
     atomicAdd(&wg_bounds, bounds);
     atomicAdd(&wg_prims, prims);
+    atomicAdd(&wg_inner, inner);
+    atomicAdd(&wg_leaves, leaves);
     workgroupBarrier();
     if (lid == 0u) {
         add_u64(0u, atomicLoad(&wg_bounds));
         add_u64(2u, atomicLoad(&wg_prims));
+        add_u64(6u, atomicLoad(&wg_inner));
+        add_u64(8u, atomicLoad(&wg_leaves));
     }
 }
