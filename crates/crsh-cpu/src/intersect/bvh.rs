@@ -66,7 +66,9 @@
 //!   its parent's child boxes, so a leaf visit adds no `bounds` test.
 //!
 //! Any-hit rays stop at the first hit found (traversal order), so their counts are the tests
-//! done. Rays whose stored hit is already a hit are skipped in any-hit mode (nothing counted).
+//! done. Rays whose stored hit is already a hit are skipped in any-hit mode (nothing counted),
+//! and so are rays with an empty interval (`t_min ≥ t_max`: seed 001's rays whose origin
+//! offset passed their end "terminate in the root node"; here they do not even visit it).
 //!
 //! Rays are traced in parallel with rayon, each independently, so results and counts do not
 //! depend on the thread count. [`Query::Candidates`] is not supported (a BVH tests the whole
@@ -506,7 +508,12 @@ impl LeafTracer for CwBvh {
         _: &mut (),
     ) -> Counts {
         let mut n = Counts::default();
-        if self.bvh.nodes.is_empty() || (mode == HitMode::Any && best.is_hit()) {
+        // An empty interval (a ray whose origin offset passed its end, seed 001) ends
+        // without traversal: it can hit nothing.
+        if self.bvh.nodes.is_empty()
+            || (mode == HitMode::Any && best.is_hit())
+            || !(ray.t_min < ray.t_max)
+        {
             return n;
         }
         let r = T::ray_of(ray);

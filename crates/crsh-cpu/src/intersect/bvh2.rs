@@ -312,7 +312,8 @@ impl LeafTracer for BinaryBvh {
     ) -> Counts {
         let mut n = Counts::default();
         let nodes = &self.bvh.nodes;
-        if nodes.is_empty() || (mode == HitMode::Any && best.is_hit()) {
+        // An empty interval (origin offset past the end, seed 001): no traversal.
+        if nodes.is_empty() || (mode == HitMode::Any && best.is_hit()) || !(ray.t_min < ray.t_max) {
             return n;
         }
         let r = T::ray_of(ray);

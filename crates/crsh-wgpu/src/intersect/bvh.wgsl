@@ -141,7 +141,9 @@ fn traverse(@builtin(global_invocation_id) gid: vec3<u32>,
         var best = hits[i];
         if (!ray_valid(r)) {
             atomicMax(&counters[4], 0xffffffffu - (p.first + i));
-        } else if (p.n_nodes > 0u && (p.any_hit == 0u || best.tri == NO_HIT)) {
+        } else if (p.n_nodes > 0u && (p.any_hit == 0u || best.tri == NO_HIT)
+                   && r.t_min < r.t_max) {
+            // (An empty interval, an origin offset past the ray's end, is not traversed.)
             let o = ray_origin(r);
             let d = ray_dir(r);
             let d_len = ray_dir_len(d);
