@@ -28,10 +28,10 @@ use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::error::GpuResult;
 use crate::kernel::{encoder, submit, uniform, Kernel, Slot};
+use crate::kernels::{compose, GLAM_WGSL, SURFACE_WGSL};
 use crate::scene::GpuScene;
 
 const SHADER: &str = include_str!("phong.wgsl");
-const SURFACE_WGSL: &str = include_str!("../kernels/surface.wgsl");
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
@@ -52,7 +52,7 @@ struct PhongKernels {
 
 impl PhongKernels {
     fn new(ctx: &GpuContext) -> GpuResult<PhongKernels> {
-        let source = format!("{SURFACE_WGSL}\n{SHADER}");
+        let source = compose(&[GLAM_WGSL, SURFACE_WGSL, SHADER]);
         let mut slots = vec![Slot::Uniform];
         slots.extend([Slot::Read; 5]);
         slots.extend([Slot::ReadWrite; 5]);

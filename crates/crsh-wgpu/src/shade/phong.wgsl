@@ -1,5 +1,5 @@
 // `phong` on the device: the twin of crsh_cpu::shade::phong (see phong.rs).
-// Prepended: common.wgsl, surface.wgsl.
+// Prepended: common.wgsl, glam.wgsl, surface.wgsl.
 
 struct Params {
     // Records (surfaces, or rays for `resolve`), lights, pixels, materials, triangles.
