@@ -47,6 +47,8 @@ impl BuiltinVariants for Wgpu {
         crate::intersect::bvh::register(registry)?;
         crate::intersect::grid::register(registry)?;
         crate::shade::phong::register(registry)?;
+        crate::shade::ao::register(registry)?;
+        crate::shade::diffuse::register(registry)?;
         crsh_cpu::registry::add_presets(registry)
     }
 }

@@ -8,6 +8,7 @@
 //! [`TRIG_WGSL`] (accurate trigonometry) and [`RNG_WGSL`] (counter-based random numbers,
 //! [`rng`]).
 
+pub mod accumulate;
 pub mod rng;
 pub mod scan;
 
