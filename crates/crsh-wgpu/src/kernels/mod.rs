@@ -5,8 +5,8 @@
 //! needs, joined by [`compose`] (and [`crate::Kernel::new`] puts `common.wgsl`, the records
 //! every kernel shares, in front of everything). The pieces, each naming what must precede it:
 //! [`GLAM_WGSL`] (glam's vector helpers), [`SURFACE_WGSL`] (hit → surface record),
-//! [`TRIG_WGSL`] (accurate trigonometry) and [`RNG_WGSL`] (counter-based random numbers,
-//! [`rng`]).
+//! [`TRIG_WGSL`] (accurate trigonometry), [`RNG_WGSL`] (counter-based random numbers,
+//! [`rng`]) and [`SEGMENT_WGSL`] (the offset policies of rays leaving a surface).
 
 pub mod accumulate;
 pub mod rng;
@@ -27,6 +27,11 @@ pub const TRIG_WGSL: &str = include_str!("trig.wgsl");
 /// `pcg4d`, uniforms and cosine-weighted directions, the twin of [`crsh_core::rng`]; after
 /// [`GLAM_WGSL`] and [`TRIG_WGSL`] ([`rng`]).
 pub const RNG_WGSL: &str = include_str!("rng.wgsl");
+
+/// `offset_segment` and Wächter & Binder's `offset_ray`, the twins of
+/// `crsh_cpu::raygen::whitted::{offset_segment, offset_ray}`, and the throughput threshold of
+/// ray generation; after [`GLAM_WGSL`].
+pub const SEGMENT_WGSL: &str = include_str!("segment.wgsl");
 
 /// The WGSL pieces `parts` joined in order into one kernel source.
 pub fn compose(parts: &[&str]) -> String {

@@ -1,3 +1,4 @@
 //! Secondary ray generation on the device.
 
+mod slots;
 pub mod whitted;
