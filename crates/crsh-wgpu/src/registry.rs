@@ -37,6 +37,8 @@ impl BuiltinVariants for Wgpu {
     fn register_builtin(registry: &mut Registry<Wgpu>) -> Result<()> {
         crate::primary::raster::register(registry)?;
         crate::raygen::whitted::register(registry)?;
+        crate::raygen::ao::register(registry)?;
+        crate::raygen::diffuse::register(registry)?;
         crate::hash::thesis::register(registry)?;
         crate::hash::morton_octa::register(registry)?;
         crate::sort::compress::register(registry)?;
