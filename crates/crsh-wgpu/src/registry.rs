@@ -37,6 +37,8 @@ impl BuiltinVariants for Wgpu {
     fn register_builtin(registry: &mut Registry<Wgpu>) -> Result<()> {
         crate::primary::raster::register(registry)?;
         crate::raygen::whitted::register(registry)?;
+        crate::raygen::ao::register(registry)?;
+        crate::raygen::diffuse::register(registry)?;
         crate::hash::thesis::register(registry)?;
         crate::hash::morton_octa::register(registry)?;
         crate::sort::compress::register(registry)?;
@@ -47,6 +49,8 @@ impl BuiltinVariants for Wgpu {
         crate::intersect::bvh::register(registry)?;
         crate::intersect::grid::register(registry)?;
         crate::shade::phong::register(registry)?;
+        crate::shade::ao::register(registry)?;
+        crate::shade::diffuse::register(registry)?;
         crsh_cpu::registry::add_presets(registry)
     }
 }

@@ -121,3 +121,20 @@ struct Light {
     attenuation: vec3<f32>,
     _pad1: f32,
 }
+
+// crate::kernels::accumulate::Contribution (32 bytes): what one record adds to its pixel in
+// the ordered accumulation (kernels/accumulate.wgsl). `pixel` out of the image: nothing.
+struct Contribution {
+    r: f32,
+    g: f32,
+    b: f32,
+    pixel: u32,
+    // ACC_ADD: add (r, g, b); ACC_ALPHA: set alpha to 1.
+    flags: u32,
+    _a: u32,
+    _b: u32,
+    _c: u32,
+}
+
+const ACC_ADD: u32 = 1u;
+const ACC_ALPHA: u32 = 2u;

@@ -1,32 +1,7 @@
-// crsh_cpu::surface::surface_from_hit and glam's vector helpers, written with glam's
-// operations in glam's order. The including kernel declares `scene_tris: array<Triangle>`,
+// crsh_cpu::surface::surface_from_hit, written with glam's operations in glam's order.
+// Prepended: glam.wgsl. The including kernel declares `scene_tris: array<Triangle>`,
 // `scene_normals: array<Triangle>` and `scene_info: array<TriangleInfo>` (GpuScene's
 // `triangles`, `normals` and `info`).
-
-fn g_dot(a: vec3<f32>, b: vec3<f32>) -> f32 {
-    return (a.x * b.x) + (a.y * b.y) + (a.z * b.z);
-}
-
-fn g_cross(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
-    return vec3<f32>(a.y * b.z - b.y * a.z, a.z * b.x - b.z * a.x, a.x * b.y - b.x * a.y);
-}
-
-fn g_finite(x: f32) -> bool {
-    return (bitcast<u32>(x) & 0x7f800000u) != 0x7f800000u;
-}
-
-fn g_length(v: vec3<f32>) -> f32 {
-    return sqrt(g_dot(v, v));
-}
-
-// glam's normalize_or_zero.
-fn g_normalize_or_zero(v: vec3<f32>) -> vec3<f32> {
-    let rcp = 1.0 / g_length(v);
-    if (g_finite(rcp) && rcp > 0.0) {
-        return v * rcp;
-    }
-    return vec3<f32>(0.0);
-}
 
 fn background_surface(pixel: u32, incident: vec3<f32>, throughput: vec3<f32>, depth: u32) -> Surface {
     return Surface(vec3<f32>(0.0), NO_HIT, vec3<f32>(0.0), 0u, incident, pixel, throughput, depth,
@@ -57,7 +32,7 @@ fn surface_from_hit(ray_dir: vec3<f32>, hit: Hit, pixel: u32, throughput: vec3<f
     let nn = scene_normals[hit.tri];
     let interpolated = nn.v0.xyz * w + nn.v1.xyz * u + nn.v2.xyz * v;
     var normal = g_normalize_or_zero(interpolated);
-    if (normal.x == 0.0 && normal.y == 0.0 && normal.z == 0.0) {
+    if (g_is_zero(normal)) {
         normal = geo;
     } else if (g_dot(normal, geo) < 0.0) {
         normal = -normal;

@@ -156,11 +156,12 @@ impl RasterKernels {
             });
             (layout, pipeline)
         })?;
-        let resolve_src = format!(
-            "{}\n{}\n{RESOLVE}",
+        let resolve_src = crate::kernels::compose(&[
             crate::intersect::MT_WGSL,
-            include_str!("../kernels/surface.wgsl")
-        );
+            crate::kernels::GLAM_WGSL,
+            crate::kernels::SURFACE_WGSL,
+            RESOLVE,
+        ]);
         let mut slots = vec![Slot::Uniform];
         slots.extend([Slot::Read; 5]);
         slots.extend([Slot::ReadWrite; 2]);

@@ -1,6 +1,6 @@
 // The resolve pass of `raster`: every pixel's triangle id becomes its G-buffer record, the
 // twin of crsh_cpu::primary::raster's resolve (pixel-centre camera ray, the Möller-Trumbore
-// plane solve, surface_from_hit). Prepended: common.wgsl, mt.wgsl, surface.wgsl.
+// plane solve, surface_from_hit). Prepended: common.wgsl, mt.wgsl, glam.wgsl, surface.wgsl.
 
 struct Params {
     width: u32,

@@ -5,20 +5,13 @@
 //! (one per surface, or per light and surface, light-major, for shadow rays), the same
 //! decisions (background, back-facing light culling, throughput threshold, total internal
 //! reflection) and the same offset policies, [`crsh_cpu::raygen::whitted::offset_segment`]
-//! and Wächter & Binder's `offset_ray` included (bit manipulation with `bitcast`), with the
-//! same operations in the same order; rays agree with the CPU's up to the rounding of `sqrt`
-//! and division, which WGSL does not require to be correctly rounded.
+//! and Wächter & Binder's `offset_ray` included (`kernels/segment.wgsl`, bit manipulation
+//! with `bitcast`), with the same operations in the same order; rays agree with the CPU's up
+//! to the rounding of `sqrt` and division, which WGSL does not require to be correctly
+//! rounded. The passes (count, scan, emit) are those of `raygen/slots.rs`.
 //!
-//! Three passes, no slot array in memory:
-//! 1. `count` (stage `ray_creation`) evaluates every slot and writes its head flag;
-//! 2. the flags are scanned in place into output positions ([`crate::kernels::scan`]), the
-//!    `trimming` sub-stage, whose total is the number of rays;
-//! 3. `emit` (part of `trimming`) evaluates each slot again and writes the ray of every kept
-//!    slot at its position, which is the CPU's compacted order.
-//!
-//! Surfaces are bound one storage binding's worth at a time, and the output in chunks of one
-//! binding (the `emit` pass runs once per output chunk), so neither limits the batch size;
-//! the flags (4 bytes per slot) must fit one binding.
+//! The CPU entry's `offsets` parameter (seed 001's hemisphere sets) must be `none` here: other
+//! values are refused with [`CoreError::Unsupported`] until the sets exist on the device.
 
 use std::sync::Arc;
 
@@ -28,8 +21,9 @@ use crsh_core::{CoreError, Ray, RayGen, RayKind, Registry, Result, StageSpec, St
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::error::GpuResult;
-use crate::kernel::{chunks, encoder, submit, uniform, Kernel, Slot};
-use crate::kernels::scan::ScanKernel;
+use crate::kernel::Kernel;
+use crate::kernels::{compose, GLAM_WGSL, SEGMENT_WGSL};
+use crate::raygen::slots::{self, Chunk, SlotPasses};
 use crate::scene::GpuScene;
 
 const SHADER: &str = include_str!("whitted.wgsl");
@@ -51,7 +45,8 @@ struct Params {
     min_throughput: f32,
     out_first: u32,
     out_count: u32,
-    pad: [u32; 3],
+    lambertian: u32,
+    pad: [u32; 2],
 }
 
 struct WhittedKernels {
@@ -64,17 +59,9 @@ impl WhittedKernels {
             kernel: Kernel::new(
                 ctx,
                 "crsh whitted",
-                SHADER,
+                &compose(&[GLAM_WGSL, SEGMENT_WGSL, SHADER, slots::SLOTS_WGSL]),
                 &["count", "emit"],
-                &[
-                    Slot::Uniform,
-                    Slot::Read,
-                    Slot::Read,
-                    Slot::Read,
-                    Slot::ReadWrite,
-                    Slot::ReadWrite,
-                    Slot::ReadWrite,
-                ],
+                &slots::BINDINGS,
             )?,
         })
     }
@@ -89,6 +76,7 @@ pub struct Whitted {
     min_throughput: f32,
     policy: u32,
     offset: f32,
+    lambertian: bool,
 }
 
 /// Registers the wgpu `whitted` under its CPU twin's catalogue entry (same name, parameters,
@@ -101,17 +89,13 @@ pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
 }
 
 impl Whitted {
-    /// The generator for `scene` with a resolved `spec` (parameters as the CPU variant's).
+    /// The generator for `scene` with a resolved `spec` (parameters as the CPU variant's;
+    /// `offsets` other than `none` is refused).
     pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<Whitted> {
-        use crsh_cpu::raygen::whitted::{OffsetPolicy, Whitted as CpuWhitted};
+        slots::refuse_offsets(spec, "whitted")?;
         // The CPU constructor validates every parameter and the scene's materials and lights.
-        let cpu = CpuWhitted::new(&scene.scene, spec)?;
-        let (policy, offset) = match cpu.policy() {
-            OffsetPolicy::Normal(d) => (0, d),
-            OffsetPolicy::Scaled(d) => (1, d),
-            OffsetPolicy::Fixed(d) => (2, d),
-            OffsetPolicy::Wachter => (3, 0.0),
-        };
+        let cpu = crsh_cpu::raygen::whitted::Whitted::new(&scene.scene, spec)?;
+        let (policy, offset) = slots::policy_code(cpu.policy());
         Ok(Whitted {
             scene: Arc::clone(scene),
             shadow_from_light: spec.str("shadow_origin")? == "light",
@@ -119,15 +103,25 @@ impl Whitted {
             min_throughput: spec.f64("min_throughput")? as f32,
             policy,
             offset,
+            lambertian: false,
         })
     }
 
-    /// Builds `params` for one pass.
-    fn params(&self, n: usize, per_surface: usize, kind: RayKind) -> Params {
+    /// The same generator with every material treated as opaque and purely diffuse, as
+    /// [`crsh_cpu::raygen::whitted::Whitted::lambertian`]: shadow rays carry the surface's
+    /// whole throughput and no reflection or refraction ray is made (the `diffuse`
+    /// generator's shadow rays).
+    pub fn lambertian(mut self) -> Self {
+        self.lambertian = true;
+        self
+    }
+
+    /// The uniform block of one dispatch.
+    fn params(&self, n: usize, per_surface: usize, kind: RayKind, c: Chunk) -> Params {
         Params {
             n: n as u32,
-            first: 0,
-            count: 0,
+            first: c.first,
+            count: c.count,
             per_surface: per_surface as u32,
             kind: kind as u32,
             n_materials: self.scene.scene.materials.len() as u32,
@@ -136,66 +130,11 @@ impl Whitted {
             policy: self.policy,
             offset: self.offset,
             min_throughput: self.min_throughput,
-            out_first: 0,
-            out_count: 0,
-            pad: [0; 3],
+            out_first: c.out_first,
+            out_count: c.out_count,
+            lambertian: u32::from(self.lambertian),
+            pad: [0; 2],
         }
-    }
-
-    /// Records one pass of `entry` over every surface chunk (and, for `emit`, one output
-    /// chunk) into a new encoder and submits it.
-    #[allow(clippy::too_many_arguments)]
-    fn pass(
-        &self,
-        k: &Kernel,
-        entry: &str,
-        base: Params,
-        surfaces: &GpuBuffer<Surface>,
-        slots: &GpuBuffer<u32>,
-        out: Option<(&GpuBuffer<Ray>, std::ops::Range<usize>)>,
-        report: &GpuBuffer<u32>,
-    ) -> GpuResult<()> {
-        let ctx = self.scene.ctx();
-        let dummy;
-        let (out_buf, out_range) = match out {
-            Some((b, r)) => (b, r),
-            None => {
-                dummy = GpuBuffer::<Ray>::zeroed(ctx, "crsh whitted no output", 0)?;
-                (&dummy, 0..0)
-            }
-        };
-        let mut groups = Vec::new();
-        for range in chunks::<Surface>(ctx, surfaces.len()) {
-            let params = Params {
-                first: range.start as u32,
-                count: range.len() as u32,
-                out_first: out_range.start as u32,
-                out_count: out_range.len() as u32,
-                ..base
-            };
-            let u = uniform(ctx, "crsh whitted params", &params);
-            let bg = k.bind_group(
-                ctx,
-                &[
-                    u.as_entire_binding(),
-                    surfaces.slice_binding(range.clone()),
-                    self.scene.lights.binding(),
-                    self.scene.materials.binding(),
-                    slots.binding(),
-                    out_buf.slice_binding(out_range.clone()),
-                    report.binding(),
-                ],
-            );
-            groups.push((bg, range.len() as u32 * base.per_surface));
-        }
-        let mut enc = encoder(ctx, entry);
-        {
-            let mut pass = ctx.compute_pass(&mut enc, entry);
-            for (bg, n) in &groups {
-                k.dispatch(ctx, &mut pass, entry, bg, *n)?;
-            }
-        }
-        submit(ctx, entry, enc)
     }
 }
 
@@ -211,11 +150,14 @@ impl RayGen<Wgpu> for Whitted {
         kind: RayKind,
         stats: &mut Stats,
     ) -> Result<GpuBuffer<Ray>> {
-        if kind == RayKind::Primary {
+        if matches!(kind, RayKind::Primary | RayKind::Ao | RayKind::Diffuse) {
             return Err(CoreError::Unsupported {
                 stage: "raygen",
                 variant: "whitted".into(),
-                what: "primary rays (primary visibility makes those)".into(),
+                what: format!(
+                    "{} rays (primary visibility makes camera rays; raygen `ao` and `diffuse` the others)",
+                    kind.name()
+                ),
             });
         }
         let ctx = backend.context();
@@ -225,48 +167,20 @@ impl RayGen<Wgpu> for Whitted {
         } else {
             1
         };
-        let total = n.checked_mul(per_surface);
-        if n > u32::MAX as usize || total.is_none_or(|t| t >= u32::MAX as usize) {
-            return Err(CoreError::InvalidInput(format!(
-                "{n} surfaces × {per_surface} rays do not fit 32-bit ray indices"
-            )));
-        }
-        let total = total.unwrap_or(0);
-        if total == 0 {
-            return Ok(GpuBuffer::zeroed(ctx, "crsh rays", 0)?);
-        }
-        ctx.check_storage_binding("ray slot flags", total as u64 * 4)?;
         let k = ctx.kernel(WhittedKernels::new)?;
-        let slots = GpuBuffer::<u32>::zeroed(ctx, "crsh whitted slots", total)?;
-        let report = GpuBuffer::<u32>::zeroed(ctx, "crsh whitted report", 4)?;
-        let base = self.params(n, per_surface, kind);
-        self.pass(&k.kernel, "count", base, surfaces, &slots, None, &report)?;
-        let bad = report.to_vec(ctx)?[0];
-        if bad != 0 {
-            return Err(CoreError::InvalidInput(format!(
-                "surface of pixel {} has a material the scene does not have ({} materials)",
-                u32::MAX - bad,
-                self.scene.scene.materials.len()
-            )));
-        }
-        crsh_core::timed(backend, stats, "trimming", |_| {
-            let kept = ctx.kernel(ScanKernel::new)?.scan_in_place(ctx, &slots)? as usize;
-            let rays = GpuBuffer::<Ray>::zeroed(ctx, "crsh rays", kept)?;
-            for out in chunks::<Ray>(ctx, kept) {
-                if out.is_empty() {
-                    continue;
-                }
-                self.pass(
-                    &k.kernel,
-                    "emit",
-                    base,
-                    surfaces,
-                    &slots,
-                    Some((&rays, out)),
-                    &report,
-                )?;
-            }
-            Ok(rays)
-        })
+        let passes = SlotPasses {
+            scene: &self.scene,
+            kernel: &k.kernel,
+            label: "crsh whitted params",
+            per_surface,
+        };
+        let materials = self.scene.scene.materials.len();
+        passes.rays(
+            backend,
+            surfaces,
+            &|c| self.params(n, per_surface, kind, c),
+            &|report| slots::check_materials(report, materials),
+            stats,
+        )
     }
 }

@@ -1,0 +1,87 @@
+//! `ao` on the wgpu backend: ambient-occlusion rays (seed 001 §4), the twin of
+//! [`crsh_cpu::raygen::ao::Ao`].
+//!
+//! The same parameters and validation (the CPU constructor runs on the same spec), the same
+//! slots (`samples` per surface, surface-major), the same rays: throughput = the surface's /
+//! `samples`, the `min_throughput` threshold, the direction
+//! [`crsh_core::rng::front_cosine_direction`] for the key (pixel, sample, bounce = the
+//! surface's depth, `seed`) computed by `rng.wgsl` (the same random words bit for bit), the
+//! Whitted offset policy along it, and `t_max = max(ao_length × diagonal, t_min)`. Directions
+//! and origins agree with the CPU's up to the rounding of `sqrt`, division and the sine /
+//! cosine polynomials; everything else is equal. Trimming is the scan-based compaction of
+//! [`super::whitted`] (`cosine.wgsl`, shared with [`super::diffuse`]).
+//!
+//! `offsets` other than `none` is refused ([`CoreError::Unsupported`]) until seed 001's
+//! hemisphere sets exist on the device; so no ray's interval is ever emptied by an offset and
+//! [`Stats::add_offset_ended`] has nothing to count.
+
+use std::sync::Arc;
+
+use crsh_core::{CoreError, Ray, RayGen, RayKind, Registry, Result, StageSpec, Stats, Surface};
+
+use crate::backend::{GpuBuffer, Wgpu};
+use crate::raygen::cosine::CosineRays;
+use crate::raygen::slots;
+use crate::scene::GpuScene;
+
+/// The GPU ambient-occlusion ray generator (variant `ao`).
+pub struct Ao {
+    rays: CosineRays,
+}
+
+/// Registers the wgpu `ao` under its CPU twin's catalogue entry (same name, parameters,
+/// defaults and documentation).
+pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
+    registry.add_raygen(crsh_cpu::raygen::ao::info(), |ctx, spec| {
+        Ok(Box::new(Ao::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
+}
+
+impl Ao {
+    /// The generator for `scene` with a resolved `spec` (parameters as the CPU variant's;
+    /// `offsets` other than `none` is refused).
+    pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<Ao> {
+        slots::refuse_offsets(spec, "ao")?;
+        // The CPU constructor validates every parameter and computes the length.
+        let cpu = crsh_cpu::raygen::ao::Ao::new(&scene.scene, spec)?;
+        Ok(Ao {
+            rays: CosineRays::from_spec(scene, spec, RayKind::Ao, cpu.length())?,
+        })
+    }
+}
+
+impl RayGen<Wgpu> for Ao {
+    fn name(&self) -> &str {
+        "ao"
+    }
+
+    fn visibility_kind(&self) -> RayKind {
+        RayKind::Ao
+    }
+
+    fn bounce_kinds(&self) -> &[RayKind] {
+        &[]
+    }
+
+    fn generate(
+        &self,
+        backend: &Wgpu,
+        surfaces: &GpuBuffer<Surface>,
+        kind: RayKind,
+        stats: &mut Stats,
+    ) -> Result<GpuBuffer<Ray>> {
+        if kind != RayKind::Ao {
+            return Err(CoreError::Unsupported {
+                stage: "raygen",
+                variant: "ao".into(),
+                what: format!(
+                    "{} rays (it makes ambient-occlusion rays only)",
+                    kind.name()
+                ),
+            });
+        }
+        let per_surface = self.rays.samples as usize;
+        self.rays.generate(backend, surfaces, per_surface, stats)
+    }
+}
