@@ -185,7 +185,7 @@ pub fn pair(results: &Results) -> Option<Pairing<'_>> {
         let base = by_identity.get(&identity(c, &params)).copied();
         let (m, bm, base) = match (c.measures.as_ref(), base) {
             (None, _) => {
-                unpaired.push((c, "the cell failed".to_string()));
+                unpaired.push((c, format!("the cell failed: {}", c.reason)));
                 continue;
             }
             (_, None) => {
@@ -421,14 +421,15 @@ fn kind_table<'p, 'a>(p: &'p Pairing<'a>, kind: &str, settings: &Settings) -> Ki
         .collect()
 }
 
-/// The kinds with rows, in [`crsh_core::RayKind::ALL`] order.
+/// The kinds with rows, in order of first appearance (the plan's order of its settings).
 fn row_kinds(p: &Pairing<'_>) -> Vec<String> {
-    let kinds: BTreeSet<(usize, &String)> = p
-        .rows
-        .iter()
-        .map(|r| (kind_order(&r.kind), &r.kind))
-        .collect();
-    kinds.into_iter().map(|(_, k)| k.clone()).collect()
+    let mut kinds: Vec<String> = Vec::new();
+    for r in &p.rows {
+        if !kinds.contains(&r.kind) {
+            kinds.push(r.kind.clone());
+        }
+    }
+    kinds
 }
 
 /// One markdown table: per (scene, setting) row, the baseline value's cell from `absolute`,
@@ -444,7 +445,7 @@ fn md_table(
     let mut head = vec![
         "scene".to_string(),
         "setting".to_string(),
-        format!("{} ({baseline_head})", p.value),
+        format!("{}: {baseline_head}", p.value),
     ];
     head.extend(p.values.iter().skip(1).cloned());
     let _ = writeln!(out, "| {} |", head.join(" | "));
@@ -481,7 +482,7 @@ pub fn to_markdown(p: &Pairing<'_>, results: &Results) -> String {
     let mut out = String::new();
     let _ = writeln!(
         out,
-        "# {}: against `{}` = {}\n",
+        "# {}\n\nBaseline: `{}` = {}.\n",
         results.title, p.key, p.value
     );
     let _ = writeln!(
@@ -730,7 +731,7 @@ mod tests {
         assert_eq!(
             unpaired,
             [
-                (3, "the cell failed"),
+                (3, "the cell failed: "),
                 (4, "its baseline cell `ao offsets=none len=0.5` failed"),
                 (5, "its baseline cell is not in these results"),
             ]
@@ -775,7 +776,7 @@ mod tests {
 
         let md = to_markdown(&p, &r);
         assert!(
-            md.contains("| scene | setting | none (inner / leaves) | center | vertex |"),
+            md.contains("| scene | setting | none: inner / leaves | center | vertex |"),
             "{md}"
         );
         // The setting names what varies besides the key: ao_length.
