@@ -23,7 +23,9 @@ use std::fmt::Write as _;
 use serde_json::json;
 
 use super::html::escape;
-use super::results::{csv_field, kind_order, CellResult, KindPerRay, Measures, Results};
+use super::results::{
+    cell_id_fields, cell_id_header, kind_order, push_row, CellResult, KindPerRay, Measures, Results,
+};
 
 /// One ray kind's figures in one cell.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -225,18 +227,13 @@ fn opt(v: Option<f64>, digits: usize) -> String {
     v.map(|x| format!("{x:.digits$}")).unwrap_or_default()
 }
 
-/// The header of `baseline.csv` (the swept keys `params` after the cell's identity).
+/// The header of `baseline.csv`: the cell as `results.csv` names it (its swept keys
+/// `params`), its label, then the figures.
 pub fn csv_header(params: &[String]) -> Vec<String> {
-    let mut h: Vec<String> = ["scene", "scene_source", "pipeline", "label", "backend"]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
-    h.extend(params.iter().cloned());
+    let mut h = cell_id_header(params);
     h.extend(
         [
-            "width",
-            "height",
-            "depth",
+            "label",
             "baseline_key",
             "baseline_value",
             "baseline_label",
@@ -274,30 +271,13 @@ pub fn csv_header(params: &[String]) -> Vec<String> {
 pub fn to_csv(p: &Pairing<'_>, results: &Results) -> String {
     let params = results.param_keys();
     let mut out = String::new();
-    let mut push = |fields: Vec<String>| {
-        let line: Vec<String> = fields.iter().map(|f| csv_field(f)).collect();
-        let _ = writeln!(out, "{}", line.join(","));
-    };
-    push(csv_header(&params));
+    push_row(&mut out, &csv_header(&params));
     for r in &p.rows {
         let c = r.cell;
         let (f, b) = (&r.figures, &r.baseline);
-        let mut row = vec![
-            c.scene.clone(),
-            c.scene_source.clone(),
-            c.pipeline.clone(),
-            c.label.clone(),
-            c.backend.clone(),
-        ];
-        row.extend(
-            params
-                .iter()
-                .map(|k| c.params.get(k).cloned().unwrap_or_default()),
-        );
+        let mut row = cell_id_fields(c, &params);
         row.extend([
-            c.width.to_string(),
-            c.height.to_string(),
-            c.depth.to_string(),
+            c.label.clone(),
             p.key.clone(),
             p.value.clone(),
             r.base.label.clone(),
@@ -328,7 +308,7 @@ pub fn to_csv(p: &Pairing<'_>, results: &Results) -> String {
                 .unwrap_or_default(),
             r.identical_hits.map(|b| b.to_string()).unwrap_or_default(),
         ]);
-        push(row);
+        push_row(&mut out, &row);
     }
     out
 }

@@ -630,20 +630,8 @@ impl Results {
         // Levels: per kind, highest level first (the thesis's table order).
         let mut levels: Vec<(usize, String, u32)> = level_keys.into_iter().collect();
         levels.sort_by(|a, b| a.0.cmp(&b.0).then(b.2.cmp(&a.2)));
-        let mesh_kinds: BTreeSet<(usize, String)> = self
-            .cells
-            .iter()
-            .filter_map(|c| c.measures.as_ref())
-            .flat_map(|m| m.mesh_culling.keys())
-            .map(|k| (kind_order(k), k.clone()))
-            .collect();
-        let traced_kinds: BTreeSet<(usize, String)> = self
-            .cells
-            .iter()
-            .filter_map(|c| c.measures.as_ref())
-            .flat_map(|m| m.per_kind.keys())
-            .map(|k| (kind_order(k), k.clone()))
-            .collect();
+        let mesh_kinds = self.kinds_in(&|m| m.mesh_culling.keys().collect());
+        let traced_kinds = self.kinds_in(&|m| m.per_kind.keys().collect());
         let mut stages: Vec<String> = STAGE_TIMINGS
             .iter()
             .filter(|k| self.any_timing(k))
@@ -669,16 +657,9 @@ impl Results {
             })
             .collect();
 
-        let mut header: Vec<String> = ["scene", "scene_source", "pipeline", "backend"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
-        header.extend(params.iter().cloned());
+        let mut header = cell_id_header(&params);
         header.extend(
             [
-                "width",
-                "height",
-                "depth",
                 "status",
                 "reason",
                 "repeat",
@@ -705,7 +686,7 @@ impl Results {
             .iter()
             .map(|s| s.to_string()),
         );
-        for (_, kind) in &mesh_kinds {
+        for kind in &mesh_kinds {
             for what in ["tests", "hits"] {
                 header.push(format!("mesh_culling_{kind}_{what}"));
             }
@@ -723,7 +704,7 @@ impl Results {
         for k in kinds.iter().copied().chain(["overall", "frame"]) {
             header.push(format!("mrays_{k}"));
         }
-        for (_, kind) in &traced_kinds {
+        for kind in &traced_kinds {
             for what in KIND_COLUMNS {
                 header.push(format!("kind_{kind}_{what}"));
             }
@@ -755,21 +736,8 @@ impl Results {
         push_row(&mut out, &header);
         for c in &self.cells {
             let m = c.measures.as_ref();
-            let mut row: Vec<String> = vec![
-                c.scene.clone(),
-                c.scene_source.clone(),
-                c.pipeline.clone(),
-                c.backend.clone(),
-            ];
-            row.extend(
-                params
-                    .iter()
-                    .map(|k| c.params.get(k).cloned().unwrap_or_default()),
-            );
+            let mut row = cell_id_fields(c, &params);
             row.extend([
-                c.width.to_string(),
-                c.height.to_string(),
-                c.depth.to_string(),
                 c.status.clone(),
                 c.reason.clone(),
                 c.repeat.to_string(),
@@ -794,7 +762,7 @@ impl Results {
             row.push(num(&|m| m.tests.leaves.to_string()));
             row.push(num(&|m| format!("{:.4}", m.tests.inner_nodes_per_ray)));
             row.push(num(&|m| format!("{:.4}", m.tests.leaves_per_ray)));
-            for (_, kind) in &mesh_kinds {
+            for kind in &mesh_kinds {
                 let c = m.and_then(|m| m.mesh_culling.get(kind));
                 row.push(c.map(|c| c.tests.to_string()).unwrap_or_default());
                 row.push(c.map(|c| c.hits.to_string()).unwrap_or_default());
@@ -825,7 +793,7 @@ impl Results {
                         .unwrap_or_default(),
                 );
             }
-            for (_, kind) in &traced_kinds {
+            for kind in &traced_kinds {
                 match m.and_then(|m| Some((m.per_kind.get(kind)?, m.kind_per_ray(kind)?))) {
                     Some((k, p)) => row.extend(kind_fields(k, &p)),
                     None => row.extend(KIND_COLUMNS.iter().map(|_| String::new())),
@@ -931,21 +899,14 @@ impl Results {
                 continue;
             };
             for r in &frames.rows {
-                let mut row = vec![
+                let lead = vec![
                     c.scene.clone(),
                     c.pipeline.clone(),
                     c.label.clone(),
                     c.backend.clone(),
                 ];
-                row.extend(
-                    params
-                        .iter()
-                        .map(|k| c.params.get(k).cloned().unwrap_or_default()),
-                );
+                let mut row = params_and_size(lead, c, &params);
                 row.extend([
-                    c.width.to_string(),
-                    c.height.to_string(),
-                    c.depth.to_string(),
                     r.frame.to_string(),
                     format!("{:.4}", r.time_s),
                     r.structure.clone(),
@@ -975,6 +936,18 @@ impl Results {
             }
         }
         Some(out)
+    }
+
+    /// The ray kinds `keys` names in any cell's measures, in [`RayKind::ALL`] order.
+    fn kinds_in(&self, keys: &dyn Fn(&Measures) -> Vec<&String>) -> Vec<String> {
+        let kinds: BTreeSet<(usize, &String)> = self
+            .cells
+            .iter()
+            .filter_map(|c| c.measures.as_ref())
+            .flat_map(keys)
+            .map(|k| (kind_order(k), k))
+            .collect();
+        kinds.into_iter().map(|(_, k)| k.clone()).collect()
     }
 
     fn any_timing(&self, key: &str) -> bool {
@@ -1026,7 +999,47 @@ pub fn csv_field(s: &str) -> String {
     }
 }
 
-fn push_row(out: &mut String, fields: &[String]) {
+/// The columns that name a cell in `results.csv` and `baseline.csv`: `scene, scene_source,
+/// pipeline, backend`, the swept keys `params`, `width, height, depth`.
+pub fn cell_id_header(params: &[String]) -> Vec<String> {
+    let mut h: Vec<String> = ["scene", "scene_source", "pipeline", "backend"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    h.extend(params.iter().cloned());
+    h.extend(["width", "height", "depth"].iter().map(|s| s.to_string()));
+    h
+}
+
+/// The [`cell_id_header`] fields of `c` (empty for a key it does not sweep).
+pub fn cell_id_fields(c: &CellResult, params: &[String]) -> Vec<String> {
+    let lead = vec![
+        c.scene.clone(),
+        c.scene_source.clone(),
+        c.pipeline.clone(),
+        c.backend.clone(),
+    ];
+    params_and_size(lead, c, params)
+}
+
+/// `lead`, then `c`'s values of the swept keys `params` (empty for a key it does not sweep),
+/// its width, height and depth.
+fn params_and_size(mut row: Vec<String>, c: &CellResult, params: &[String]) -> Vec<String> {
+    row.extend(
+        params
+            .iter()
+            .map(|k| c.params.get(k).cloned().unwrap_or_default()),
+    );
+    row.extend([
+        c.width.to_string(),
+        c.height.to_string(),
+        c.depth.to_string(),
+    ]);
+    row
+}
+
+/// Appends one CSV line of `fields` (each quoted as [`csv_field`] does).
+pub fn push_row(out: &mut String, fields: &[String]) {
     let line: Vec<String> = fields.iter().map(|f| csv_field(f)).collect();
     let _ = writeln!(out, "{}", line.join(","));
 }
