@@ -172,6 +172,10 @@ pub fn report(results: &Results, charts: &[(String, Vec<ChartFile>)]) -> String 
         cell_table(&mut h, &sid, &cells);
     }
 
+    if let Some(p) = super::baseline::pair(results) {
+        super::baseline::html_section(&mut h, &p);
+    }
+
     let _ = writeln!(h, "<h2 id=\"plan\">Plan</h2>");
     let _ = writeln!(
         h,

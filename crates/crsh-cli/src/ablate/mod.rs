@@ -12,6 +12,11 @@
 //! per cell and frame, and each scene gets a `SCENE-frames` chart (mean frame time split into
 //! update and rebuild, then render, per pipeline cell).
 //!
+//! With `baseline = { KEY = VALUE }` in the plan every cell is also set against the cell
+//! identical but for `KEY = VALUE` ([`baseline`]): `baseline.csv`, `baseline.md` (seed 001
+//! tables 2-4's layout) and a table in the report. `--dry-run` expands and checks a plan and
+//! prints its cells without running them.
+//!
 //! - [`plan`] — the plan (TOML or the command line's quick form) and its expansion into cells;
 //! - [`run`] — running the cells;
 //! - [`results`] — what was measured, `results.json` and `results.csv`, shards;
@@ -19,8 +24,10 @@
 //! - [`charts`] — the charts per scene;
 //! - [`html`] — `report.html`;
 //! - [`headline`] — the per-scene headline numbers printed at the end;
-//! - [`compare`] — `--compare`.
+//! - [`compare`] — `--compare`;
+//! - [`baseline`] — the cells against their baseline cells.
 
+pub mod baseline;
 pub mod charts;
 pub mod compare;
 pub mod headline;
@@ -124,6 +131,11 @@ pub struct AblateArgs {
     /// revisions or versions, and missing or repeated shards, are refused.
     #[arg(long, num_args = 1.., value_name = "DIR", conflicts_with_all = ["plan", "scenes", "pipelines", "set", "backends", "width", "height", "depth", "repeat", "reference", "threads", "shard", "redraw", "frames"])]
     pub merge: Option<Vec<PathBuf>>,
+
+    /// Expand and check the plan (pipelines, grids, depths, baseline) and print its cells per
+    /// scene and pipeline, without running or writing anything (no --out needed).
+    #[arg(long, conflicts_with_all = ["compare", "merge", "redraw", "shard"])]
+    pub dry_run: bool,
 
     /// Rebuild the charts, results.csv and report.html from DIR/results.json (into --out, by
     /// default DIR itself), without running anything.
@@ -333,14 +345,28 @@ fn write_outputs(results: &Results, out: &Path, write_json: bool) -> CliResult<u
         w("results.json", &(results.to_json() + "\n"))?;
     }
     w("results.csv", &results.to_csv())?;
-    let frames_csv = out.join("frames.csv");
-    match results.frames_csv() {
-        Some(text) => w("frames.csv", &text)?,
-        // An earlier run's into the same directory would not match this one.
-        None if frames_csv.is_file() => std::fs::remove_file(&frames_csv).map_err(|e| {
-            CliError::runtime(format!("removing stale {}: {e}", frames_csv.display()))
-        })?,
-        None => {}
+    // Files only some plans have: an earlier run's into the same directory would not match
+    // this one, so where this run has none they go.
+    let pairing = baseline::pair(results);
+    for (name, text) in [
+        ("frames.csv", results.frames_csv()),
+        (
+            "baseline.csv",
+            pairing.as_ref().map(|p| baseline::to_csv(p, results)),
+        ),
+        (
+            "baseline.md",
+            pairing.as_ref().map(|p| baseline::to_markdown(p, results)),
+        ),
+    ] {
+        let path = out.join(name);
+        match text {
+            Some(text) => w(name, &text)?,
+            None if path.is_file() => std::fs::remove_file(&path).map_err(|e| {
+                CliError::runtime(format!("removing stale {}: {e}", path.display()))
+            })?,
+            None => {}
+        }
     }
     w("report.html", &html::report(results, &charts))?;
     Ok(drawn.len())
@@ -373,7 +399,7 @@ fn summary(results: &Results, out: &Path, charts: usize) -> String {
         _ => String::new(),
     };
     format!(
-        "{}{} cells{scope}: {ok} ran, {} failed, in {:.1} s\nwrote     {}/results.csv, results.json, {}report.html and {charts} charts in charts/\n",
+        "{}{} cells{scope}: {ok} ran, {} failed, in {:.1} s\nwrote     {}/results.csv, results.json, {}{}report.html and {charts} charts in charts/\n",
         headline::headline(results),
         results.cells.len(),
         results.cells.len() - ok,
@@ -384,7 +410,71 @@ fn summary(results: &Results, out: &Path, charts: usize) -> String {
         } else {
             ""
         },
+        if results.plan.baseline.is_empty() {
+            ""
+        } else {
+            "baseline.csv, baseline.md, "
+        },
     )
+}
+
+/// What `--dry-run` prints: the cells per scene (and why a scene's cells would fail) and per
+/// pipeline (with their depths), and the baseline's pairing.
+fn dry_run_text(plan: &Plan, source: &str, cells: &[Cell]) -> String {
+    use std::fmt::Write as _;
+    let mut out = format!(
+        "plan {source}: {} cells, {} timed runs each (nothing run)\n",
+        cells.len(),
+        plan.repeat
+    );
+    let mut scenes: Vec<&str> = Vec::new();
+    let mut labels: Vec<&str> = Vec::new();
+    for c in cells {
+        if !scenes.contains(&c.scene_spec.as_str()) {
+            scenes.push(&c.scene_spec);
+        }
+        if !labels.contains(&c.pipeline.as_str()) {
+            labels.push(&c.pipeline);
+        }
+    }
+    for s in scenes {
+        let of: Vec<&Cell> = cells.iter().filter(|c| c.scene_spec == s).collect();
+        let unsupported = of.iter().filter(|c| c.unsupported.is_some()).count();
+        let _ = write!(out, "scene {s}: {} cells", of.len());
+        if let Some(Err(why)) = of.first().map(|c| &c.scene) {
+            let _ = write!(out, " (would fail: {why})");
+        }
+        if unsupported > 0 {
+            let _ = write!(out, " ({unsupported} a backend cannot run)");
+        }
+        out.push('\n');
+    }
+    for l in labels {
+        let of: Vec<&Cell> = cells.iter().filter(|c| c.pipeline == l).collect();
+        let mut depths: Vec<u32> = of.iter().map(|c| c.depth).collect();
+        depths.sort_unstable();
+        depths.dedup();
+        let depths: Vec<String> = depths.iter().map(u32::to_string).collect();
+        let _ = writeln!(
+            out,
+            "pipeline {l}: {} cells, depth {}",
+            of.len(),
+            depths.join(", ")
+        );
+    }
+    if let Some((key, value)) = plan.baseline.iter().next() {
+        let value = value.to_string();
+        let sweeping = cells.iter().filter(|c| c.params.contains_key(key)).count();
+        let base = cells
+            .iter()
+            .filter(|c| c.params.get(key) == Some(&value))
+            .count();
+        let _ = writeln!(
+            out,
+            "baseline {key} = {value}: {sweeping} cells set against {base} baseline cells"
+        );
+    }
+    out
 }
 
 /// Runs `crsh ablate` with `registries` (plans resolve their pipelines and variants there).
@@ -412,9 +502,14 @@ pub fn run(args: &AblateArgs, registries: &Registries) -> CliResult<()> {
         let charts = write_outputs(&results, out, out != dir.as_path())?;
         return crate::output::print_stdout(&summary(&results, out, charts));
     }
+    if args.dry_run {
+        let (plan, _, source, dir) = plan_of(args)?;
+        let cells = plan::expand(&plan, dir.as_deref(), registries)?;
+        return crate::output::print_stdout(&dry_run_text(&plan, &source, &cells));
+    }
     let out = args.out.as_ref().ok_or_else(|| {
         CliError::usage(
-            "--out DIR is required (or --compare OLD.json NEW.json, --merge DIR..., --redraw DIR)",
+            "--out DIR is required (or --compare OLD.json NEW.json, --merge DIR..., --redraw DIR, --dry-run)",
         )
     })?;
     let shard = args

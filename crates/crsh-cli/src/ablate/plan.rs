@@ -15,6 +15,15 @@
 //! ([`crsh::render_frames`]). `reference_every = K` checks only every K-th frame (frame 0
 //! included) against the reference, for large scenes. Without `frames` a cell is one static
 //! frame, as before.
+//!
+//! A pipeline entry may carry its own `depth` (one or several), replacing the plan's for its
+//! cells: ray settings that need different bounce depths (seed 001's AO and shadow rays at
+//! depth 0, diffuse paths at depth 3) live in one plan as one entry each.
+//!
+//! `baseline = { KEY = VALUE }` names one grid key and its baseline value: every cell whose
+//! parameters include `KEY` is paired with the cell that is identical except for `KEY = VALUE`
+//! (the baseline cell pairs with itself), and `baseline.csv`, `baseline.md` and a table in
+//! the report set each cell's figures against its baseline's ([`super::baseline`]).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -101,6 +110,10 @@ pub struct PipelinePlan {
     /// Name in results and charts (default: the pipeline's name).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub label: Option<String>,
+    /// Bounce depths of this pipeline's cells, replacing the plan's `depth` (absent: the
+    /// plan's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth: Option<OneOrMany<u32>>,
     /// Parameter grid of this pipeline, applied after the plan-wide grid.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub grid: Grid,
@@ -164,6 +177,11 @@ pub struct Plan {
         skip_serializing_if = "is_default_reference_every"
     )]
     pub reference_every: u32,
+    /// One grid key and its baseline value (`{ "raygen.offsets" = "none" }`): each cell is
+    /// set against the cell identical but for that key (see the module documentation). Empty:
+    /// no baseline outputs.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub baseline: BTreeMap<String, GridValue>,
     /// Grid applied to every pipeline (see the module documentation).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub grid: Grid,
@@ -318,12 +336,14 @@ impl QuickPlan {
                 self.backends
             },
             threads: self.threads,
+            baseline: BTreeMap::new(),
             grid,
             pipelines: pipelines
                 .into_iter()
                 .map(|p| PipelinePlan {
                     pipeline: p,
                     label: None,
+                    depth: None,
                     grid: Grid::new(),
                 })
                 .collect(),
@@ -519,6 +539,61 @@ fn check_frames(plan: &Plan) -> CliResult<()> {
     }
 }
 
+/// Checks the plan's `baseline`: at most one key, swept by the plan-wide grid or a pipeline's
+/// own, and its value among the values every pipeline sweeping it lists (`entries`: each
+/// pipeline's label and effective grid), so that every cell with the key has its baseline cell
+/// in the expansion.
+fn check_baseline<'a>(
+    baseline: &BTreeMap<String, GridValue>,
+    plan_grid: &Grid,
+    entries: impl Iterator<Item = (&'a str, &'a [(String, Vec<GridValue>)])> + Clone,
+) -> CliResult<()> {
+    let mut keys = baseline.iter();
+    let Some((key, value)) = keys.next() else {
+        return Ok(());
+    };
+    if keys.next().is_some() {
+        let all: Vec<&str> = baseline.keys().map(String::as_str).collect();
+        return Err(CliError::usage(format!(
+            "baseline names {} keys ({}); give one grid key and its baseline value",
+            all.len(),
+            all.join(", ")
+        )));
+    }
+    let sweeping: Vec<(&str, &Vec<GridValue>)> = entries
+        .clone()
+        .filter_map(|(label, grid)| grid.iter().find(|(k, _)| k == key).map(|(_, v)| (label, v)))
+        .collect();
+    if sweeping.is_empty() {
+        let mut grid_keys: Vec<&str> = plan_grid
+            .keys()
+            .map(String::as_str)
+            .chain(entries.flat_map(|(_, g)| g.iter().map(|(k, _)| k.as_str())))
+            .collect();
+        grid_keys.sort_unstable();
+        grid_keys.dedup();
+        return Err(CliError::usage(format!(
+            "baseline key `{key}` is not a grid key of the plan (grid keys: {})",
+            if grid_keys.is_empty() {
+                "none".to_string()
+            } else {
+                grid_keys.join(", ")
+            }
+        )));
+    }
+    let want = value.to_string();
+    for (label, values) in sweeping {
+        if !values.iter().any(|v| v.to_string() == want) {
+            let listed: Vec<String> = values.iter().map(ToString::to_string).collect();
+            return Err(CliError::usage(format!(
+                "baseline `{key}` = {want} is not among the values pipeline `{label}` sweeps ({}); add it to the grid",
+                listed.join(", ")
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Every combination of the grid's values, keys in order.
 fn combinations(grid: &[(String, Vec<GridValue>)]) -> Vec<Vec<(String, String)>> {
     let mut out: Vec<Vec<(String, String)>> = vec![Vec::new()];
@@ -584,7 +659,23 @@ pub fn expand(
             )));
         }
     }
-    for d in &depths {
+    let own_depths: Vec<Option<Vec<u32>>> = plan
+        .pipelines
+        .iter()
+        .map(|p| p.depth.as_ref().map(OneOrMany::to_vec))
+        .collect();
+    if let Some(p) = plan
+        .pipelines
+        .iter()
+        .zip(&own_depths)
+        .find_map(|(p, d)| d.as_ref().is_some_and(Vec::is_empty).then_some(p))
+    {
+        return Err(CliError::usage(format!(
+            "pipeline `{}`: depth needs at least one value",
+            p.label.as_deref().unwrap_or(&p.pipeline)
+        )));
+    }
+    for d in depths.iter().chain(own_depths.iter().flatten().flatten()) {
         if *d > crate::args::MAX_DEPTH {
             return Err(CliError::usage(format!(
                 "depth {d} is above {}",
@@ -632,11 +723,12 @@ pub fn expand(
     struct Entry {
         label: String,
         pipeline: String,
+        depths: Vec<u32>,
         grid: Vec<(String, Vec<GridValue>)>,
     }
     let mut entries = Vec::new();
     let mut used: std::collections::BTreeSet<String> = std::collections::BTreeSet::new();
-    for p in &plan.pipelines {
+    for (p, own_depth) in plan.pipelines.iter().zip(own_depths) {
         // A pipeline file is relative to the plan's directory; preset names stay as they are.
         let pipeline = match plan_dir {
             Some(d)
@@ -667,6 +759,7 @@ pub fn expand(
         entries.push(Entry {
             label: p.label.clone().unwrap_or_else(|| base.name.clone()),
             pipeline,
+            depths: own_depth.unwrap_or_else(|| depths.clone()),
             grid,
         });
     }
@@ -684,13 +777,31 @@ pub fn expand(
             w[0]
         )));
     }
+    check_baseline(
+        &plan.baseline,
+        &plan.grid,
+        entries
+            .iter()
+            .map(|e| (e.label.as_str(), e.grid.as_slice())),
+    )?;
+    // Every depth a pipeline uses, in order of first appearance, the plan's first: without
+    // per-pipeline depths the order is the plan's depth list, as before.
+    let mut all_depths: Vec<u32> = Vec::new();
+    for &d in depths
+        .iter()
+        .chain(entries.iter().flat_map(|e| e.depths.iter()))
+    {
+        if !all_depths.contains(&d) && entries.iter().any(|e| e.depths.contains(&d)) {
+            all_depths.push(d);
+        }
+    }
 
     let mut cells = Vec::new();
     for scene_spec in &plan.scenes {
         let scene = resolve_scene(scene_spec, plan_dir);
         for &width in &widths {
-            for &depth in &depths {
-                for e in &entries {
+            for &depth in &all_depths {
+                for e in entries.iter().filter(|e| e.depths.contains(&depth)) {
                     for combo in combinations(&e.grid) {
                         let mut sets: Vec<String> =
                             combo.iter().map(|(k, v)| format!("{k}={v}")).collect();
@@ -1012,6 +1123,100 @@ mod tests {
         .into_plan()
         .unwrap();
         assert_eq!(q.frames, Some(3));
+    }
+
+    #[test]
+    fn pipelines_may_carry_their_own_depths() {
+        let toml = r#"
+            scenes = ["cornell-mirrors"]
+            depth = [1, 2]
+            [[pipelines]]
+            pipeline = "bvh"
+            [[pipelines]]
+            pipeline = "bvh"
+            label = "deep"
+            depth = [3, 1]
+        "#;
+        let cells = expand(&parse_plan(toml).unwrap(), None, &Registries::builtin()).unwrap();
+        let got: Vec<(&str, u32)> = cells
+            .iter()
+            .map(|c| (c.pipeline.as_str(), c.depth))
+            .collect();
+        // Depths in order of first appearance, the plan's first; each pipeline only at its own.
+        assert_eq!(got, [("bvh", 1), ("deep", 1), ("bvh", 2), ("deep", 3)]);
+        // A plan depth no pipeline uses makes no cells; an empty or too deep list is an error.
+        let only = toml.replace("depth = [1, 2]", "depth = 7").replace(
+            "pipeline = \"bvh\"\n            [[pipelines]]",
+            "pipeline = \"bvh\"\n            depth = 0\n            [[pipelines]]",
+        );
+        let cells = expand(&parse_plan(&only).unwrap(), None, &Registries::builtin()).unwrap();
+        let depths: Vec<u32> = cells.iter().map(|c| c.depth).collect();
+        assert_eq!(depths, [0, 3, 1]);
+        for (bad, needle) in [
+            ("depth = [3, 1]", "depth = []"),
+            ("depth = [3, 1]", "depth = 99"),
+        ] {
+            let e = expand(
+                &parse_plan(&toml.replace(bad, needle)).unwrap(),
+                None,
+                &Registries::builtin(),
+            )
+            .unwrap_err();
+            assert_eq!(e.exit_code(), 2);
+            let want = if needle.contains("[]") {
+                "pipeline `deep`: depth needs at least one value"
+            } else {
+                "depth 99 is above"
+            };
+            assert!(e.to_string().contains(want), "{e}");
+        }
+    }
+
+    #[test]
+    fn the_baseline_names_one_swept_key_and_one_of_its_values() {
+        let toml = r#"
+            scenes = ["cornell-mirrors"]
+            baseline = { "raygen.offsets" = "none" }
+            [grid]
+            "raygen.offsets" = ["none", "center"]
+            [[pipelines]]
+            pipeline = "bvh"
+            [[pipelines]]
+            pipeline = "brute"
+            [pipelines.grid]
+            "intersect.test" = ["mt", "watertight"]
+        "#;
+        let cat = Registries::builtin();
+        let plan = parse_plan(toml).unwrap();
+        assert_eq!(expand(&plan, None, &cat).unwrap().len(), 6);
+        assert_eq!(parse_plan(&toml::to_string(&plan).unwrap()).unwrap(), plan);
+        // A key of one pipeline's own grid.
+        let own = toml.replace(
+            "{ \"raygen.offsets\" = \"none\" }",
+            "{ \"intersect.test\" = \"watertight\" }",
+        );
+        assert!(expand(&parse_plan(&own).unwrap(), None, &cat).is_ok());
+        for (from, to, needle) in [
+            (
+                "{ \"raygen.offsets\" = \"none\" }",
+                "{ \"raygen.offset\" = \"normal\" }",
+                "baseline key `raygen.offset` is not a grid key of the plan (grid keys: intersect.test, raygen.offsets)",
+            ),
+            (
+                "{ \"raygen.offsets\" = \"none\" }",
+                "{ \"raygen.offsets\" = \"vertex\" }",
+                "baseline `raygen.offsets` = vertex is not among the values pipeline `bvh` sweeps (none, center)",
+            ),
+            (
+                "{ \"raygen.offsets\" = \"none\" }",
+                "{ \"raygen.offsets\" = \"none\", \"intersect.test\" = \"mt\" }",
+                "baseline names 2 keys (intersect.test, raygen.offsets)",
+            ),
+        ] {
+            let e = expand(&parse_plan(&toml.replace(from, to)).unwrap(), None, &cat).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{to}");
+            assert!(e.to_string().contains(needle), "{needle}: {e}");
+        }
     }
 
     #[test]

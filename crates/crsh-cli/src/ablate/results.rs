@@ -58,6 +58,12 @@ pub struct CellRays {
     pub reflection: u64,
     /// Refraction rays.
     pub refraction: u64,
+    /// Ambient-occlusion rays (seed 001).
+    #[serde(default)]
+    pub ao: u64,
+    /// Diffuse bounce rays (seed 001).
+    #[serde(default)]
+    pub diffuse: u64,
     /// Rays that went through the intersection stages.
     pub traced: u64,
 }
@@ -77,6 +83,59 @@ pub struct CellTests {
     pub per_ray: f64,
     /// `total / brute_force`.
     pub fraction: f64,
+    /// Object-hierarchy inner nodes visited (seed 001's "visited internal nodes"; not part of
+    /// `total`, 0 for intersectors that do not count them).
+    #[serde(default)]
+    pub inner_nodes: u64,
+    /// Object-hierarchy leaves visited (not part of `total`).
+    #[serde(default)]
+    pub leaves: u64,
+    /// `inner_nodes / rays.traced`.
+    #[serde(default)]
+    pub inner_nodes_per_ray: f64,
+    /// `leaves / rays.traced`.
+    #[serde(default)]
+    pub leaves_per_ray: f64,
+}
+
+/// One ray kind's work per ray, from its [`KindStats`]: what seed 001's tables set against the
+/// baseline. Every figure is 0 when the kind traced no ray.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct KindPerRay {
+    /// Object-hierarchy inner nodes visited per ray.
+    pub inner_nodes: f64,
+    /// Object-hierarchy leaves visited per ray.
+    pub leaves: f64,
+    /// Bounding-volume tests per ray.
+    pub bounds: f64,
+    /// Ray-triangle tests per ray.
+    pub ray_triangle: f64,
+    /// Bounding-volume and ray-triangle tests per ray.
+    pub tests: f64,
+    /// `offset_ended / rays`: the fraction of rays whose origin offset passed their end
+    /// (seed 001 fig. 4).
+    pub offset_ended_fraction: f64,
+}
+
+impl KindPerRay {
+    /// The per-ray figures of `k`.
+    pub fn of(k: &KindStats) -> KindPerRay {
+        let per = |n: u64| {
+            if k.rays > 0 {
+                n as f64 / k.rays as f64
+            } else {
+                0.0
+            }
+        };
+        KindPerRay {
+            inner_nodes: per(k.inner_nodes),
+            leaves: per(k.leaves),
+            bounds: per(k.bounds),
+            ray_triangle: per(k.ray_triangle),
+            tests: per(k.bounds + k.ray_triangle),
+            offset_ended_fraction: per(k.offset_ended),
+        }
+    }
 }
 
 /// Agreement with the plan's reference.
@@ -116,8 +175,13 @@ pub struct Measures {
     pub rays: CellRays,
     /// Intersection tests.
     pub tests: CellTests,
-    /// Per ray kind: rays, tests, and the median tracing time (ms).
+    /// Per ray kind: rays, tests, object-hierarchy visits, rays ended by origin offsets, and
+    /// the median tracing time (ms).
     pub per_kind: BTreeMap<String, KindStats>,
+    /// Per ray kind: [`KindPerRay`] of `per_kind` (derived; rebuilt from `per_kind` by
+    /// [`Measures::kind_per_ray`] when an older results.json lacks it).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub per_kind_per_ray: BTreeMap<String, KindPerRay>,
     /// Per hierarchy level counters (thesis numbering; empty without a hierarchy).
     pub levels: Vec<LevelStats>,
     /// Whole-mesh culling counters per ray kind (empty without mesh culling).
@@ -296,6 +360,22 @@ pub struct CellResult {
     /// The measurements (absent when the cell failed).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub measures: Option<Measures>,
+}
+
+impl Measures {
+    /// [`KindPerRay`] of the ray kind `kind` (`None` when the cell did not trace it).
+    pub fn kind_per_ray(&self, kind: &str) -> Option<KindPerRay> {
+        self.per_kind.get(kind).map(KindPerRay::of)
+    }
+
+    /// The median ray-creation time, ms: one timer for every ray kind of the cell (the
+    /// driver times each batch's generation under one key), so a kind's own share is not
+    /// measured.
+    pub fn ray_creation_ms(&self) -> f64 {
+        self.timings_ms
+            .get("ray_creation")
+            .map_or(0.0, |t| t.median)
+    }
 }
 
 impl CellResult {
@@ -550,13 +630,8 @@ impl Results {
         // Levels: per kind, highest level first (the thesis's table order).
         let mut levels: Vec<(usize, String, u32)> = level_keys.into_iter().collect();
         levels.sort_by(|a, b| a.0.cmp(&b.0).then(b.2.cmp(&a.2)));
-        let mesh_kinds: BTreeSet<(usize, String)> = self
-            .cells
-            .iter()
-            .filter_map(|c| c.measures.as_ref())
-            .flat_map(|m| m.mesh_culling.keys())
-            .map(|k| (kind_order(k), k.clone()))
-            .collect();
+        let mesh_kinds = self.kinds_in(&|m| m.mesh_culling.keys().collect());
+        let traced_kinds = self.kinds_in(&|m| m.per_kind.keys().collect());
         let mut stages: Vec<String> = STAGE_TIMINGS
             .iter()
             .filter(|k| self.any_timing(k))
@@ -582,16 +657,9 @@ impl Results {
             })
             .collect();
 
-        let mut header: Vec<String> = ["scene", "scene_source", "pipeline", "backend"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
-        header.extend(params.iter().cloned());
+        let mut header = cell_id_header(&params);
         header.extend(
             [
-                "width",
-                "height",
-                "depth",
                 "status",
                 "reason",
                 "repeat",
@@ -601,6 +669,8 @@ impl Results {
                 "rays_shadow",
                 "rays_reflection",
                 "rays_refraction",
+                "rays_ao",
+                "rays_diffuse",
                 "rays_traced",
                 "tests_bounds",
                 "tests_ray_triangle",
@@ -608,11 +678,15 @@ impl Results {
                 "tests_brute_force",
                 "tests_per_ray",
                 "tests_fraction",
+                "tests_inner_nodes",
+                "tests_leaves",
+                "tests_inner_nodes_per_ray",
+                "tests_leaves_per_ray",
             ]
             .iter()
             .map(|s| s.to_string()),
         );
-        for (_, kind) in &mesh_kinds {
+        for kind in &mesh_kinds {
             for what in ["tests", "hits"] {
                 header.push(format!("mesh_culling_{kind}_{what}"));
             }
@@ -629,6 +703,11 @@ impl Results {
         }
         for k in kinds.iter().copied().chain(["overall", "frame"]) {
             header.push(format!("mrays_{k}"));
+        }
+        for kind in &traced_kinds {
+            for what in KIND_COLUMNS {
+                header.push(format!("kind_{kind}_{what}"));
+            }
         }
         header.extend(
             [
@@ -657,21 +736,8 @@ impl Results {
         push_row(&mut out, &header);
         for c in &self.cells {
             let m = c.measures.as_ref();
-            let mut row: Vec<String> = vec![
-                c.scene.clone(),
-                c.scene_source.clone(),
-                c.pipeline.clone(),
-                c.backend.clone(),
-            ];
-            row.extend(
-                params
-                    .iter()
-                    .map(|k| c.params.get(k).cloned().unwrap_or_default()),
-            );
+            let mut row = cell_id_fields(c, &params);
             row.extend([
-                c.width.to_string(),
-                c.height.to_string(),
-                c.depth.to_string(),
                 c.status.clone(),
                 c.reason.clone(),
                 c.repeat.to_string(),
@@ -683,6 +749,8 @@ impl Results {
             row.push(num(&|m| m.rays.shadow.to_string()));
             row.push(num(&|m| m.rays.reflection.to_string()));
             row.push(num(&|m| m.rays.refraction.to_string()));
+            row.push(num(&|m| m.rays.ao.to_string()));
+            row.push(num(&|m| m.rays.diffuse.to_string()));
             row.push(num(&|m| m.rays.traced.to_string()));
             row.push(num(&|m| m.tests.bounds.to_string()));
             row.push(num(&|m| m.tests.ray_triangle.to_string()));
@@ -690,7 +758,11 @@ impl Results {
             row.push(num(&|m| m.tests.brute_force.to_string()));
             row.push(num(&|m| format!("{:.4}", m.tests.per_ray)));
             row.push(num(&|m| format!("{:.6e}", m.tests.fraction)));
-            for (_, kind) in &mesh_kinds {
+            row.push(num(&|m| m.tests.inner_nodes.to_string()));
+            row.push(num(&|m| m.tests.leaves.to_string()));
+            row.push(num(&|m| format!("{:.4}", m.tests.inner_nodes_per_ray)));
+            row.push(num(&|m| format!("{:.4}", m.tests.leaves_per_ray)));
+            for kind in &mesh_kinds {
                 let c = m.and_then(|m| m.mesh_culling.get(kind));
                 row.push(c.map(|c| c.tests.to_string()).unwrap_or_default());
                 row.push(c.map(|c| c.hits.to_string()).unwrap_or_default());
@@ -720,6 +792,12 @@ impl Results {
                         .map(|v| format!("{v:.4}"))
                         .unwrap_or_default(),
                 );
+            }
+            for kind in &traced_kinds {
+                match m.and_then(|m| Some((m.per_kind.get(kind)?, m.kind_per_ray(kind)?))) {
+                    Some((k, p)) => row.extend(kind_fields(k, &p)),
+                    None => row.extend(KIND_COLUMNS.iter().map(|_| String::new())),
+                }
             }
             let acc = m.and_then(|m| m.accuracy.as_ref());
             row.push(acc.map(|a| a.reference.clone()).unwrap_or_default());
@@ -821,21 +899,14 @@ impl Results {
                 continue;
             };
             for r in &frames.rows {
-                let mut row = vec![
+                let lead = vec![
                     c.scene.clone(),
                     c.pipeline.clone(),
                     c.label.clone(),
                     c.backend.clone(),
                 ];
-                row.extend(
-                    params
-                        .iter()
-                        .map(|k| c.params.get(k).cloned().unwrap_or_default()),
-                );
+                let mut row = params_and_size(lead, c, &params);
                 row.extend([
-                    c.width.to_string(),
-                    c.height.to_string(),
-                    c.depth.to_string(),
                     r.frame.to_string(),
                     format!("{:.4}", r.time_s),
                     r.structure.clone(),
@@ -867,6 +938,18 @@ impl Results {
         Some(out)
     }
 
+    /// The ray kinds `keys` names in any cell's measures, in [`RayKind::ALL`] order.
+    fn kinds_in(&self, keys: &dyn Fn(&Measures) -> Vec<&String>) -> Vec<String> {
+        let kinds: BTreeSet<(usize, &String)> = self
+            .cells
+            .iter()
+            .filter_map(|c| c.measures.as_ref())
+            .flat_map(keys)
+            .map(|k| (kind_order(k), k))
+            .collect();
+        kinds.into_iter().map(|(_, k)| k.clone()).collect()
+    }
+
     fn any_timing(&self, key: &str) -> bool {
         self.cells
             .iter()
@@ -875,7 +958,32 @@ impl Results {
     }
 }
 
-fn kind_order(kind: &str) -> usize {
+/// The per-kind columns of `results.csv`, `kind_KIND_WHAT` (see [`kind_fields`]).
+pub const KIND_COLUMNS: [&str; 7] = [
+    "rays",
+    "inner_nodes_per_ray",
+    "leaves_per_ray",
+    "bounds_per_ray",
+    "ray_triangle_per_ray",
+    "trace_ms",
+    "offset_ended_fraction",
+];
+
+/// The [`KIND_COLUMNS`] fields of one kind.
+fn kind_fields(k: &KindStats, p: &KindPerRay) -> Vec<String> {
+    vec![
+        k.rays.to_string(),
+        format!("{:.4}", p.inner_nodes),
+        format!("{:.4}", p.leaves),
+        format!("{:.4}", p.bounds),
+        format!("{:.4}", p.ray_triangle),
+        format!("{:.3}", k.trace_ms),
+        format!("{:.6}", p.offset_ended_fraction),
+    ]
+}
+
+/// Position of `kind` in [`RayKind::ALL`] (unknown names last), for column order.
+pub fn kind_order(kind: &str) -> usize {
     RayKind::ALL
         .iter()
         .position(|k| k.name() == kind)
@@ -891,7 +999,47 @@ pub fn csv_field(s: &str) -> String {
     }
 }
 
-fn push_row(out: &mut String, fields: &[String]) {
+/// The columns that name a cell in `results.csv` and `baseline.csv`: `scene, scene_source,
+/// pipeline, backend`, the swept keys `params`, `width, height, depth`.
+pub fn cell_id_header(params: &[String]) -> Vec<String> {
+    let mut h: Vec<String> = ["scene", "scene_source", "pipeline", "backend"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    h.extend(params.iter().cloned());
+    h.extend(["width", "height", "depth"].iter().map(|s| s.to_string()));
+    h
+}
+
+/// The [`cell_id_header`] fields of `c` (empty for a key it does not sweep).
+pub fn cell_id_fields(c: &CellResult, params: &[String]) -> Vec<String> {
+    let lead = vec![
+        c.scene.clone(),
+        c.scene_source.clone(),
+        c.pipeline.clone(),
+        c.backend.clone(),
+    ];
+    params_and_size(lead, c, params)
+}
+
+/// `lead`, then `c`'s values of the swept keys `params` (empty for a key it does not sweep),
+/// its width, height and depth.
+fn params_and_size(mut row: Vec<String>, c: &CellResult, params: &[String]) -> Vec<String> {
+    row.extend(
+        params
+            .iter()
+            .map(|k| c.params.get(k).cloned().unwrap_or_default()),
+    );
+    row.extend([
+        c.width.to_string(),
+        c.height.to_string(),
+        c.depth.to_string(),
+    ]);
+    row
+}
+
+/// Appends one CSV line of `fields` (each quoted as [`csv_field`] does).
+pub fn push_row(out: &mut String, fields: &[String]) {
     let line: Vec<String> = fields.iter().map(|f| csv_field(f)).collect();
     let _ = writeln!(out, "{}", line.join(","));
 }

@@ -26,7 +26,7 @@ use std::time::Duration;
 use crsh::report::{compare_images, mrays_per_s};
 use crsh::{AccuracyReport, FramesRequest, Registries, RenderRequest, Renderer, UpdateReport};
 use crsh_core::metrics::to_rgba8;
-use crsh_core::{AccuracyCounts, FrameOptions, KindStats, Stats};
+use crsh_core::{AccuracyCounts, FrameOptions, KindStats, RayKind, Stats};
 use crsh_scene::{AnimatedScene, Scene};
 use crsh_wgpu::Wgpu;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -34,7 +34,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use super::plan::{Cell, Plan};
 use super::results::{
     CellAccuracy, CellFrames, CellRays, CellResult, CellTests, FrameMeasure, FramesTotals,
-    Measures, TimeSummary,
+    KindPerRay, Measures, TimeSummary,
 };
 
 /// A loaded scene (or why it did not load).
@@ -403,6 +403,8 @@ fn measures_of(
             shadow: first.rays.shadow,
             reflection: first.rays.reflection,
             refraction: first.rays.refraction,
+            ao: first.rays.ao,
+            diffuse: first.rays.diffuse,
             traced,
         },
         tests: CellTests {
@@ -412,7 +414,16 @@ fn measures_of(
             brute_force: t.brute_force,
             per_ray: ratio(t.total as f64, traced as f64),
             fraction: ratio(t.total as f64, t.brute_force as f64),
+            inner_nodes: t.inner_nodes,
+            leaves: t.leaves,
+            inner_nodes_per_ray: ratio(t.inner_nodes as f64, traced as f64),
+            leaves_per_ray: ratio(t.leaves as f64, traced as f64),
         },
+        per_kind_per_ray: median
+            .per_kind
+            .iter()
+            .map(|(k, s)| (k.clone(), KindPerRay::of(s)))
+            .collect(),
         per_kind: median.per_kind.clone(),
         levels: first.levels.clone(),
         mesh_culling: first.mesh_culling.clone(),
@@ -453,10 +464,11 @@ fn frame_counters(f: &FrameRun) -> (Stats, String, u64) {
 /// times summed, the peak candidate bytes the largest).
 fn add_stats(sum: &mut Stats, s: &Stats) {
     sum.stages.clone_from(&s.stages);
-    sum.rays.primary += s.rays.primary;
-    sum.rays.shadow += s.rays.shadow;
-    sum.rays.reflection += s.rays.reflection;
-    sum.rays.refraction += s.rays.refraction;
+    for kind in RayKind::ALL {
+        sum.rays.add(kind, s.rays.get(kind));
+    }
+    sum.tests.inner_nodes += s.tests.inner_nodes;
+    sum.tests.leaves += s.tests.leaves;
     sum.tests.bounds += s.tests.bounds;
     sum.tests.ray_triangle += s.tests.ray_triangle;
     sum.tests.total += s.tests.total;
@@ -468,6 +480,9 @@ fn add_stats(sum: &mut Stats, s: &Stats) {
         e.bounds += k.bounds;
         e.ray_triangle += k.ray_triangle;
         e.trace_ms += k.trace_ms;
+        e.inner_nodes += k.inner_nodes;
+        e.leaves += k.leaves;
+        e.offset_ended += k.offset_ended;
     }
     for l in &s.levels {
         match sum
