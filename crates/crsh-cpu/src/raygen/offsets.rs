@@ -19,7 +19,7 @@ use std::sync::Arc;
 use crsh_core::{CoreError, ParamInfo, Ray, Result, StageSpec, StageVariantInfo};
 use crsh_scene::Scene;
 
-use crate::raygen::origin_offset::{HemisphereKind, Hemispheres};
+use crate::raygen::origin_offset::{HemisphereSet, SetKind};
 
 /// The values `offsets` accepts.
 pub const OFFSET_NAMES: [&str; 5] = ["none", "center", "vertex", "median", "polygon"];
@@ -38,7 +38,7 @@ pub fn offsets_param(info: StageVariantInfo) -> StageVariantInfo {
 /// A generator's origin offsets: none, or a hemisphere set of the scene.
 #[derive(Clone, Debug, Default)]
 pub struct Offsets {
-    set: Option<Arc<Hemispheres>>,
+    set: Option<Arc<HemisphereSet>>,
 }
 
 impl Offsets {
@@ -48,7 +48,7 @@ impl Offsets {
     }
 
     /// The offsets of a hemisphere set already built.
-    pub fn with(set: Arc<Hemispheres>) -> Offsets {
+    pub fn with(set: Arc<HemisphereSet>) -> Offsets {
         Offsets { set: Some(set) }
     }
 
@@ -58,11 +58,11 @@ impl Offsets {
         if name == "none" {
             return Ok(Offsets::none());
         }
-        let kind = HemisphereKind::from_name(name).ok_or_else(|| CoreError::InvalidParam {
+        let kind = SetKind::from_name(name).ok_or_else(|| CoreError::InvalidParam {
             key: "raygen.offsets".into(),
             reason: format!("`{name}` is not one of {}", OFFSET_NAMES.join(", ")),
         })?;
-        Ok(Offsets::with(Arc::new(Hemispheres::build(scene, kind))))
+        Ok(Offsets::with(Arc::new(HemisphereSet::build(scene, kind))))
     }
 
     /// Whether a hemisphere set is in use.
@@ -71,7 +71,7 @@ impl Offsets {
     }
 
     /// The hemisphere set, if any.
-    pub fn hemispheres(&self) -> Option<&Arc<Hemispheres>> {
+    pub fn hemispheres(&self) -> Option<&Arc<HemisphereSet>> {
         self.set.as_ref()
     }
 
