@@ -6,7 +6,8 @@
 //! every kernel shares, in front of everything). The pieces, each naming what must precede it:
 //! [`GLAM_WGSL`] (glam's vector helpers), [`SURFACE_WGSL`] (hit → surface record),
 //! [`TRIG_WGSL`] (accurate trigonometry), [`RNG_WGSL`] (counter-based random numbers,
-//! [`rng`]) and [`SEGMENT_WGSL`] (the offset policies of rays leaving a surface).
+//! [`rng`]), [`SEGMENT_WGSL`] (the offset policies of rays leaving a surface) and
+//! [`origin_offset_wgsl`] (seed 001's hemisphere query, constants generated from Rust's).
 
 pub mod accumulate;
 pub mod rng;
@@ -33,7 +34,54 @@ pub const RNG_WGSL: &str = include_str!("rng.wgsl");
 /// ray generation; after [`GLAM_WGSL`].
 pub const SEGMENT_WGSL: &str = include_str!("segment.wgsl");
 
+/// `origin_offset.wgsl` without its constants: see [`origin_offset_wgsl`].
+const ORIGIN_OFFSET_BODY: &str = include_str!("origin_offset.wgsl");
+
+/// The WGSL constant declaration `const NAME: f32 = x;` with `x` written so that it reads back
+/// as the same `f32` (Rust's shortest round-trip form).
+fn f32_const(name: &str, x: f32) -> String {
+    format!("const {name}: f32 = {x:?}f;\n")
+}
+
+/// Seed 001's origin-offset query, the twin of `crsh_cpu::raygen::origin_offset`'s
+/// `hemisphere_interval`, `offset_t_min` and `cut_t_max` and of
+/// `crsh_cpu::raygen::offsets::Offsets::{apply, cut_end}`; after [`GLAM_WGSL`]. Its constants
+/// (`QUERY_REL`, `T_REL`, `INFINITE_RADIUS`) are generated from the Rust ones, so the two
+/// cannot drift apart. The including kernel declares the table's bindings (see the file).
+pub fn origin_offset_wgsl() -> String {
+    use crsh_cpu::raygen::origin_offset::{INFINITE_RADIUS, QUERY_REL, T_REL};
+    let mut s = String::from("// Generated from crsh_cpu::raygen::origin_offset.\n");
+    s += &f32_const("QUERY_REL", QUERY_REL);
+    s += &f32_const("T_REL", T_REL);
+    s += &f32_const("INFINITE_RADIUS", INFINITE_RADIUS);
+    s + ORIGIN_OFFSET_BODY
+}
+
 /// The WGSL pieces `parts` joined in order into one kernel source.
 pub fn compose(parts: &[&str]) -> String {
     parts.join("\n")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crsh_cpu::raygen::origin_offset::{INFINITE_RADIUS, QUERY_REL, T_REL};
+
+    /// The generated constants read back as the Rust ones, bit for bit.
+    #[test]
+    fn origin_offset_constants_are_the_rust_ones() {
+        let src = origin_offset_wgsl();
+        for (name, want) in [
+            ("QUERY_REL", QUERY_REL),
+            ("T_REL", T_REL),
+            ("INFINITE_RADIUS", INFINITE_RADIUS),
+        ] {
+            let decl = format!("const {name}: f32 = ");
+            let at = src.find(&decl).expect(name) + decl.len();
+            let lit = &src[at..at + src[at..].find("f;").expect(name)];
+            let got: f32 = lit.parse().expect(lit);
+            assert_eq!(got.to_bits(), want.to_bits(), "{name} = {lit}");
+        }
+        assert!(src.contains("fn hemisphere_interval("));
+    }
 }

@@ -11,9 +11,9 @@
 //! cosine polynomials; everything else is equal. Trimming is the scan-based compaction of
 //! [`super::whitted`] (`cosine.wgsl`, shared with [`super::diffuse`]).
 //!
-//! `offsets` other than `none` is refused ([`CoreError::Unsupported`]) until seed 001's
-//! hemisphere sets exist on the device; so no ray's interval is ever emptied by an offset and
-//! [`Stats::add_offset_ended`] has nothing to count.
+//! With `offsets` other than `none`, each ray's `t_min` is raised past the hemispheres of the
+//! triangle it leaves, as the CPU twin does ([`super::offsets`]); the rays this empties are
+//! counted into [`Stats::add_offset_ended`].
 
 use std::sync::Arc;
 
@@ -21,7 +21,7 @@ use crsh_core::{CoreError, Ray, RayGen, RayKind, Registry, Result, StageSpec, St
 
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::raygen::cosine::CosineRays;
-use crate::raygen::slots;
+use crate::raygen::offsets::{without_offsets, GpuOffsets};
 use crate::scene::GpuScene;
 
 /// The GPU ambient-occlusion ray generator (variant `ao`).
@@ -39,14 +39,14 @@ pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
 }
 
 impl Ao {
-    /// The generator for `scene` with a resolved `spec` (parameters as the CPU variant's;
-    /// `offsets` other than `none` is refused).
+    /// The generator for `scene` with a resolved `spec` (parameters as the CPU variant's; the
+    /// hemisphere set of `offsets` is built and uploaded here).
     pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<Ao> {
-        slots::refuse_offsets(spec, "ao")?;
-        // The CPU constructor validates every parameter and computes the length.
-        let cpu = crsh_cpu::raygen::ao::Ao::new(&scene.scene, spec)?;
+        // The CPU constructor validates every other parameter and computes the length.
+        let cpu = crsh_cpu::raygen::ao::Ao::new(&scene.scene, &without_offsets(spec))?;
+        let offsets = GpuOffsets::from_spec(scene, spec)?;
         Ok(Ao {
-            rays: CosineRays::from_spec(scene, spec, RayKind::Ao, cpu.length())?,
+            rays: CosineRays::from_spec(scene, spec, RayKind::Ao, cpu.length(), offsets)?,
         })
     }
 }

@@ -7,7 +7,9 @@
 //! in the same order: throughput (divided by the rays or paths per surface), the threshold,
 //! the key's uniforms, [`crsh_core::rng::front_cosine_direction`], then
 //! [`crsh_cpu::raygen::whitted::offset_segment`] along the direction; an AO ray ends at
-//! `max(length, t_min)`.
+//! `max(length, t_min)`; then the origin offsets ([`super::offsets`],
+//! [`crsh_cpu::raygen::offsets::Offsets::apply`]) raise `t_min`, and the rays they empty are
+//! counted into [`Stats::add_offset_ended`].
 
 use std::sync::Arc;
 
@@ -20,7 +22,8 @@ use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::error::GpuResult;
 use crate::kernel::Kernel;
-use crate::kernels::{compose, GLAM_WGSL, RNG_WGSL, SEGMENT_WGSL, TRIG_WGSL};
+use crate::kernels::{compose, origin_offset_wgsl, GLAM_WGSL, RNG_WGSL, SEGMENT_WGSL, TRIG_WGSL};
+use crate::raygen::offsets::GpuOffsets;
 use crate::raygen::slots::{self, Chunk, SlotPasses};
 use crate::scene::GpuScene;
 
@@ -62,6 +65,7 @@ impl CosineKernels {
                     TRIG_WGSL,
                     RNG_WGSL,
                     SEGMENT_WGSL,
+                    &origin_offset_wgsl(),
                     SHADER,
                     slots::SLOTS_WGSL,
                 ]),
@@ -85,17 +89,20 @@ pub(crate) struct CosineRays {
     pub policy: (u32, f32),
     /// AO rays' length (unused for diffuse rays).
     pub length: f32,
+    /// The origin offsets.
+    pub offsets: Arc<GpuOffsets>,
 }
 
 impl CosineRays {
     /// The settings a resolved `spec` of the `ao` or `diffuse` generator gives (`samples`,
     /// `seed`, `min_throughput`, the offset policy; already validated by the CPU twin), for
-    /// rays of `kind` and AO `length`.
+    /// rays of `kind` and AO `length`, with the origin offsets `offsets`.
     pub fn from_spec(
         scene: &Arc<GpuScene>,
         spec: &StageSpec,
         kind: RayKind,
         length: f32,
+        offsets: Arc<GpuOffsets>,
     ) -> Result<CosineRays> {
         let (_, policy) = policy_from_spec(&scene.scene, spec)?;
         Ok(CosineRays {
@@ -106,6 +113,7 @@ impl CosineRays {
             min_throughput: spec.f64("min_throughput")? as f32,
             policy: slots::policy_code(policy),
             length,
+            offsets,
         })
     }
 
@@ -135,6 +143,7 @@ impl CosineRays {
             kernel,
             label: "crsh cosine rays params",
             per_surface,
+            offsets: &self.offsets,
         }
     }
 
@@ -173,6 +182,7 @@ impl CosineRays {
         self.passes(&k.kernel, per_surface).rays(
             backend,
             surfaces,
+            self.kind,
             &|c| self.params(n, per_surface, c),
             &|report| slots::check_materials(report, materials),
             stats,

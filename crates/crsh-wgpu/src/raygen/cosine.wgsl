@@ -1,7 +1,7 @@
 // `ao` and `diffuse` ray generation on the device: cosine-weighted rays leaving surfaces, the
 // twins of crsh_cpu::raygen::ao and crsh_cpu::raygen::diffuse's diffuse rays (see cosine.rs).
-// Prepended: common.wgsl, glam.wgsl, trig.wgsl, rng.wgsl, segment.wgsl; appended: slots.wgsl
-// (the bindings but the parameters, and the passes).
+// Prepended: common.wgsl, glam.wgsl, trig.wgsl, rng.wgsl, segment.wgsl, origin_offset.wgsl;
+// appended: slots.wgsl (the bindings but the parameters, and the passes).
 
 const PI: f32 = 3.14159265358979;
 const KIND_AO: u32 = 4u;
@@ -82,9 +82,11 @@ fn make(source: u32, k: u32) -> Made {
     if (p.kind == KIND_AO) {
         t_max = max(p.length, seg.t_min);
     }
+    // Origin offsets: t_min raised past the hemispheres of the triangle the ray leaves.
+    let t = offsets_apply(s.tri, seg.origin, seg.dir, seg.t_min, t_max);
     m.ok = true;
-    m.ray = Ray(seg.origin.x, seg.origin.y, seg.origin.z, seg.t_min,
-                seg.dir.x, seg.dir.y, seg.dir.z, t_max,
+    m.ray = Ray(seg.origin.x, seg.origin.y, seg.origin.z, t.x,
+                seg.dir.x, seg.dir.y, seg.dir.z, t.y,
                 throughput.x, throughput.y, throughput.z,
                 p.kind, s.pixel, sample, s.depth + 1u, source);
     return m;

@@ -12,9 +12,10 @@
 //!   only when `samples > 1`). Directions come from `rng.wgsl` for the key (pixel, sample,
 //!   bounce = depth, `seed`): the CPU's random words bit for bit.
 //!
-//! `offsets` other than `none` is refused ([`CoreError::Unsupported`]) until seed 001's
-//! hemisphere sets exist on the device; so no ray's interval is ever emptied by an offset and
-//! [`Stats::add_offset_ended`] has nothing to count.
+//! With `offsets` other than `none`, one hemisphere set is built and shared by both kinds:
+//! diffuse rays and surface-origin shadow rays get `t_min` raised, light-origin shadow rays
+//! `t_max` cut, as the CPU twin does ([`super::offsets`]); the rays this empties are counted
+//! into [`Stats::add_offset_ended`].
 
 use std::sync::Arc;
 
@@ -22,7 +23,7 @@ use crsh_core::{CoreError, Ray, RayGen, RayKind, Registry, Result, StageSpec, St
 
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::raygen::cosine::CosineRays;
-use crate::raygen::slots;
+use crate::raygen::offsets::{without_offsets, GpuOffsets};
 use crate::raygen::whitted::Whitted;
 use crate::scene::GpuScene;
 
@@ -42,15 +43,15 @@ pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
 }
 
 impl Diffuse {
-    /// The generator for `scene` with a resolved `spec` (parameters as the CPU variant's;
-    /// `offsets` other than `none` is refused).
+    /// The generator for `scene` with a resolved `spec` (parameters as the CPU variant's; the
+    /// hemisphere set of `offsets` is built and uploaded once, for both ray kinds).
     pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<Diffuse> {
-        slots::refuse_offsets(spec, "diffuse")?;
-        // The CPU constructor validates every parameter and the materials' colours.
-        crsh_cpu::raygen::diffuse::Diffuse::new(&scene.scene, spec)?;
+        // The CPU constructor validates every other parameter and the materials' colours.
+        crsh_cpu::raygen::diffuse::Diffuse::new(&scene.scene, &without_offsets(spec))?;
+        let offsets = GpuOffsets::from_spec(scene, spec)?;
         Ok(Diffuse {
-            shadows: Whitted::new(scene, spec)?.lambertian(),
-            rays: CosineRays::from_spec(scene, spec, RayKind::Diffuse, 0.0)?,
+            shadows: Whitted::with_offsets(scene, spec, Arc::clone(&offsets))?.lambertian(),
+            rays: CosineRays::from_spec(scene, spec, RayKind::Diffuse, 0.0, offsets)?,
         })
     }
 

@@ -4,5 +4,6 @@
 pub mod ao;
 mod cosine;
 pub mod diffuse;
+pub mod offsets;
 mod slots;
 pub mod whitted;

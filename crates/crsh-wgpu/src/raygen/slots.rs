@@ -1,12 +1,14 @@
 //! What every wgpu ray generator shares: the three passes over its slots (ray creation, then
 //! trimming by scan-based compaction, seed 000 §3.2.3-3.2.4, fig. 3.10), the bindings its
-//! kernel declares, the offset-policy codes of `segment.wgsl`, and the refusal of the
-//! `offsets` parameter.
+//! kernel declares (seed 001's hemisphere table among them, [`super::offsets`]), and the
+//! offset-policy codes of `segment.wgsl`.
 //!
 //! A generator's kernel is its own WGSL (the parameters, `slot_of` and `make`) followed by
 //! [`SLOTS_WGSL`], which declares the shared bindings and two entry points over the slots of
 //! one surface chunk:
-//! 1. `count` evaluates every slot and writes its head flag (1 where a ray is made);
+//! 1. `count` evaluates every slot and writes its head flag (1 where a ray is made), and
+//!    counts the rays whose interval an origin offset emptied (`report[2]`, read back with
+//!    the bad-material report and added to [`Stats::add_offset_ended`]);
 //! 2. the flags are scanned in place into output positions ([`crate::kernels::scan`]), the
 //!    `trimming` sub-stage, whose total is the number of rays;
 //! 3. `emit` (part of `trimming`) evaluates each slot again and writes the ray of every kept
@@ -19,23 +21,25 @@
 use std::ops::Range;
 
 use bytemuck::Pod;
-use crsh_core::{CoreError, Ray, Result, StageSpec, Stats, Surface};
+use crsh_core::{CoreError, Ray, RayKind, Result, Stats, Surface};
 use crsh_cpu::raygen::whitted::OffsetPolicy;
 
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::error::GpuResult;
 use crate::kernel::{chunks, encoder, submit, uniform, Kernel, Slot};
 use crate::kernels::scan::ScanKernel;
+use crate::raygen::offsets::GpuOffsets;
 use crate::scene::GpuScene;
 
 /// The passes and bindings every generator's kernel ends with (`slots.wgsl`).
 pub(crate) const SLOTS_WGSL: &str = include_str!("slots.wgsl");
 
 /// The bindings of a ray generator's kernel, in order: its parameters, the surface chunk, the
-/// scene's lights and materials, the slot flags / positions, the output chunk, and a report
-/// of `u32` atomics (`[0]`: `0xffffffff − pixel` of a surface with a material the scene does
-/// not have).
-pub(crate) const BINDINGS: [Slot; 7] = [
+/// scene's lights and materials, the slot flags / positions, the output chunk, a report of
+/// `u32` atomics (`[0]`: `0xffffffff − pixel` of a surface with a material the scene does not
+/// have; `[2]`: rays an origin offset ended), and the hemisphere set's parameters, table and
+/// triangle index ([`GpuOffsets::bindings`]).
+pub(crate) const BINDINGS: [Slot; 10] = [
     Slot::Uniform,
     Slot::Read,
     Slot::Read,
@@ -43,6 +47,9 @@ pub(crate) const BINDINGS: [Slot; 7] = [
     Slot::ReadWrite,
     Slot::ReadWrite,
     Slot::ReadWrite,
+    Slot::Uniform,
+    Slot::Read,
+    Slot::Read,
 ];
 
 /// Where one dispatch of a pass works: the surfaces bound (`first`, `count` of the batch) and,
@@ -66,24 +73,6 @@ pub(crate) fn policy_code(policy: OffsetPolicy) -> (u32, f32) {
     }
 }
 
-/// Refuses a resolved `spec` of generator `variant` whose `offsets` is not `none`: seed 001's
-/// hemisphere sets have no WGSL twin yet (they will be a storage buffer the kernels read).
-/// Checked before the CPU twin's constructor, which would build the set.
-pub(crate) fn refuse_offsets(spec: &StageSpec, variant: &str) -> Result<()> {
-    let offsets = spec.str("offsets")?;
-    if offsets == "none" {
-        return Ok(());
-    }
-    Err(CoreError::Unsupported {
-        stage: "raygen",
-        variant: variant.into(),
-        what: format!(
-            "offsets = {offsets} on the wgpu backend (the hemisphere sets have no WGSL twin \
-             yet): use offsets = none, or --backend cpu"
-        ),
-    })
-}
-
 /// One generator's passes over the slots of a batch: `per_surface` slots per surface, laid out
 /// as the kernel's `count` and `emit` expect.
 pub(crate) struct SlotPasses<'a> {
@@ -95,6 +84,8 @@ pub(crate) struct SlotPasses<'a> {
     pub label: &'static str,
     /// Slots per surface.
     pub per_surface: usize,
+    /// The origin offsets (none, or a hemisphere set).
+    pub offsets: &'a GpuOffsets,
 }
 
 impl SlotPasses<'_> {
@@ -127,6 +118,7 @@ impl SlotPasses<'_> {
                 out_count: out_range.len() as u32,
             };
             let u = uniform(ctx, self.label, &params(chunk));
+            let [hemi, hemi_table, hemi_index] = self.offsets.bindings();
             let bg = self.kernel.bind_group(
                 ctx,
                 &[
@@ -137,6 +129,9 @@ impl SlotPasses<'_> {
                     slots.binding(),
                     out_buf.slice_binding(out_range.clone()),
                     report.binding(),
+                    hemi,
+                    hemi_table,
+                    hemi_index,
                 ],
             );
             groups.push((bg, (range.len() * self.per_surface) as u32));
@@ -151,13 +146,15 @@ impl SlotPasses<'_> {
         submit(ctx, entry, enc)
     }
 
-    /// The rays of `surfaces`, compacted in slot order: `count`, then `check` on the report
-    /// read back (it turns a bad-input report into the error to return), then the scan and
-    /// `emit` (timed as `trimming`).
+    /// The rays of `kind` of `surfaces`, compacted in slot order: `count`, then `check` on the
+    /// report read back (it turns a bad-input report into the error to return) and the rays
+    /// the origin offsets ended added to `stats`, then the scan and `emit` (timed as
+    /// `trimming`).
     pub fn rays<P: Pod>(
         &self,
         backend: &Wgpu,
         surfaces: &GpuBuffer<Surface>,
+        kind: RayKind,
         params: &dyn Fn(Chunk) -> P,
         check: &dyn Fn(&[u32]) -> Result<()>,
         stats: &mut Stats,
@@ -179,7 +176,9 @@ impl SlotPasses<'_> {
         let slots = GpuBuffer::<u32>::zeroed(ctx, "crsh raygen slots", total)?;
         let report = GpuBuffer::<u32>::zeroed(ctx, "crsh raygen report", 4)?;
         self.pass("count", params, surfaces, &slots, None, &report)?;
-        check(&report.to_vec(ctx)?)?;
+        let reported = report.to_vec(ctx)?;
+        check(&reported)?;
+        stats.add_offset_ended(kind, u64::from(reported[2]));
         crsh_core::timed(backend, stats, "trimming", |_| {
             let kept = ctx.kernel(ScanKernel::new)?.scan_in_place(ctx, &slots)? as usize;
             let rays = GpuBuffer::<Ray>::zeroed(ctx, "crsh rays", kept)?;

@@ -10,8 +10,11 @@
 //! to the rounding of `sqrt` and division, which WGSL does not require to be correctly
 //! rounded. The passes (count, scan, emit) are those of `raygen/slots.rs`.
 //!
-//! The CPU entry's `offsets` parameter (seed 001's hemisphere sets) must be `none` here: other
-//! values are refused with [`CoreError::Unsupported`] until the sets exist on the device.
+//! The `offsets` parameter (seed 001's hemisphere sets, [`super::offsets`]) is applied where
+//! the CPU twin applies it, by `kernels/origin_offset.wgsl`: shadow rays from the light get
+//! `t_max` cut ([`crsh_cpu::raygen::offsets::Offsets::cut_end`]), every other ray `t_min`
+//! raised ([`crsh_cpu::raygen::offsets::Offsets::apply`]); emptied rays are counted into
+//! [`Stats::add_offset_ended`].
 
 use std::sync::Arc;
 
@@ -22,7 +25,8 @@ use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::error::GpuResult;
 use crate::kernel::Kernel;
-use crate::kernels::{compose, GLAM_WGSL, SEGMENT_WGSL};
+use crate::kernels::{compose, origin_offset_wgsl, GLAM_WGSL, SEGMENT_WGSL};
+use crate::raygen::offsets::{without_offsets, GpuOffsets};
 use crate::raygen::slots::{self, Chunk, SlotPasses};
 use crate::scene::GpuScene;
 
@@ -59,7 +63,13 @@ impl WhittedKernels {
             kernel: Kernel::new(
                 ctx,
                 "crsh whitted",
-                &compose(&[GLAM_WGSL, SEGMENT_WGSL, SHADER, slots::SLOTS_WGSL]),
+                &compose(&[
+                    GLAM_WGSL,
+                    SEGMENT_WGSL,
+                    &origin_offset_wgsl(),
+                    SHADER,
+                    slots::SLOTS_WGSL,
+                ]),
                 &["count", "emit"],
                 &slots::BINDINGS,
             )?,
@@ -77,6 +87,7 @@ pub struct Whitted {
     policy: u32,
     offset: f32,
     lambertian: bool,
+    offsets: Arc<GpuOffsets>,
 }
 
 /// Registers the wgpu `whitted` under its CPU twin's catalogue entry (same name, parameters,
@@ -89,12 +100,23 @@ pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
 }
 
 impl Whitted {
-    /// The generator for `scene` with a resolved `spec` (parameters as the CPU variant's;
-    /// `offsets` other than `none` is refused).
+    /// The generator for `scene` with a resolved `spec` (parameters as the CPU variant's; the
+    /// hemisphere set of `offsets` is built and uploaded here).
     pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<Whitted> {
-        slots::refuse_offsets(spec, "whitted")?;
-        // The CPU constructor validates every parameter and the scene's materials and lights.
-        let cpu = crsh_cpu::raygen::whitted::Whitted::new(&scene.scene, spec)?;
+        let offsets = GpuOffsets::from_spec(scene, spec)?;
+        Whitted::with_offsets(scene, spec, offsets)
+    }
+
+    /// The generator for `scene` with a resolved `spec` and the origin offsets `offsets`
+    /// already uploaded (in place of `spec`'s).
+    pub fn with_offsets(
+        scene: &Arc<GpuScene>,
+        spec: &StageSpec,
+        offsets: Arc<GpuOffsets>,
+    ) -> Result<Whitted> {
+        // The CPU constructor validates every other parameter and the scene's materials and
+        // lights (without building a second hemisphere set).
+        let cpu = crsh_cpu::raygen::whitted::Whitted::new(&scene.scene, &without_offsets(spec))?;
         let (policy, offset) = slots::policy_code(cpu.policy());
         Ok(Whitted {
             scene: Arc::clone(scene),
@@ -104,6 +126,7 @@ impl Whitted {
             policy,
             offset,
             lambertian: false,
+            offsets,
         })
     }
 
@@ -173,11 +196,13 @@ impl RayGen<Wgpu> for Whitted {
             kernel: &k.kernel,
             label: "crsh whitted params",
             per_surface,
+            offsets: &self.offsets,
         };
         let materials = self.scene.scene.materials.len();
         passes.rays(
             backend,
             surfaces,
+            kind,
             &|c| self.params(n, per_surface, kind, c),
             &|report| slots::check_materials(report, materials),
             stats,

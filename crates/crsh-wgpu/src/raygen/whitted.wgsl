@@ -1,6 +1,6 @@
 // `whitted` ray generation on the device: the twin of crsh_cpu::raygen::whitted (see
-// whitted.rs). Prepended: common.wgsl, glam.wgsl, segment.wgsl; appended: slots.wgsl (the
-// bindings but the parameters and lights, and the passes).
+// whitted.rs). Prepended: common.wgsl, glam.wgsl, segment.wgsl, origin_offset.wgsl;
+// appended: slots.wgsl (the bindings but the parameters and lights, and the passes).
 
 struct Params {
     // Surfaces in the batch, and the first surface and count of this dispatch's chunk.
@@ -108,13 +108,21 @@ fn make(source: u32, light: u32) -> Made {
     if (!seg.ok) {
         return m;
     }
+    // Origin offsets: a shadow ray from the light ends on the surface (t_max cut), every
+    // other ray leaves it (t_min raised).
+    var t: vec2<f32>;
+    if (p.kind == 1u && p.shadow_from_light != 0u) {
+        t = offsets_cut_end(s.tri, seg.origin, seg.dir, seg.t_min, seg.t_max);
+    } else {
+        t = offsets_apply(s.tri, seg.origin, seg.dir, seg.t_min, seg.t_max);
+    }
     m.ok = true;
     var lid = 0xffffffffu;
     if (p.kind == 1u) {
         lid = light;
     }
-    m.ray = Ray(seg.origin.x, seg.origin.y, seg.origin.z, seg.t_min,
-                seg.dir.x, seg.dir.y, seg.dir.z, seg.t_max,
+    m.ray = Ray(seg.origin.x, seg.origin.y, seg.origin.z, t.x,
+                seg.dir.x, seg.dir.y, seg.dir.z, t.y,
                 throughput.x, throughput.y, throughput.z,
                 p.kind, s.pixel, lid, s.depth + 1u, source);
     return m;
