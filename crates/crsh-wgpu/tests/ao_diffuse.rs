@@ -8,8 +8,8 @@
 //!   ([`OFFSET_T_REL`]);
 //! - the `ao` and `diffuse` shaders turn the same rays and hits into the CPU's image (AO bit
 //!   for bit) and path vertices, and the ordered accumulation is its CPU twin;
-//! - whole AO and diffuse frames agree between the backends, and AO frames with
-//!   `offsets = center` too, the device's hits being those of the CPU's brute force;
+//! - whole AO and diffuse frames agree between the backends, AO frames with `offsets = center`
+//!   too (the device's hits exactly those of the CPU's brute force, the same rays ended);
 //! - the pipeline check refuses `raygen=ao` with `shade=phong` on both backends; every
 //!   `offsets` set is accepted on both.
 //!
@@ -834,56 +834,35 @@ fn primaries(scene: &str) -> Vec<Primary> {
     }
 }
 
+/// AO frames agree between the backends, without offsets and with `offsets = center` (default
+/// offset policy); with offsets the device's hits are exactly the CPU brute force's on its own
+/// rays (agreement 1.0) and the rays the offsets ended are the CPU frame's.
 #[test]
 fn ao_frames_agree_between_the_backends() {
     let Some(b) = shared_backend("ao_frames_agree_between_the_backends") else {
         return;
     };
     for name in SCENES {
-        let sets = [
-            "raygen.samples=4".to_string(),
-            "raygen.ao_length=0.1".into(),
-            "shade.background=0.5".into(),
-        ];
-        for intersect in ["bvh", "brute"] {
-            let cfg = config("ao", "ao", intersect, &sets);
-            for primary in primaries(name) {
-                frames_agree(&b, &builtin(name), &cfg, 1, primary, 35.0);
+        for offsets in ["none", "center"] {
+            let sets = [
+                "raygen.samples=4".to_string(),
+                "raygen.ao_length=0.1".into(),
+                format!("raygen.offsets={offsets}"),
+                "shade.background=0.5".into(),
+            ];
+            let agreement = if offsets == "none" { 0.9999 } else { 1.0 };
+            for intersect in ["bvh", "brute"] {
+                let cfg = config("ao", "ao", intersect, &sets);
+                for primary in primaries(name) {
+                    let (_, (cpu, gpu)) =
+                        frames_agree_with(&b, &builtin(name), &cfg, 1, primary, 35.0, agreement);
+                    let ended = |s: &Stats| s.per_kind.get("ao").map_or(0, |k| k.offset_ended);
+                    let what = format!("{name} offsets={offsets} {intersect} {primary:?}");
+                    println!("{what}: {} AO rays ended by offsets", ended(&cpu));
+                    assert_eq!(ended(&gpu), ended(&cpu), "{what}: AO rays ended");
+                    assert_eq!(ended(&cpu) > 0, offsets != "none", "{what}: AO rays ended");
+                }
             }
-        }
-    }
-}
-
-/// AO frames with `offsets = center` (default offset policy): the device's hits are exactly
-/// the CPU brute force's on its own rays (agreement 1.0), the rays the offsets ended are the
-/// CPU frame's, and the image is the CPU's within [`frames_agree`]'s tolerance.
-#[test]
-fn ao_frames_with_offsets_agree_between_the_backends() {
-    let Some(b) = shared_backend("ao_frames_with_offsets_agree_between_the_backends") else {
-        return;
-    };
-    for name in SCENES {
-        let sets = [
-            "raygen.samples=4".to_string(),
-            "raygen.ao_length=0.1".into(),
-            "raygen.offsets=center".into(),
-            "shade.background=0.5".into(),
-        ];
-        for intersect in ["bvh", "brute"] {
-            let cfg = config("ao", "ao", intersect, &sets);
-            let (_, (cpu, gpu)) =
-                frames_agree_with(&b, &builtin(name), &cfg, 1, Primary::Host, 35.0, 1.0);
-            let ended = |s: &Stats| s.per_kind.get("ao").map_or(0, |k| k.offset_ended);
-            println!(
-                "{name} {intersect}: {} AO rays ended by offsets",
-                ended(&cpu)
-            );
-            assert!(ended(&cpu) > 0, "{name} {intersect}: no AO ray ended");
-            assert_eq!(
-                ended(&gpu),
-                ended(&cpu),
-                "{name} {intersect}: AO rays ended"
-            );
         }
     }
 }
