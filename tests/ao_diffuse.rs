@@ -113,7 +113,7 @@ fn ray_counts_follow_the_generators() {
     let f = render(&scene, &config("bvh", "ao", &["raygen.samples=4"]), 3, None);
     // Background pixels spawn nothing; every hit spawns `samples` rays; no bounces.
     let ao = f.stats.rays.ao;
-    assert!(ao > 0 && ao % 4 == 0, "{ao}");
+    assert!(ao > 0 && ao.is_multiple_of(4), "{ao}");
     assert!(ao <= 4 * SIZE as u64 * SIZE as u64);
     assert_eq!(
         f.stats.rays.shadow + f.stats.rays.reflection + f.stats.rays.diffuse,
@@ -192,7 +192,7 @@ fn quad(lights: &[Light], with_lid: bool) -> Arc<Scene> {
         {
             let up = Vec3::new(0.0, 0.0, 0.5);
             let v = [a, c, c + up, a + up];
-            b.mesh(&format!("wall{i}"), &v, None, &[[0, 1, 2], [0, 2, 3]], m);
+            b.mesh(format!("wall{i}"), &v, None, &[[0, 1, 2], [0, 2, 3]], m);
         }
     }
     for l in lights {

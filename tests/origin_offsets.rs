@@ -239,8 +239,8 @@ fn offsets_keep_every_hit_on_the_builtin_scenes() {
 fn offsets_keep_every_hit_on_a_random_soup() {
     // Triangles of every orientation crossing each other: hemispheres next to intersecting,
     // touching and nearly coplanar geometry.
-    let scene = crsh_scene::random::triangle_soup(400, 7).expect("random soup");
-    check(&Arc::new(scene), 40, "brute");
+    let scene = crsh_scene::random::triangle_soup(3000, 7).expect("random soup");
+    check(&Arc::new(scene), 64, "bvh");
 }
 
 #[test]

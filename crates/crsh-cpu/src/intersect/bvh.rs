@@ -512,7 +512,7 @@ impl LeafTracer for CwBvh {
         // without traversal: it can hit nothing.
         if self.bvh.nodes.is_empty()
             || (mode == HitMode::Any && best.is_hit())
-            || !(ray.t_min < ray.t_max)
+            || ray.t_min.partial_cmp(&ray.t_max) != Some(std::cmp::Ordering::Less)
         {
             return n;
         }

@@ -313,7 +313,10 @@ impl LeafTracer for BinaryBvh {
         let mut n = Counts::default();
         let nodes = &self.bvh.nodes;
         // An empty interval (origin offset past the end, seed 001): no traversal.
-        if nodes.is_empty() || (mode == HitMode::Any && best.is_hit()) || !(ray.t_min < ray.t_max) {
+        if nodes.is_empty()
+            || (mode == HitMode::Any && best.is_hit())
+            || ray.t_min.partial_cmp(&ray.t_max) != Some(std::cmp::Ordering::Less)
+        {
             return n;
         }
         let r = T::ray_of(ray);

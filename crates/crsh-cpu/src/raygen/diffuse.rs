@@ -107,9 +107,15 @@ impl Diffuse {
             }
             albedo.push(m.diffuse.max(Vec3::ZERO));
         }
+        // One hemisphere set for both kinds: the shadow generator is built without offsets and
+        // given this one.
         let offsets = Offsets::from_spec(scene, spec)?;
+        let mut shadow_spec = spec.clone();
+        shadow_spec
+            .params
+            .insert("offsets".into(), crsh_core::ParamValue::Str("none".into()));
         Ok(Diffuse {
-            shadows: Whitted::new(scene, spec)?
+            shadows: Whitted::new(scene, &shadow_spec)?
                 .lambertian()
                 .with_offsets(offsets),
             albedo,
