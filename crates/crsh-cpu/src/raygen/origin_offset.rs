@@ -1659,6 +1659,94 @@ mod tests {
         }
     }
 
+    /// One scene's comparisons: an interval a set moved against the original one.
+    struct Check<'a> {
+        scene: &'a Scene,
+        tests: Tests,
+    }
+
+    impl Check<'_> {
+        fn new(scene: &Scene) -> Check<'_> {
+            Check {
+                scene,
+                tests: Tests::new(scene),
+            }
+        }
+
+        /// A ray leaving `tri`: counts it, and a mismatch when `offset_t_min` changes a hit.
+        fn extension(
+            &self,
+            set: &HemisphereSet,
+            tri: u32,
+            ray: &Ray,
+            policy: &OffsetPolicy,
+            tally: &mut Tally,
+        ) {
+            tally.rays += 1;
+            let t_new = set.offset_t_min(tri, ray);
+            assert!(t_new >= ray.t_min || ray.t_min >= ray.t_max);
+            if t_new == ray.t_min {
+                return;
+            }
+            tally.offset += 1;
+            tally.ended += (t_new >= ray.t_max) as u64;
+            if !self
+                .tests
+                .same(ray, (ray.t_min, ray.t_max), (t_new, ray.t_max))
+            {
+                let what = format!("tri {tri} {ray:?} offset {t_new}");
+                self.mismatch(set, policy, ray, (ray.t_min, t_new), what, tally);
+            }
+        }
+
+        /// A shadow segment ending on `tri`: counts it, and a mismatch when `cut_t_max`
+        /// changes a hit.
+        fn shadow(
+            &self,
+            set: &HemisphereSet,
+            tri: u32,
+            ray: &Ray,
+            policy: &OffsetPolicy,
+            tally: &mut Tally,
+        ) {
+            tally.shadow += 1;
+            let t_new = set.cut_t_max(tri, ray);
+            assert!(t_new <= ray.t_max);
+            if t_new == ray.t_max {
+                return;
+            }
+            tally.cut += 1;
+            tally.emptied += (t_new <= ray.t_min) as u64;
+            if !self
+                .tests
+                .same(ray, (ray.t_min, ray.t_max), (ray.t_min, t_new))
+            {
+                let what = format!("shadow tri {tri} {ray:?} cut {t_new}");
+                self.mismatch(set, policy, ray, (t_new, ray.t_max), what, tally);
+            }
+        }
+
+        fn mismatch(
+            &self,
+            set: &HemisphereSet,
+            policy: &OffsetPolicy,
+            ray: &Ray,
+            (lo, hi): (f32, f32),
+            what: String,
+            tally: &mut Tally,
+        ) {
+            let (sine, real) = self.tests.skipped(self.scene, ray, lo, hi);
+            tally.lost_sines.push(sine);
+            tally.real += real as u64;
+            tally.mismatches.push(format!(
+                "{} {} {} {what}",
+                self.scene.name,
+                set.kind().name(),
+                policy.name()
+            ));
+        }
+    }
+
     fn policies(scene: &Scene) -> [OffsetPolicy; 4] {
         let off = 1e-5 * scene.bounds.diagonal();
         [
@@ -1678,7 +1766,7 @@ mod tests {
         points: usize,
         seed: u64,
     ) -> Tally {
-        let tests = Tests::new(scene);
+        let check = Check::new(scene);
         let b = scene.bounds;
         (0..points)
             .into_par_iter()
@@ -1716,29 +1804,7 @@ mod tests {
                         };
                         let ray = seg_ray(&s, RayKind::Reflection);
                         for set in sets {
-                            tally.rays += 1;
-                            let t_new = set.offset_t_min(tri, &ray);
-                            assert!(t_new >= ray.t_min || ray.t_min >= ray.t_max);
-                            if t_new == ray.t_min {
-                                continue;
-                            }
-                            tally.offset += 1;
-                            if t_new >= ray.t_max {
-                                tally.ended += 1;
-                            }
-                            if !tests.same(&ray, (ray.t_min, ray.t_max), (t_new, ray.t_max)) {
-                                {
-                                    let (sine, real) = tests.skipped(scene, &ray, ray.t_min, t_new);
-                                    tally.lost_sines.push(sine);
-                                    tally.real += real as u64;
-                                }
-                                tally.mismatches.push(format!(
-                                    "{} {} {} tri {tri} {ray:?} offset {t_new}",
-                                    scene.name,
-                                    set.kind().name(),
-                                    policy.name()
-                                ));
-                            }
+                            check.extension(set, tri, &ray, &policy, &mut tally);
                         }
                     }
                     // A shadow segment from the light to the point (front side only, as
@@ -1751,29 +1817,7 @@ mod tests {
                     };
                     let ray = seg_ray(&s, RayKind::Shadow);
                     for set in sets {
-                        tally.shadow += 1;
-                        let t_new = set.cut_t_max(tri, &ray);
-                        assert!(t_new <= ray.t_max);
-                        if t_new == ray.t_max {
-                            continue;
-                        }
-                        tally.cut += 1;
-                        if t_new <= ray.t_min {
-                            tally.emptied += 1;
-                        }
-                        if !tests.same(&ray, (ray.t_min, ray.t_max), (ray.t_min, t_new)) {
-                            {
-                                let (sine, real) = tests.skipped(scene, &ray, t_new, ray.t_max);
-                                tally.lost_sines.push(sine);
-                                tally.real += real as u64;
-                            }
-                            tally.mismatches.push(format!(
-                                "{} {} {} shadow tri {tri} {ray:?} cut {t_new}",
-                                scene.name,
-                                set.kind().name(),
-                                policy.name()
-                            ));
-                        }
+                        check.shadow(set, tri, &ray, &policy, &mut tally);
                     }
                 }
                 tally
@@ -1790,10 +1834,9 @@ mod tests {
     /// the limiting point with jitter from 0 to 1e-2 rad, under every policy; and shadow
     /// segments from lights beyond the limiting point.
     fn check_targeted(scene: &Scene, set: &HemisphereSet, seed: u64) -> Tally {
-        let tests = Tests::new(scene);
-        let kind = set.kind();
-        let polygon = kind == SetKind::Polygon;
-        let s = sites(scene, if polygon { SetKind::Center } else { kind });
+        let check = Check::new(scene);
+        let polygon = set.kind() == SetKind::Polygon;
+        let s = sites(scene, if polygon { SetKind::Center } else { set.kind() });
         // Polygon: the triangles each donor serves.
         let mut served: Vec<Vec<u32>> = vec![Vec::new(); scene.triangle_count()];
         if polygon {
@@ -1860,29 +1903,7 @@ mod tests {
                             for policy in policies(scene) {
                                 if let Some(seg) = offset_segment(p, geo, Leg::Along(d), &policy) {
                                     let ray = seg_ray(&seg, RayKind::Ao);
-                                    tally.rays += 1;
-                                    let t_new = set.offset_t_min(tri, &ray);
-                                    if t_new > ray.t_min {
-                                        tally.offset += 1;
-                                        if !tests.same(
-                                            &ray,
-                                            (ray.t_min, ray.t_max),
-                                            (t_new, ray.t_max),
-                                        ) {
-                                            {
-                                                let (sine, real) =
-                                                    tests.skipped(scene, &ray, ray.t_min, t_new);
-                                                tally.lost_sines.push(sine);
-                                                tally.real += real as u64;
-                                            }
-                                            tally.mismatches.push(format!(
-                                                "{} {} {} tri {tri} {ray:?} offset {t_new}",
-                                                scene.name,
-                                                kind.name(),
-                                                policy.name()
-                                            ));
-                                        }
-                                    }
+                                    check.extension(set, tri, &ray, &policy, &mut tally);
                                 }
                                 if (light - p).dot(geo) <= 0.0 {
                                     continue;
@@ -1890,29 +1911,7 @@ mod tests {
                                 if let Some(seg) = offset_segment(p, geo, Leg::From(light), &policy)
                                 {
                                     let ray = seg_ray(&seg, RayKind::Shadow);
-                                    tally.shadow += 1;
-                                    let t_new = set.cut_t_max(tri, &ray);
-                                    if t_new < ray.t_max {
-                                        tally.cut += 1;
-                                        if !tests.same(
-                                            &ray,
-                                            (ray.t_min, ray.t_max),
-                                            (ray.t_min, t_new),
-                                        ) {
-                                            {
-                                                let (sine, real) =
-                                                    tests.skipped(scene, &ray, t_new, ray.t_max);
-                                                tally.lost_sines.push(sine);
-                                                tally.real += real as u64;
-                                            }
-                                            tally.mismatches.push(format!(
-                                                "{} {} {} shadow tri {tri} {ray:?} cut {t_new}",
-                                                scene.name,
-                                                kind.name(),
-                                                policy.name()
-                                            ));
-                                        }
-                                    }
+                                    check.shadow(set, tri, &ray, &policy, &mut tally);
                                 }
                             }
                         }
