@@ -151,7 +151,7 @@ fn run_frames(
     let mut report = FramesReport::new(&anim, &args.scene, cfg);
     let mut setup = SetupTimes {
         scene_load_ms,
-        build_stages_ms: 0.0,
+        ..SetupTimes::default()
     };
     crsh::render_frames(
         registries,
@@ -172,6 +172,7 @@ fn run_frames(
             let path = frame_path(&args.out, f.frame);
             f.render.write_png(&path)?;
             setup.build_stages_ms = f.render.build_stages_ms;
+            setup.stage_table_bytes = f.render.stage_table_bytes;
             report.push(&f, &path.display().to_string(), setup.clone());
             setup.scene_load_ms = 0.0;
             Ok(())

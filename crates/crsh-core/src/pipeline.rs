@@ -234,6 +234,10 @@ pub struct StageBuild {
     /// Whether the stage refitted the previous frame's structure instead of building anew
     /// ([`crate::Intersector::refit`]).
     pub refit: bool,
+    /// Bytes of the tables the stage built for the scene, where it reports them (a ray
+    /// generator's hemisphere set, [`crate::RayGen::table_bytes`]); 0 otherwise.
+    #[serde(default)]
+    pub bytes: u64,
 }
 
 impl<B: Backend> Pipeline<B> {

@@ -427,6 +427,7 @@ impl<B: Backend> Registry<B> {
                     variant: spec.kind.clone(),
                     ms: t0.elapsed().as_secs_f64() * 1e3,
                     refit,
+                    bytes: 0,
                 });
                 Ok(())
             };
@@ -467,6 +468,12 @@ impl<B: Backend> Registry<B> {
             None => slot!(Intersect, &cfg.intersect),
         };
         let shader = slot!(Shade, &cfg.shade);
+        if let Some(b) = builds
+            .iter_mut()
+            .find(|b| b.slot == StageKind::Raygen.key())
+        {
+            b.bytes = raygen.table_bytes();
+        }
         let stages = Stages {
             primary,
             raygen,

@@ -60,6 +60,11 @@ pub trait RayGen<B: Backend>: Send + Sync {
     fn bounce_kinds(&self) -> &[RayKind] {
         &[RayKind::Reflection, RayKind::Refraction]
     }
+    /// Bytes of the tables the generator keeps for the scene (seed 001's hemisphere sets);
+    /// 0 by default. Reported with the stage's build ([`crate::StageBuild::bytes`]).
+    fn table_bytes(&self) -> u64 {
+        0
+    }
     /// The rays of one `kind` spawned by `surfaces`, compacted (no empty slots), in surface
     /// order; shadow rays light-major (all rays of light 0 in surface order, then light 1, ...).
     /// `Ray::source` indexes `surfaces`.

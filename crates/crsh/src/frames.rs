@@ -230,6 +230,7 @@ pub fn render_frames(
             image: host.image,
             stats: host.stats,
             build_stages_ms: built.build_ms(),
+            stage_table_bytes: built.builds().iter().map(|b| b.bytes).sum(),
             accuracy,
             threads: rayon::current_num_threads(),
         };

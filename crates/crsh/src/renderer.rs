@@ -127,6 +127,8 @@ pub struct Render {
     pub stats: Stats,
     /// Wall time of building the stages (e.g. an object BVH), ms.
     pub build_stages_ms: f64,
+    /// Bytes of the tables the stages built and report (seed 001's hemisphere sets).
+    pub stage_table_bytes: u64,
     /// Agreement with the reference, when one was asked for.
     pub accuracy: Option<AccuracyReport>,
     /// Worker threads of the CPU pool that rendered (and traced the reference).
@@ -167,6 +169,7 @@ impl Render {
                 setup: SetupTimes {
                     scene_load_ms,
                     build_stages_ms: self.build_stages_ms,
+                    stage_table_bytes: self.stage_table_bytes,
                 },
             },
             &self.stats,
@@ -405,6 +408,7 @@ impl<'r> Renderer<'r> {
             image: host.image,
             stats: host.stats,
             build_stages_ms: built.build_ms(),
+            stage_table_bytes: built.builds().iter().map(|b| b.bytes).sum(),
             accuracy,
             threads: rayon::current_num_threads(),
         })

@@ -159,6 +159,10 @@ pub struct SetupTimes {
     pub scene_load_ms: f64,
     /// Building the pipeline's stages for the scene (e.g. the object BVH of `intersect.kind=bvh`), ms.
     pub build_stages_ms: f64,
+    /// Bytes of the tables the stages built and report ([`crsh_core::StageBuild::bytes`]:
+    /// seed 001's hemisphere set of `raygen.offsets`); 0 when none does.
+    #[serde(default)]
+    pub stage_table_bytes: u64,
 }
 
 /// The whole `--stats` document.
@@ -411,8 +415,14 @@ impl StatsReport {
         }
         let _ = writeln!(
             s,
-            "setup ms  scene load {:.1} | build stages {:.1}",
-            self.setup.scene_load_ms, self.setup.build_stages_ms
+            "setup ms  scene load {:.1} | build stages {:.1}{}",
+            self.setup.scene_load_ms,
+            self.setup.build_stages_ms,
+            if self.setup.stage_table_bytes > 0 {
+                format!(" | stage tables {} B", group(self.setup.stage_table_bytes))
+            } else {
+                String::new()
+            }
         );
         if let Some(a) = &self.adapter {
             let _ = writeln!(s, "adapter   {} ({}, {})", a.name, a.backend, a.device_type);
@@ -642,6 +652,7 @@ mod tests {
                 setup: SetupTimes {
                     scene_load_ms: 1.5,
                     build_stages_ms: 2.5,
+                    stage_table_bytes: 0,
                 },
             },
             &stats(),

@@ -238,6 +238,10 @@ impl RayGen<Cpu> for Ao {
         "ao"
     }
 
+    fn table_bytes(&self) -> u64 {
+        self.offsets.table_bytes()
+    }
+
     fn visibility_kind(&self) -> RayKind {
         RayKind::Ao
     }

@@ -243,6 +243,10 @@ impl RayGen<Cpu> for Diffuse {
         "diffuse"
     }
 
+    fn table_bytes(&self) -> u64 {
+        self.offsets().table_bytes()
+    }
+
     fn bounce_kinds(&self) -> &[RayKind] {
         &[RayKind::Diffuse]
     }

@@ -70,6 +70,14 @@ impl Offsets {
         self.set.is_some()
     }
 
+    /// Bytes of the hemisphere set's tables in the paper's record sizes (§3.2), plus the
+    /// per-slot normals the query reads; 0 without offsets.
+    pub fn table_bytes(&self) -> u64 {
+        self.set
+            .as_ref()
+            .map_or(0, |s| (s.bytes() + s.normal_bytes()) as u64)
+    }
+
     /// The hemisphere set, if any.
     pub fn hemispheres(&self) -> Option<&Arc<HemisphereSet>> {
         self.set.as_ref()

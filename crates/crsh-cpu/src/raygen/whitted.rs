@@ -735,6 +735,10 @@ impl RayGen<Cpu> for Whitted {
         "whitted"
     }
 
+    fn table_bytes(&self) -> u64 {
+        self.offsets.table_bytes()
+    }
+
     fn generate(
         &self,
         _backend: &Cpu,

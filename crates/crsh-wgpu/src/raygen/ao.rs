@@ -56,6 +56,10 @@ impl RayGen<Wgpu> for Ao {
         "ao"
     }
 
+    fn table_bytes(&self) -> u64 {
+        self.rays.offsets.table_bytes()
+    }
+
     fn visibility_kind(&self) -> RayKind {
         RayKind::Ao
     }

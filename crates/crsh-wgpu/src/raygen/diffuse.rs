@@ -66,6 +66,10 @@ impl RayGen<Wgpu> for Diffuse {
         "diffuse"
     }
 
+    fn table_bytes(&self) -> u64 {
+        RayGen::<Wgpu>::table_bytes(&self.shadows)
+    }
+
     fn bounce_kinds(&self) -> &[RayKind] {
         &[RayKind::Diffuse]
     }

@@ -51,6 +51,11 @@ pub struct GpuOffsets {
 }
 
 impl GpuOffsets {
+    /// Bytes of the hemisphere tables ([`Offsets::table_bytes`], what the CPU twin reports).
+    pub fn table_bytes(&self) -> u64 {
+        self.offsets.table_bytes()
+    }
+
     /// The offsets a resolved `spec`'s `offsets` parameter asks for, built over the host scene
     /// of `scene` and uploaded.
     pub fn from_spec(scene: &GpuScene, spec: &StageSpec) -> Result<Arc<GpuOffsets>> {

@@ -166,6 +166,10 @@ impl RayGen<Wgpu> for Whitted {
         "whitted"
     }
 
+    fn table_bytes(&self) -> u64 {
+        self.offsets.table_bytes()
+    }
+
     fn generate(
         &self,
         backend: &Wgpu,
