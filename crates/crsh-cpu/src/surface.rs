@@ -29,8 +29,9 @@
 //!   geometric normal is used.
 
 use crsh_core::glam::Vec3;
-use crsh_core::{Hit, Surface};
+use crsh_core::{CoreError, Hit, Ray, Result, Surface};
 use crsh_scene::Scene;
+use rayon::prelude::*;
 
 /// The [`Surface`] record of `hit` for a ray from `ray_origin` along `ray_dir`.
 ///
@@ -118,6 +119,34 @@ pub fn area_ratio_weights(a: Vec3, b: Vec3, c: Vec3, p: Vec3) -> Option<[f64; 3]
     let wb = area_pca / area_abc;
     // eq. 3.18.
     Some([wa, wb, 1.0 - wa - wb])
+}
+
+/// The next path vertices of `rays` and their nearest `hits` (one per ray, same order):
+/// [`surface_from_hit`] with each ray's pixel, throughput and depth; a miss becomes a
+/// background record. What every shader's [`crsh_core::Shader::resolve`] does.
+pub fn next_surfaces(scene: &Scene, rays: &[Ray], hits: &[Hit]) -> Result<Vec<Surface>> {
+    if rays.len() != hits.len() {
+        return Err(CoreError::InvalidInput(format!(
+            "{} rays but {} hits",
+            rays.len(),
+            hits.len()
+        )));
+    }
+    let ntri = scene.triangle_count();
+    if let Some(h) = hits
+        .par_iter()
+        .find_first(|h| h.is_hit() && h.tri as usize >= ntri)
+    {
+        return Err(CoreError::InvalidInput(format!(
+            "hit on triangle {} but the scene has {ntri}",
+            h.tri
+        )));
+    }
+    Ok(rays
+        .par_iter()
+        .zip(hits)
+        .map(|(r, h)| surface_from_hit(scene, r.origin, r.dir, h, r.pixel, r.throughput, r.depth))
+        .collect())
 }
 
 #[cfg(test)]

@@ -23,7 +23,6 @@ use crsh_scene::Scene;
 use rayon::prelude::*;
 
 use crate::backend::Cpu;
-use crate::surface::surface_from_hit;
 
 /// The ambient-occlusion shader (variant `ao`).
 #[derive(Clone, Debug)]
@@ -157,27 +156,6 @@ impl Shader<Cpu> for AoShader {
         hits: &Vec<Hit>,
         _stats: &mut Stats,
     ) -> Result<Vec<Surface>> {
-        if rays.len() != hits.len() {
-            return Err(CoreError::InvalidInput(format!(
-                "{} rays but {} hits",
-                rays.len(),
-                hits.len()
-            )));
-        }
-        Ok(rays
-            .par_iter()
-            .zip(hits)
-            .map(|(r, h)| {
-                surface_from_hit(
-                    &self.scene,
-                    r.origin,
-                    r.dir,
-                    h,
-                    r.pixel,
-                    r.throughput,
-                    r.depth,
-                )
-            })
-            .collect())
+        crate::surface::next_surfaces(&self.scene, rays, hits)
     }
 }

@@ -66,7 +66,6 @@ use crsh_scene::Scene;
 use rayon::prelude::*;
 
 use crate::backend::Cpu;
-use crate::surface::surface_from_hit;
 
 /// The per-material data shading needs.
 #[derive(Clone, Copy, Debug)]
@@ -390,38 +389,7 @@ impl Phong {
     /// The next path vertices for reflection / refraction `rays` and their nearest `hits`
     /// (one per ray, same order).
     pub fn next_surfaces(&self, rays: &[Ray], hits: &[Hit]) -> Result<Vec<Surface>> {
-        if rays.len() != hits.len() {
-            return Err(CoreError::InvalidInput(format!(
-                "{} rays but {} hits",
-                rays.len(),
-                hits.len()
-            )));
-        }
-        let ntri = self.scene.triangle_count();
-        if let Some(h) = hits
-            .par_iter()
-            .find_first(|h| h.is_hit() && h.tri as usize >= ntri)
-        {
-            return Err(CoreError::InvalidInput(format!(
-                "hit on triangle {} but the scene has {ntri}",
-                h.tri
-            )));
-        }
-        Ok(rays
-            .par_iter()
-            .zip(hits)
-            .map(|(r, h)| {
-                surface_from_hit(
-                    &self.scene,
-                    r.origin,
-                    r.dir,
-                    h,
-                    r.pixel,
-                    r.throughput,
-                    r.depth,
-                )
-            })
-            .collect())
+        crate::surface::next_surfaces(&self.scene, rays, hits)
     }
 }
 
