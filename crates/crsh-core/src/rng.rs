@@ -5,7 +5,7 @@
 //! the batch order or the backend. The hash is Jarzynski and Olano's `pcg4d` ("Hash Functions
 //! for GPU Rendering", JCGT 9(3), 2020): four 32-bit words in, four out, integer multiplies,
 //! adds, xors and shifts only, so the WGSL twin (`crsh-wgpu`'s `rng.wgsl`) computes the very
-//! same bits. Floats take the top 24 bits ([`unit`]), exact in `f32` on both backends.
+//! same bits. Floats take the top 24 bits ([`unit()`]), exact in `f32` on both backends.
 //!
 //! [`cosine_direction`] maps two uniforms to a cosine-weighted direction about a normal
 //! (Malley's method: a uniform disc sample lifted to the hemisphere), in the orthonormal basis
