@@ -212,7 +212,6 @@ impl Shader<Wgpu> for AoShader {
         hits: &GpuBuffer<Hit>,
         _stats: &mut Stats,
     ) -> Result<GpuBuffer<Surface>> {
-        // The CPU twin's resolve turns an unknown triangle into a background record.
-        self.resolver.next_surfaces(backend, rays, hits, false)
+        self.resolver.next_surfaces(backend, rays, hits)
     }
 }

@@ -72,6 +72,6 @@ impl Shader<Wgpu> for DiffuseShader {
         hits: &GpuBuffer<Hit>,
         _stats: &mut Stats,
     ) -> Result<GpuBuffer<Surface>> {
-        self.inner.next_surfaces(backend, rays, hits, true)
+        self.inner.next_surfaces(backend, rays, hits)
     }
 }

@@ -271,16 +271,14 @@ impl Phong {
         )
     }
 
-    /// The next path vertices of `rays` and their nearest `hits` ([`Shader::resolve`]); with
-    /// `strict`, a hit on a triangle the scene does not have is an error (as
-    /// [`crsh_cpu::shade::phong::Phong::next_surfaces`] says), else it becomes a background
-    /// record (as `surface_from_hit` does).
+    /// The next path vertices of `rays` and their nearest `hits` ([`Shader::resolve`]); a hit
+    /// on a triangle the scene does not have is an error, as in the CPU twin
+    /// ([`crsh_cpu::surface::next_surfaces`], which every CPU shader resolves with).
     pub(crate) fn next_surfaces(
         &self,
         backend: &Wgpu,
         rays: &GpuBuffer<Ray>,
         hits: &GpuBuffer<Hit>,
-        strict: bool,
     ) -> Result<GpuBuffer<Surface>> {
         if rays.len() != hits.len() {
             return Err(CoreError::InvalidInput(format!(
@@ -314,15 +312,13 @@ impl Phong {
                 .dispatch(ctx, &mut pass, "resolve", &bg, n as u32)?;
         }
         submit(ctx, "crsh phong resolve", enc)?;
-        if strict {
-            let r = report.to_vec(ctx)?;
-            if r[0] != 0 {
-                return Err(CoreError::InvalidInput(format!(
-                    "hit of ray {} is on a triangle the scene does not have ({} triangles)",
-                    u32::MAX - r[0],
-                    self.scene.triangle_count()
-                )));
-            }
+        let r = report.to_vec(ctx)?;
+        if r[0] != 0 {
+            return Err(CoreError::InvalidInput(format!(
+                "hit of ray {} is on a triangle the scene does not have ({} triangles)",
+                u32::MAX - r[0],
+                self.scene.triangle_count()
+            )));
         }
         Ok(out)
     }
@@ -352,6 +348,6 @@ impl Shader<Wgpu> for Phong {
         hits: &GpuBuffer<Hit>,
         _stats: &mut Stats,
     ) -> Result<GpuBuffer<Surface>> {
-        self.next_surfaces(backend, rays, hits, true)
+        self.next_surfaces(backend, rays, hits)
     }
 }
