@@ -27,22 +27,17 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use crsh_core::glam::Vec3;
-use crsh_core::rng::{front_cosine_direction, RngKey};
 use crsh_core::{
     CoreError, ParamInfo, Ray, RayGen, RayKind, Registry, Result, StageKind, StageSpec,
     StageVariantInfo, Stats, Surface,
 };
 use crsh_scene::Scene;
-use rayon::prelude::*;
 
 use crate::backend::Cpu;
+use crate::raygen::cosine::{fill_slots, CosineRays};
 use crate::raygen::offsets::{self, Offsets};
-use crate::raygen::whitted::{offset_params, offset_segment, policy_from_spec, Leg, OffsetPolicy};
+use crate::raygen::whitted::{min_throughput_param, offset_params, policy_from_spec};
 use crate::trim::trim;
-
-/// Surfaces per parallel work item.
-const CHUNK: usize = 1024;
 
 /// The most rays per surface `samples` allows.
 pub const MAX_SAMPLES: u32 = 4096;
@@ -52,9 +47,7 @@ pub const MAX_SAMPLES: u32 = 4096;
 pub struct Ao {
     samples: u32,
     length: f32,
-    seed: u32,
-    min_throughput: f32,
-    policy: OffsetPolicy,
+    rays: CosineRays,
     offsets: Offsets,
 }
 
@@ -106,18 +99,6 @@ pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
     Ok(())
 }
 
-/// Reads `min_throughput` (finite, ≥ 0).
-pub(crate) fn min_throughput_param(spec: &StageSpec) -> Result<f32> {
-    let v = spec.f64("min_throughput")?;
-    if !v.is_finite() || v < 0.0 {
-        return Err(CoreError::InvalidParam {
-            key: "raygen.min_throughput".into(),
-            reason: format!("{v} must be a finite number ≥ 0"),
-        });
-    }
-    Ok(v as f32)
-}
-
 impl Ao {
     /// A generator for `scene` with the parameters of a resolved `spec` (see [`info`]).
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<Ao> {
@@ -141,9 +122,11 @@ impl Ao {
         Ok(Ao {
             samples,
             length,
-            seed,
-            min_throughput: min_throughput_param(spec)?,
-            policy,
+            rays: CosineRays {
+                seed,
+                min_throughput: min_throughput_param(spec)?,
+                policy,
+            },
             offsets: Offsets::from_spec(scene, spec)?,
         })
     }
@@ -161,75 +144,21 @@ impl Ao {
     /// AO ray `sample` of surface `s` (index `source`), before the origin offset.
     pub fn ray(&self, source: u32, s: &Surface, sample: u32) -> Option<Ray> {
         let throughput = s.throughput / self.samples as f32;
-        if !(throughput.max_element() >= self.min_throughput && throughput.is_finite()) {
-            return None;
-        }
-        let key = RngKey {
-            pixel: s.pixel,
-            sample,
-            bounce: s.depth,
-            seed: self.seed,
-        };
-        let dir = front_cosine_direction(s.normal, s.geo_normal, key.uniforms2());
-        if dir == Vec3::ZERO {
-            return None;
-        }
-        let seg = offset_segment(s.position, s.geo_normal, Leg::Along(dir), &self.policy)?;
-        Some(Ray {
-            origin: seg.origin,
-            t_min: seg.t_min,
-            dir: seg.dir,
-            t_max: self.length.max(seg.t_min),
-            throughput,
-            kind: RayKind::Ao as u32,
-            pixel: s.pixel,
-            light: sample,
-            depth: s.depth + 1,
-            source,
-        })
+        self.rays
+            .ray(RayKind::Ao, source, s, sample, throughput, self.length)
     }
 
     /// Ray creation before trimming: `samples` slots per surface (surface-major) and their
     /// head flags (1 where a ray was made), with the origin offsets applied. Returns the slots,
     /// the flags and the number of rays the offsets ended (interval emptied).
     pub fn slots(&self, surfaces: &[Surface]) -> Result<(Vec<Ray>, Vec<u32>, u64)> {
-        let per = self.samples as usize;
-        let total = surfaces.len().checked_mul(per);
-        if surfaces.len() > u32::MAX as usize || total.is_none_or(|t| t > u32::MAX as usize) {
-            return Err(CoreError::InvalidInput(format!(
-                "{} surfaces × {per} AO rays do not fit 32-bit ray indices",
-                surfaces.len()
-            )));
-        }
-        let n = surfaces.len() * per;
-        let mut slots = vec![<Ray as bytemuck::Zeroable>::zeroed(); n];
-        let mut flags = vec![0u32; n];
-        let ended: u64 = slots
-            .par_chunks_mut(CHUNK * per)
-            .zip(flags.par_chunks_mut(CHUNK * per))
-            .enumerate()
-            .map(|(c, (rays, heads))| {
-                let mut ended = 0u64;
-                for (j, (ray, head)) in rays.iter_mut().zip(heads.iter_mut()).enumerate() {
-                    let slot = c * CHUNK * per + j;
-                    let (source, sample) = (slot / per, (slot % per) as u32);
-                    let s = &surfaces[source];
-                    if !s.is_hit() {
-                        continue;
-                    }
-                    let Some(mut r) = self.ray(source as u32, s, sample) else {
-                        continue;
-                    };
-                    if !self.offsets.apply(s.tri, &mut r) {
-                        ended += 1;
-                    }
-                    *ray = r;
-                    *head = 1;
-                }
-                ended
-            })
-            .sum();
-        Ok((slots, flags, ended))
+        fill_slots(
+            surfaces,
+            self.samples as usize,
+            "AO rays",
+            &self.offsets,
+            |source, sample, s| self.ray(source, s, sample),
+        )
     }
 }
 

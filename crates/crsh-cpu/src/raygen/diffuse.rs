@@ -28,7 +28,6 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use crsh_core::glam::Vec3;
-use crsh_core::rng::{front_cosine_direction, RngKey};
 use crsh_core::{
     CoreError, ParamInfo, Ray, RayGen, RayKind, Registry, Result, StageKind, StageSpec,
     StageVariantInfo, Stats, Surface,
@@ -37,15 +36,11 @@ use crsh_scene::Scene;
 use rayon::prelude::*;
 
 use crate::backend::Cpu;
-use crate::raygen::ao::{min_throughput_param, MAX_SAMPLES};
+use crate::raygen::ao::MAX_SAMPLES;
+use crate::raygen::cosine::{fill_slots, CosineRays};
 use crate::raygen::offsets::{self, Offsets};
-use crate::raygen::whitted::{
-    offset_segment, policy_from_spec, surface_ray_params, Leg, OffsetPolicy, Whitted,
-};
+use crate::raygen::whitted::{min_throughput_param, policy_from_spec, surface_ray_params, Whitted};
 use crate::trim::trim;
-
-/// Surfaces per parallel work item.
-const CHUNK: usize = 1024;
 
 /// The diffuse path-tracing generator (variant `diffuse`). See the module docs.
 #[derive(Clone, Debug)]
@@ -53,9 +48,7 @@ pub struct Diffuse {
     shadows: Whitted,
     albedo: Vec<Vec3>,
     samples: u32,
-    seed: u32,
-    min_throughput: f32,
-    policy: OffsetPolicy,
+    rays: CosineRays,
 }
 
 /// The catalogue entry of the `diffuse` ray generator.
@@ -120,9 +113,11 @@ impl Diffuse {
                 .with_offsets(offsets),
             albedo,
             samples,
-            seed,
-            min_throughput: min_throughput_param(spec)?,
-            policy,
+            rays: CosineRays {
+                seed,
+                min_throughput: min_throughput_param(spec)?,
+                policy,
+            },
         })
     }
 
@@ -141,32 +136,14 @@ impl Diffuse {
     pub fn ray(&self, source: u32, s: &Surface, sample: u32, paths: u32) -> Option<Ray> {
         let albedo = self.albedo.get(s.material as usize).copied()?;
         let throughput = s.throughput * albedo / paths as f32;
-        if !(throughput.max_element() >= self.min_throughput && throughput.is_finite()) {
-            return None;
-        }
-        let key = RngKey {
-            pixel: s.pixel,
-            sample,
-            bounce: s.depth,
-            seed: self.seed,
-        };
-        let dir = front_cosine_direction(s.normal, s.geo_normal, key.uniforms2());
-        if dir == Vec3::ZERO {
-            return None;
-        }
-        let seg = offset_segment(s.position, s.geo_normal, Leg::Along(dir), &self.policy)?;
-        Some(Ray {
-            origin: seg.origin,
-            t_min: seg.t_min,
-            dir: seg.dir,
-            t_max: seg.t_max,
-            throughput,
-            kind: RayKind::Diffuse as u32,
-            pixel: s.pixel,
-            light: sample,
-            depth: s.depth + 1,
+        self.rays.ray(
+            RayKind::Diffuse,
             source,
-        })
+            s,
+            sample,
+            throughput,
+            f32::INFINITY,
+        )
     }
 
     /// Diffuse ray creation before trimming: `samples` slots per primary vertex (depth 0),
@@ -190,51 +167,23 @@ impl Diffuse {
         } else {
             1
         };
-        let total = surfaces.len().checked_mul(per);
-        if surfaces.len() > u32::MAX as usize || total.is_none_or(|t| t > u32::MAX as usize) {
-            return Err(CoreError::InvalidInput(format!(
-                "{} surfaces × {per} diffuse rays do not fit 32-bit ray indices",
-                surfaces.len()
-            )));
-        }
-        let n = surfaces.len() * per;
-        let mut slots = vec![<Ray as bytemuck::Zeroable>::zeroed(); n];
-        let mut flags = vec![0u32; n];
-        let offsets = self.shadows.offsets();
-        let ended = slots
-            .par_chunks_mut(CHUNK * per)
-            .zip(flags.par_chunks_mut(CHUNK * per))
-            .enumerate()
-            .map(|(c, (rays, heads))| {
-                let mut ended = 0u64;
-                for (j, (ray, head)) in rays.iter_mut().zip(heads.iter_mut()).enumerate() {
-                    let slot = c * CHUNK * per + j;
-                    let (source, k) = (slot / per, (slot % per) as u32);
-                    let s = &surfaces[source];
-                    if !s.is_hit() {
-                        continue;
-                    }
-                    // A primary vertex starts `samples` paths; a deeper one continues its own.
-                    let (sample, paths) = if s.depth == 0 {
-                        (k, self.samples)
-                    } else if k == 0 {
-                        (s.sample(), 1)
-                    } else {
-                        continue;
-                    };
-                    let Some(mut r) = self.ray(source as u32, s, sample, paths) else {
-                        continue;
-                    };
-                    if !offsets.apply(s.tri, &mut r) {
-                        ended += 1;
-                    }
-                    *ray = r;
-                    *head = 1;
-                }
-                ended
-            })
-            .sum();
-        Ok((slots, flags, ended))
+        fill_slots(
+            surfaces,
+            per,
+            "diffuse rays",
+            self.shadows.offsets(),
+            |source, k, s| {
+                // A primary vertex starts `samples` paths; a deeper one continues its own.
+                let (sample, paths) = if s.depth == 0 {
+                    (k, self.samples)
+                } else if k == 0 {
+                    (s.sample(), 1)
+                } else {
+                    return None;
+                };
+                self.ray(source, s, sample, paths)
+            },
+        )
     }
 }
 

@@ -2,6 +2,7 @@
 //! origin offsets.
 
 pub mod ao;
+pub mod cosine;
 pub mod diffuse;
 pub mod offsets;
 pub mod origin_offset;

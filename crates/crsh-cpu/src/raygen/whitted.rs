@@ -460,6 +460,19 @@ pub fn policy_from_spec(scene: &Scene, spec: &StageSpec) -> Result<(f32, OffsetP
     Ok((offset, policy))
 }
 
+/// The `min_throughput` parameter of a resolved `spec` (finite, ≥ 0), which every
+/// surface-leaving generator declares.
+pub fn min_throughput_param(spec: &StageSpec) -> Result<f32> {
+    let v = spec.f64("min_throughput")?;
+    if !v.is_finite() || v < 0.0 {
+        return Err(CoreError::InvalidParam {
+            key: "raygen.min_throughput".into(),
+            reason: format!("{v} must be a finite number ≥ 0"),
+        });
+    }
+    Ok(v as f32)
+}
+
 /// Registers `whitted` ([`info`], [`Whitted::new`]).
 pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
     registry.add_raygen(info(), |ctx, spec| {
@@ -486,13 +499,7 @@ impl Whitted {
             }
         };
         let cull_backfacing = spec.bool("cull_backfacing")?;
-        let min_throughput = spec.f64("min_throughput")?;
-        if !min_throughput.is_finite() || min_throughput < 0.0 {
-            return Err(CoreError::InvalidParam {
-                key: "raygen.min_throughput".into(),
-                reason: format!("{min_throughput} must be a finite number ≥ 0"),
-            });
-        }
+        let min_throughput = min_throughput_param(spec)?;
         let (offset, policy) = policy_from_spec(scene, spec)?;
         let mut materials = Vec::with_capacity(scene.materials.len());
         for m in &scene.materials {
@@ -525,7 +532,7 @@ impl Whitted {
             materials,
             shadow_origin,
             cull_backfacing,
-            min_throughput: min_throughput as f32,
+            min_throughput,
             offset,
             policy,
             offsets: Offsets::from_spec(scene, spec)?,
