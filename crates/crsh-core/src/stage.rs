@@ -113,11 +113,26 @@ pub trait Sorter<B: Backend>: Send + Sync {
 pub struct RayHierarchy<B: Backend> {
     /// Rays in hierarchy order: leaf `i` is ray `order[i]` of the batch.
     pub order: B::Buffer<u32>,
-    /// Node levels, lowest first: `levels[0]` groups `subdivision` rays per node, each higher
-    /// level groups `subdivision` nodes of the level below. The last entry is the top level.
+    /// Node levels, lowest first: `levels[0]` groups rays into nodes (`subdivision` leaves
+    /// per node, or the ranges of [`RayHierarchy::leaf_offsets`]), each higher level groups
+    /// `subdivision` nodes of the level below. The last entry is the top level.
+    ///
+    /// A node bounds every point its rays reach: with sphere `(c, r)` and cone `(a, α)`, each
+    /// point `o + t·d` of a ray in its interval (`t ≥ max(0, t_min)`) lies in the sphere plus
+    /// the cone of apex `c` (`c + v + s·u`, `|v| ≤ r`, `s ≥ 0`, `angle(u, a) ≤ α`). A sphere-cone
+    /// (origins in the sphere, directions in the cone, seed 000 §3.2.7) is one such node; an
+    /// apex cone containing whole ray segments (seed 004 §4, sphere radius 0 at the apex) is
+    /// another. Traversals may rely on nothing else.
     pub levels: Vec<B::Buffer<SphereCone>>,
-    /// Children per node.
+    /// Children per node of the levels above `levels[0]`, and leaves per `levels[0]` node when
+    /// [`RayHierarchy::leaf_offsets`] is `None`.
     pub subdivision: u32,
+    /// Variable-size lowest nodes: `levels[0]` node `i` holds the leaves
+    /// `leaf_offsets[i] .. leaf_offsets[i + 1]` (positions in `order`), so the buffer has
+    /// `levels[0].len() + 1` non-decreasing entries from 0 to the ray count. `None`: node `i`
+    /// holds `i·subdivision .. min((i + 1)·subdivision, rays)` (the fixed groups of seed 000).
+    /// Seed 004's tile cones need it: after compaction a screen tile holds any number of rays.
+    pub leaf_offsets: Option<B::Buffer<u32>>,
     /// Per level (indexed like `levels`), per node: an upper bound on the distance from the
     /// node's sphere centre to any point its rays reach within their `(t_min, t_max)`
     /// (`f32::INFINITY` when a ray is unbounded). Lets traversal cull geometry beyond the

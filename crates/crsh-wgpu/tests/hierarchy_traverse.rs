@@ -249,6 +249,7 @@ fn traversal_keeps_every_cpu_candidate() {
                 .build(&Cpu, &rays, order, &mut Stats::default())
                 .unwrap();
             let gpu_h: RayHierarchy<Wgpu> = RayHierarchy {
+                leaf_offsets: None,
                 order: b.upload(&cpu_h.order).unwrap(),
                 levels: cpu_h.levels.iter().map(|l| b.upload(l).unwrap()).collect(),
                 subdivision: cpu_h.subdivision,

@@ -244,6 +244,7 @@ fn brute_candidate_queries_match_the_cpu() {
             let cpu = crsh_wgpu::testing::cpu_intersector(&StageSpec::new("brute"), &s);
             let gpu = BruteForce::new(&g, &brute_spec("mt")).unwrap();
             let h_gpu: RayHierarchy<Wgpu> = RayHierarchy {
+                leaf_offsets: None,
                 order: b.upload(&h_cpu.order).unwrap(),
                 levels: h_cpu.levels.iter().map(|l| b.upload(l).unwrap()).collect(),
                 subdivision: h_cpu.subdivision,

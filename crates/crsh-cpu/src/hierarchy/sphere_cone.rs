@@ -250,6 +250,7 @@ impl HierarchyBuilder<Cpu> for SphereConeBuilder {
         let levels = self.build_levels(rays, &order)?;
         let reach = reach_levels(rays, &order, &levels, self.subdivision);
         Ok(RayHierarchy {
+            leaf_offsets: None,
             order,
             levels,
             subdivision: self.subdivision,

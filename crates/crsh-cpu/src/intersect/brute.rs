@@ -853,6 +853,7 @@ pub(crate) mod tests {
     fn hierarchy(order: Vec<u32>, sub: u32) -> RayHierarchy<Cpu> {
         let nodes = order.len().div_ceil(sub as usize);
         RayHierarchy {
+            leaf_offsets: None,
             order,
             levels: vec![vec![<SphereCone as bytemuck::Zeroable>::zeroed(); nodes]],
             subdivision: sub,
@@ -1175,6 +1176,7 @@ pub(crate) mod tests {
             ),
             (
                 RayHierarchy {
+                    leaf_offsets: None,
                     order: (0..8).collect(),
                     levels: vec![],
                     subdivision: 4,
@@ -1184,6 +1186,7 @@ pub(crate) mod tests {
             ),
             (
                 RayHierarchy {
+                    leaf_offsets: None,
                     order: (0..8).collect(),
                     levels: vec![vec![<SphereCone as bytemuck::Zeroable>::zeroed(); 2]],
                     subdivision: 0,

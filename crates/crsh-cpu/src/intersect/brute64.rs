@@ -377,6 +377,7 @@ mod tests {
         );
         assert!(matches!(r, Err(CoreError::InvalidInput(_))), "{r:?}");
         let h = crsh_core::RayHierarchy::<Cpu> {
+            leaf_offsets: None,
             order: (0..4).collect(),
             levels: vec![vec![
                 <crsh_core::SphereCone as bytemuck::Zeroable>::zeroed();

@@ -1079,6 +1079,7 @@ pub(crate) mod tests {
         assert!(!x.supports_candidates());
         let rays = random_rays(scene, 42, 8);
         let h = RayHierarchy::<Cpu> {
+            leaf_offsets: None,
             order: (0..8).collect(),
             levels: vec![vec![bytemuck::Zeroable::zeroed(); 1]],
             subdivision: 8,

@@ -1585,6 +1585,7 @@ mod tests {
         assert!(grid.memory_bytes() > 0);
         let rays = random_rays(&scene, 42, 8);
         let h = RayHierarchy::<Cpu> {
+            leaf_offsets: None,
             order: (0..8).collect(),
             levels: vec![vec![bytemuck::Zeroable::zeroed(); 1]],
             subdivision: 8,

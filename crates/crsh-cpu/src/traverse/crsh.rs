@@ -830,6 +830,7 @@ mod tests {
             count = count.div_ceil(s);
         }
         RayHierarchy {
+            leaf_offsets: None,
             order,
             levels: out,
             subdivision: sub,
@@ -1269,6 +1270,7 @@ mod tests {
             let order = shuffled(rays.len(), 73);
             let levels = builder.build_levels(&rays, &order).unwrap();
             let h = RayHierarchy::<Cpu> {
+                leaf_offsets: None,
                 reach: crate::hierarchy::sphere_cone::reach_levels(&rays, &order, &levels, sub),
                 levels,
                 order,
@@ -1341,18 +1343,22 @@ mod tests {
         negative.levels[0][0].cone.half_angle = -0.1;
         let cases = [
             RayHierarchy {
+                leaf_offsets: None,
                 subdivision: 0,
                 ..build(&rays, (0..20).collect(), 4, 1)
             },
             RayHierarchy {
+                leaf_offsets: None,
                 levels: vec![],
                 ..build(&rays, (0..20).collect(), 4, 1)
             },
             RayHierarchy {
+                leaf_offsets: None,
                 order: (0..19).collect(),
                 ..build(&rays, (0..20).collect(), 4, 1)
             },
             RayHierarchy {
+                leaf_offsets: None,
                 levels: vec![good.levels[0].clone(), good.levels[0].clone()],
                 ..build(&rays, (0..20).collect(), 4, 1)
             },
@@ -1434,6 +1440,7 @@ mod tests {
         let scene = Arc::new(soup(61, 10));
         let trav = Crsh::with_options(&scene, true, 1.0).unwrap();
         let h = RayHierarchy::<Cpu> {
+            leaf_offsets: None,
             order: vec![],
             levels: vec![vec![]],
             subdivision: 4,

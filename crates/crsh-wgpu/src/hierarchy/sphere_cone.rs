@@ -119,6 +119,7 @@ impl HierarchyBuilder<Wgpu> for SphereConeBuilder {
         let mut reach: Vec<GpuBuffer<f32>> = Vec::with_capacity(sizes.len());
         if n == 0 {
             return Ok(RayHierarchy {
+                leaf_offsets: None,
                 order,
                 levels,
                 subdivision: self.subdivision,
@@ -179,6 +180,7 @@ impl HierarchyBuilder<Wgpu> for SphereConeBuilder {
         submit(ctx, "crsh sphere-cone", enc)?;
         let _ = &self.scene;
         Ok(RayHierarchy {
+            leaf_offsets: None,
             order,
             levels,
             subdivision: self.subdivision,
