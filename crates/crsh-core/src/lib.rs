@@ -66,7 +66,8 @@ pub use stage::{
     RayGen, RayHierarchy, Shader, Sorter, Traverser,
 };
 pub use stats::{
-    AccuracyCounts, CullStats, KindStats, LevelStats, RayCounts, Stats, TestCounts, STAGE_TIMINGS,
+    AccuracyCounts, CullStats, GenerationStats, KindStats, LevelStats, RayCounts, Stats,
+    TestCounts, HALF_ANGLE_BIN_EDGES_DEG, STAGE_TIMINGS,
 };
 
 pub use glam;

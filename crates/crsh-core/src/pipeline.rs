@@ -311,6 +311,7 @@ pub fn render_frame<B: Backend>(
         total_steps: 1
             + (opts.max_depth + 1)
             + stages.raygen.bounce_kinds().len() as u32 * opts.max_depth,
+        untimed_ms: 0.0,
     };
     if reference.is_some() {
         driver.stats.accuracy = Some(AccuracyCounts::default());
@@ -342,6 +343,13 @@ pub fn render_frame<B: Backend>(
     if casts {
         ks.trace_ms += primary_ms;
     }
+    let g = driver.stats.generation_mut(0, RayKind::Primary);
+    g.rays += pixels as u64;
+    g.bounds += after.bounds - tests_before.bounds;
+    g.ray_triangle += after.ray_triangle - tests_before.ray_triangle;
+    if casts {
+        g.trace_ms += primary_ms;
+    }
 
     let visibility = stages.raygen.visibility_kind();
     if visibility.hit_mode() != HitMode::Any {
@@ -363,7 +371,7 @@ pub fn render_frame<B: Backend>(
         let shadow = driver.timed("ray_creation", |s| {
             stages.raygen.generate(backend, &surfaces, visibility, s)
         })?;
-        let shadow_hits = driver.trace(visibility, &shadow, &surfaces)?;
+        let shadow_hits = driver.trace(visibility, depth + 1, &shadow, &surfaces)?;
         driver.timed("shading", |s| {
             stages
                 .shader
@@ -387,7 +395,7 @@ pub fn render_frame<B: Backend>(
             if backend.len(&rays) == 0 {
                 continue;
             }
-            let hits = driver.trace(kind, &rays, &surfaces)?;
+            let hits = driver.trace(kind, depth + 1, &rays, &surfaces)?;
             next.push(driver.timed("shading", |s| {
                 stages.shader.resolve(backend, &rays, &hits, s)
             })?);
@@ -398,11 +406,12 @@ pub fn render_frame<B: Backend>(
         }
     }
     backend.sync()?;
+    let untimed_ms = driver.untimed_ms;
     let mut stats = driver.stats;
     let reference_ms = stats.timings_ms.get("reference").copied().unwrap_or(0.0);
     stats.timings_ms.insert(
         "total".into(),
-        frame_start.elapsed().as_secs_f64() * 1e3 - reference_ms,
+        frame_start.elapsed().as_secs_f64() * 1e3 - reference_ms - untimed_ms,
     );
     progress(Progress {
         step: driver.total_steps,
@@ -420,6 +429,9 @@ struct Driver<'a, B: Backend> {
     stats: Stats,
     step: u32,
     total_steps: u32,
+    /// Measuring work outside the stages (the node half-angle histograms), left out of
+    /// `total` as the reference tracing is.
+    untimed_ms: f64,
 }
 
 impl<B: Backend> Driver<'_, B> {
@@ -437,12 +449,13 @@ impl<B: Backend> Driver<'_, B> {
         timed(self.backend, &mut self.stats, key, f)
     }
 
-    /// Traces one batch of `kind` through the optional hierarchy stages and the intersector.
-    /// `surfaces` are the records the rays were spawned from (their [`Ray::source`]), for the
-    /// self-hit count of the accuracy pass.
+    /// Traces one batch of `kind` rays of bounce depth `generation` through the optional
+    /// hierarchy stages and the intersector. `surfaces` are the records the rays were spawned
+    /// from (their [`Ray::source`]), for the self-hit count of the accuracy pass.
     fn trace(
         &mut self,
         kind: RayKind,
+        generation: u32,
         rays: &B::Buffer<Ray>,
         surfaces: &B::Buffer<Surface>,
     ) -> Result<B::Buffer<Hit>> {
@@ -451,9 +464,22 @@ impl<B: Backend> Driver<'_, B> {
         let mode = kind.hit_mode();
         let tests_before = self.stats.tests;
         let t0 = Instant::now();
-        let hits = trace_batch(backend, self.stages, kind, rays, &mut self.stats)?;
-        let elapsed = t0.elapsed().as_secs_f64() * 1e3;
+        let (hits, histogram_ms) = trace_batch_in(
+            backend,
+            self.stages,
+            kind,
+            Some(generation),
+            rays,
+            &mut self.stats,
+        )?;
+        let elapsed = t0.elapsed().as_secs_f64() * 1e3 - histogram_ms;
+        self.untimed_ms += histogram_ms;
         let after = self.stats.tests;
+        let g = self.stats.generation_mut(generation, kind);
+        g.rays += n as u64;
+        g.bounds += after.bounds - tests_before.bounds;
+        g.ray_triangle += after.ray_triangle - tests_before.ray_triangle;
+        g.trace_ms += elapsed;
         self.stats.rays.add(kind, n as u64);
         self.stats.traced_rays += n as u64;
         self.stats.tests.brute_force += n as u64 * self.triangles;
@@ -509,12 +535,27 @@ pub fn trace_batch<B: Backend>(
     rays: &B::Buffer<Ray>,
     stats: &mut Stats,
 ) -> Result<B::Buffer<Hit>> {
+    trace_batch_in(backend, stages, kind, None, rays, stats).map(|(hits, _)| hits)
+}
+
+/// [`trace_batch`]; with `generation`, also adds the cone half-angles of the hierarchy's
+/// lowest nodes to that generation's [`crate::GenerationStats`] (a download of `levels[0]`,
+/// outside every stage timer). Returns the hits and the ms that took.
+fn trace_batch_in<B: Backend>(
+    backend: &B,
+    stages: &Stages<B>,
+    kind: RayKind,
+    generation: Option<u32>,
+    rays: &B::Buffer<Ray>,
+    stats: &mut Stats,
+) -> Result<(B::Buffer<Hit>, f64)> {
     stages.check()?;
     let n = backend.len(rays);
     let mode = kind.hit_mode();
     let mut hits = backend.filled(n, Hit::MISS)?;
+    let mut histogram_ms = 0.0;
     if n == 0 {
-        return Ok(hits);
+        return Ok((hits, histogram_ms));
     }
     if let (Some(builder), Some(traverser)) = (&stages.hierarchy, &stages.traverser) {
         let order = match (&stages.hasher, &stages.sorter) {
@@ -531,6 +572,14 @@ pub fn trace_batch<B: Backend>(
         let hierarchy = timed(backend, stats, "hierarchy_creation", |s| {
             builder.build(backend, rays, order, s)
         })?;
+        if let (Some(generation), Some(lowest)) = (generation, hierarchy.levels.first()) {
+            let t = Instant::now();
+            let nodes = backend.download(lowest)?;
+            stats
+                .generation_mut(generation, kind)
+                .add_half_angles(nodes.iter().map(|n| n.cone.half_angle));
+            histogram_ms = t.elapsed().as_secs_f64() * 1e3;
+        }
         let intersector = &stages.intersector;
         let mut final_tests = std::time::Duration::ZERO;
         let t_trav = Instant::now();
@@ -572,7 +621,7 @@ pub fn trace_batch<B: Backend>(
                 .intersect(backend, rays, Query::Scene, mode, &mut hits, s)
         })?;
     }
-    Ok(hits)
+    Ok((hits, histogram_ms))
 }
 
 /// Runs `f` as stage `key`: adds its wall time (after a backend sync) to `stats.timings_ms[key]`,

@@ -151,6 +151,75 @@ pub struct KindStats {
     pub offset_ended: u64,
 }
 
+/// Upper bin edges, in degrees, of [`GenerationStats::half_angle_histogram`]: bin `i < 10`
+/// counts the node cones whose half-angle is below `HALF_ANGLE_BIN_EDGES_DEG[i]` and not below
+/// the previous edge; the last bin (index 10) counts those of 90° and more, which bound no
+/// convex region (a tile cone that wide culls nothing, seed 004 §4).
+pub const HALF_ANGLE_BIN_EDGES_DEG: [f32; 10] =
+    [0.1, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 45.0, 90.0];
+
+/// The work of one ray kind in one generation: the rays of bounce depth `generation`
+/// ([`crate::Ray::depth`]; 1 for the rays spawned at the primary hits, 0 for camera rays),
+/// their tests and the cones of the ray-space hierarchy built over them. Seed 004 follows
+/// refraction through up to 8 generations and shows how the tile cones widen (fig. 4) while
+/// terminated paths drop out (§5): the refraction and reflection rays of a generation are the
+/// paths still alive.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct GenerationStats {
+    /// Bounce depth of the rays.
+    pub generation: u32,
+    /// Ray kind ([`RayKind::name`]).
+    pub ray_kind: String,
+    /// Rays traced.
+    pub rays: u64,
+    /// Bounding-volume tests.
+    pub bounds: u64,
+    /// Ray-triangle tests.
+    pub ray_triangle: u64,
+    /// Wall time of the tracing stages, ms.
+    pub trace_ms: f64,
+    /// Lowest-level hierarchy nodes built over these rays (0 without a ray-space hierarchy).
+    pub nodes: u64,
+    /// Those nodes' cone half-angles, binned by [`HALF_ANGLE_BIN_EDGES_DEG`] (11 bins; empty
+    /// without a hierarchy).
+    pub half_angle_histogram: Vec<u64>,
+    /// Σ of those half-angles in degrees (their mean is this over `nodes`).
+    pub half_angle_sum_deg: f64,
+    /// The widest of those half-angles, degrees.
+    pub max_half_angle_deg: f64,
+}
+
+impl GenerationStats {
+    /// Adds the cone half-angles (radians) of the lowest-level nodes of one hierarchy.
+    pub fn add_half_angles(&mut self, half_angles: impl IntoIterator<Item = f32>) {
+        if self.half_angle_histogram.len() != HALF_ANGLE_BIN_EDGES_DEG.len() + 1 {
+            self.half_angle_histogram = vec![0; HALF_ANGLE_BIN_EDGES_DEG.len() + 1];
+        }
+        for a in half_angles {
+            let deg = a.to_degrees();
+            // NaN lands in the last bin, as a cone that culls nothing.
+            let bin = HALF_ANGLE_BIN_EDGES_DEG
+                .iter()
+                .position(|&edge| deg < edge)
+                .unwrap_or(HALF_ANGLE_BIN_EDGES_DEG.len());
+            self.half_angle_histogram[bin] += 1;
+            self.nodes += 1;
+            let deg = if deg.is_nan() { 180.0 } else { deg as f64 };
+            self.half_angle_sum_deg += deg;
+            self.max_half_angle_deg = self.max_half_angle_deg.max(deg);
+        }
+    }
+
+    /// Mean node half-angle in degrees (0 without nodes).
+    pub fn mean_half_angle_deg(&self) -> f64 {
+        if self.nodes == 0 {
+            0.0
+        } else {
+            self.half_angle_sum_deg / self.nodes as f64
+        }
+    }
+}
+
 /// Agreement of the traced rays with a reference intersector tracing the very same rays.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct AccuracyCounts {
@@ -251,6 +320,10 @@ pub struct Stats {
     /// ray-space hierarchy): the memory the traversal budget bounds.
     #[serde(default)]
     pub peak_candidate_bytes: u64,
+    /// Per generation and ray kind, in the order the batches ran: rays, tests, time and the
+    /// hierarchy's cone widths ([`GenerationStats`]).
+    #[serde(default)]
+    pub generations: Vec<GenerationStats>,
 }
 
 impl Stats {
@@ -323,6 +396,27 @@ impl Stats {
         c.misses += tests - kept.min(tests);
     }
 
+    /// The entry of `kind` rays in `generation`, created empty when missing.
+    pub fn generation_mut(&mut self, generation: u32, kind: RayKind) -> &mut GenerationStats {
+        let name = kind.name();
+        let i = match self
+            .generations
+            .iter()
+            .position(|g| g.generation == generation && g.ray_kind == name)
+        {
+            Some(i) => i,
+            None => {
+                self.generations.push(GenerationStats {
+                    generation,
+                    ray_kind: name.to_string(),
+                    ..GenerationStats::default()
+                });
+                self.generations.len() - 1
+            }
+        };
+        &mut self.generations[i]
+    }
+
     /// Wall time of stage `key` in ms (0 if it never ran).
     pub fn time_ms(&self, key: &str) -> f64 {
         self.timings_ms.get(key).copied().unwrap_or(0.0)
@@ -345,5 +439,30 @@ mod tests {
         assert_eq!(s.levels[0].misses, 10);
         s.rays.add(RayKind::Reflection, 5);
         assert_eq!(s.rays.total(), 5);
+    }
+
+    #[test]
+    fn half_angle_histogram_bins_by_degrees() {
+        let mut s = Stats::default();
+        let deg = |d: f32| d.to_radians();
+        s.generation_mut(2, RayKind::Refraction).add_half_angles([
+            deg(0.05),
+            deg(0.1),
+            deg(3.0),
+            deg(89.9),
+            deg(90.0),
+            std::f32::consts::PI,
+            f32::NAN,
+        ]);
+        s.generation_mut(1, RayKind::Refraction).rays += 4;
+        let g = s.generation_mut(2, RayKind::Refraction);
+        assert_eq!(g.nodes, 7);
+        assert_eq!(
+            g.half_angle_histogram,
+            vec![1, 1, 0, 0, 0, 1, 0, 0, 0, 1, 3]
+        );
+        assert!((g.max_half_angle_deg - 180.0).abs() < 1e-3);
+        assert_eq!(s.generations.len(), 2);
+        assert_eq!(s.generations[1].generation, 1);
     }
 }

@@ -206,6 +206,9 @@ pub struct StatsReport {
     pub mesh_culling: BTreeMap<String, crsh_core::CullStats>,
     /// The most bytes the candidate arrays held at once (0 without a hierarchy).
     pub peak_candidate_bytes: u64,
+    /// Per generation (bounce depth) and ray kind: rays, tests, tracing time and the
+    /// histogram of the hierarchy's node cone half-angles (seed 004 fig. 4).
+    pub generations: Vec<crsh_core::GenerationStats>,
     /// Wall time per stage, ms, plus `total` (the frame, excluding `reference`).
     pub timings_ms: BTreeMap<String, f64>,
     /// Device time per stage from GPU timestamp queries, ms (wgpu on adapters that have them).
@@ -329,6 +332,7 @@ impl StatsReport {
             levels: stats.levels.clone(),
             mesh_culling: stats.mesh_culling.clone(),
             peak_candidate_bytes: stats.peak_candidate_bytes,
+            generations: stats.generations.clone(),
             timings_ms: stats.timings_ms.clone(),
             device_timings_ms: stats.device_timings_ms.clone(),
             setup: run.setup,
@@ -413,6 +417,7 @@ impl StatsReport {
                 t.leaves_per_ray,
             );
         }
+        s.push_str(&generation_lines(&self.generations));
         let _ = writeln!(
             s,
             "setup ms  scene load {:.1} | build stages {:.1}{}",
@@ -474,6 +479,47 @@ impl StatsReport {
         }
         s
     }
+}
+
+/// One line per generation of secondary rays, when the frame traced more than one: each
+/// kind's rays, tests per ray and, with a ray-space hierarchy, its lowest nodes' cone
+/// half-angles (mean and widest). Empty for a single generation.
+fn generation_lines(generations: &[crsh_core::GenerationStats]) -> String {
+    let mut numbers: Vec<u32> = generations
+        .iter()
+        .filter(|g| g.generation > 0)
+        .map(|g| g.generation)
+        .collect();
+    numbers.dedup();
+    if numbers.len() < 2 {
+        return String::new();
+    }
+    let mut s = String::new();
+    for n in numbers {
+        let parts: Vec<String> = generations
+            .iter()
+            .filter(|g| g.generation == n && g.rays > 0)
+            .map(|g| {
+                let tests = (g.bounds + g.ray_triangle) as f64 / g.rays as f64;
+                let mut part = format!("{} {} ({tests:.1} tests/ray", g.ray_kind, group(g.rays));
+                if g.nodes > 0 {
+                    let _ = write!(
+                        part,
+                        ", {} cones, mean {:.2}° max {:.1}°",
+                        group(g.nodes),
+                        g.mean_half_angle_deg(),
+                        g.max_half_angle_deg
+                    );
+                }
+                part.push(')');
+                part
+            })
+            .collect();
+        if !parts.is_empty() {
+            let _ = writeln!(s, "gen {n:<5} {}", parts.join(" | "));
+        }
+    }
+    s
 }
 
 /// `primary=raster raygen=whitted ... intersect=bvh shade=phong`.
@@ -615,6 +661,13 @@ mod tests {
                 ..Default::default()
             },
         );
+        s.generation_mut(1, RayKind::Shadow).rays = 6;
+        let g = s.generation_mut(1, RayKind::Reflection);
+        g.rays = 4;
+        g.bounds = 10;
+        g.ray_triangle = 4;
+        g.add_half_angles([0.01, 0.03]);
+        s.generation_mut(2, RayKind::Shadow).rays = 4;
         s.timings_ms.insert("total".into(), 10.0);
         s.timings_ms.insert("primary".into(), 1.0);
         s.timings_ms.insert("intersection".into(), 2.5);
@@ -763,6 +816,8 @@ mod tests {
             "primary 1.0 | intersection 2.5 | total 10.0",
             "scene load 1.5 | build stages 2.5",
             "Mrays/s",
+            "gen 1     shadow 6 (0.0 tests/ray) | reflection 4 (3.5 tests/ray, 2 cones, mean 1.15° max 1.7°)",
+            "gen 2     shadow 4 (0.0 tests/ray)",
         ] {
             assert!(s.contains(needle), "summary lacks `{needle}`:\n{s}");
         }
