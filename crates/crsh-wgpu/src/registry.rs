@@ -45,6 +45,7 @@ impl BuiltinVariants for Wgpu {
         crate::sort::compress::register(registry)?;
         crate::sort::radix::register(registry)?;
         crate::hierarchy::sphere_cone::register(registry)?;
+        crate::hierarchy::tile_cone::register(registry)?;
         crate::traverse::crsh::register(registry)?;
         crate::intersect::brute::register(registry)?;
         crate::intersect::bvh::register(registry)?;
@@ -130,7 +131,10 @@ mod tests {
     /// Variants whose CPU twins are being written on another branch (seed 004): they carry
     /// their own catalogue entries until the twins land, and are checked against them as soon
     /// as the CPU registry has them. Empty this list then.
-    const PENDING_CPU_TWINS: &[(StageKind, &str)] = &[(StageKind::Hash, "tile")];
+    const PENDING_CPU_TWINS: &[(StageKind, &str)] = &[
+        (StageKind::Hash, "tile"),
+        (StageKind::Hierarchy, "tile_cone"),
+    ];
 
     #[test]
     fn every_gpu_variant_has_its_cpu_twins_entry() {

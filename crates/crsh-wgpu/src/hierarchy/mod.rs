@@ -1,9 +1,14 @@
 //! Ray-space hierarchy construction on the device, and the shape checks of hierarchies with
 //! [`crsh_core::RayHierarchy::leaf_offsets`] that the consumers share.
+//!
+//! [`sphere_cone`]: seed 000's bottom-up sphere-cone levels (fixed groups of `subdivision`
+//! leaves). [`tile_cone`]: seed 004's enclosing cones of screen tiles (one level of apex cones,
+//! variable leaves per node through the leaf offsets).
 
 use crsh_core::{CoreError, Result};
 
 pub mod sphere_cone;
+pub mod tile_cone;
 
 /// Checks a hierarchy's leaf offsets (downloaded) against a lowest level of `nodes` nodes over
 /// `leaves` rays: `nodes + 1` entries, the first 0, the last `leaves`, non-decreasing.
