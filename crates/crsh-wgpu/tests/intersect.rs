@@ -389,3 +389,310 @@ fn brute_rejects_bad_input() {
         )
         .is_err());
 }
+
+/// A unit vector within `spread` radians of the unit `axis` (uniform in angle).
+fn dir_near(g: &mut Lcg, axis: Vec3, spread: f32) -> Vec3 {
+    let any = if axis.x.abs() < 0.9 { Vec3::X } else { Vec3::Y };
+    let u = axis.cross(any).normalize();
+    let v = axis.cross(u);
+    let phi = g.unit() * std::f32::consts::PI;
+    let theta = (g.unit() * 0.5 + 0.5) * spread;
+    (axis * theta.cos() + (u * phi.cos() + v * phi.sin()) * theta.sin()).normalize()
+}
+
+/// A hand-made hierarchy with leaf offsets (seed 004's shape: one level, apex cones of sphere
+/// radius 0, variable nodes, one empty, half-angles from 0 to π) over rays of `kind` in
+/// `scene`: `(rays, order, offsets, nodes, reach)`. Each node's rays start on its cone's axis
+/// at or ahead of the apex and point within its spread of the axis, so every point of every
+/// ray lies in the node's cone (measured in f64 and widened); the spreads ≥ π/2 get π. The
+/// order is a permutation of the rays, nodes contiguous in it.
+#[allow(clippy::type_complexity)]
+fn offsets_hierarchy(
+    scene: &Scene,
+    seed: u64,
+    kind: RayKind,
+) -> (
+    Vec<Ray>,
+    Vec<u32>,
+    Vec<u32>,
+    Vec<crsh_core::SphereCone>,
+    Vec<f32>,
+) {
+    use crsh_core::{Cone, Sphere, SphereCone};
+    let mut g = Lcg(seed);
+    let (lo, hi) = (scene.bounds.min, scene.bounds.max);
+    let diag = (hi - lo).length();
+    let sizes = [1usize, 7, 64, 0, 3, 100, 17, 1, 40, 256, 2, 33, 5, 90];
+    let spreads = [0.0f32, 0.01, 0.2, 0.6, 1.3, 2.0, 3.2];
+    let mut by_pos: Vec<Ray> = Vec::new();
+    let mut offsets = vec![0u32];
+    let mut nodes = Vec::new();
+    let mut reach = Vec::new();
+    for (k, &size) in sizes.iter().enumerate() {
+        let apex = lo
+            + (hi - lo)
+                * Vec3::new(
+                    g.unit() * 0.5 + 0.5,
+                    g.unit() * 0.5 + 0.5,
+                    g.unit() * 0.5 + 0.5,
+                );
+        let axis = dir_near(&mut g, Vec3::Z, std::f32::consts::PI);
+        let spread = spreads[k % spreads.len()];
+        let finite = k % 2 == 0;
+        let (mut widest, mut far) = (0.0f64, 0.0f64);
+        for i in 0..size {
+            // Origins on the axis ahead of the apex (all at the apex for every third node).
+            let ahead = if k % 3 == 0 {
+                0.0
+            } else {
+                (g.unit() * 0.5 + 0.5) * 0.2 * diag
+            };
+            let origin = apex + axis * ahead;
+            let dir = dir_near(&mut g, axis, spread);
+            let t_max = if finite { 0.4 * diag } else { f32::INFINITY };
+            let (a, o, d) = (apex.as_dvec3(), origin.as_dvec3(), dir.as_dvec3());
+            let angle = |v: DVec3| {
+                v.cross(axis.as_dvec3())
+                    .length()
+                    .atan2(v.dot(axis.as_dvec3()))
+            };
+            widest = widest.max(angle(d));
+            if o != a {
+                widest = widest.max(angle(o - a));
+            }
+            far = far.max((o - a).length() + t_max as f64 * d.length());
+            by_pos.push(Ray {
+                origin,
+                t_min: if i % 4 == 0 { 1e-4 } else { 0.0 },
+                dir,
+                t_max,
+                throughput: Vec3::ONE,
+                kind: kind as u32,
+                pixel: by_pos.len() as u32,
+                light: 0,
+                depth: 1,
+                source: by_pos.len() as u32,
+            });
+        }
+        let half_angle = if widest * (1.0 + 1e-5) + 1e-5 >= std::f64::consts::FRAC_PI_2 {
+            std::f32::consts::PI
+        } else {
+            (widest * (1.0 + 1e-5) + 1e-5) as f32
+        };
+        nodes.push(SphereCone {
+            sphere: Sphere::new(apex, 0.0),
+            cone: Cone { axis, half_angle },
+        });
+        reach.push(if far.is_finite() {
+            ((far * (1.0 + 1e-6)) as f32).next_up()
+        } else {
+            f32::INFINITY
+        });
+        offsets.push(by_pos.len() as u32);
+    }
+    // Ray index of position p: a fixed shuffle, so nodes are contiguous in the order only.
+    let n = by_pos.len();
+    let mut perm: Vec<u32> = (0..n as u32).collect();
+    for i in (1..n).rev() {
+        let j = ((g.unit() * 0.5 + 0.5) * i as f32) as usize % (i + 1);
+        perm.swap(i, j);
+    }
+    let mut rays = vec![by_pos[0]; n];
+    for (p, &r) in perm.iter().enumerate() {
+        rays[r as usize] = by_pos[p];
+    }
+    (rays, perm, offsets, nodes, reach)
+}
+
+/// Leaf offsets honoured by the consumers: a hand-made hierarchy with offsets (one level of
+/// apex cones, variable and empty nodes, half-angles up to π), traversed by the GPU `crsh`
+/// (with and without mesh culling, with and without reach, one and several batches) and
+/// intersected by the GPU `brute` candidate query, gives exactly the hits of the GPU's own
+/// whole-scene brute force, and the CPU brute force's over `Query::Scene` up to edge rounding;
+/// bad offsets are clear errors from both consumers.
+#[test]
+fn offsets_hierarchy_gives_the_brute_force_hits() {
+    use crsh_core::{Candidate, CoreError};
+    let Some(b) =
+        crsh_wgpu::testing::shared_backend("offsets_hierarchy_gives_the_brute_force_hits")
+    else {
+        return;
+    };
+    for name in ["cornell-mirrors", "office-boxes"] {
+        let s = scene(name);
+        let g = gpu_scene(&b, &s);
+        let gpu = BruteForce::new(&g, &brute_spec("mt")).unwrap();
+        let cpu = crsh_wgpu::testing::cpu_intersector(&StageSpec::new("brute"), &s);
+        for (kind, mode) in [
+            (RayKind::Reflection, HitMode::Closest),
+            (RayKind::Shadow, HitMode::Any),
+        ] {
+            let (rays, order, offsets, nodes, reach) = offsets_hierarchy(&s, 17, kind);
+            let buf = b.upload(&rays).unwrap();
+            let mut want = vec![Hit::MISS; rays.len()];
+            cpu.intersect(
+                &Cpu,
+                &rays,
+                Query::Scene,
+                mode,
+                &mut want,
+                &mut Stats::default(),
+            )
+            .unwrap();
+            let mut scene_hits = b.filled(rays.len(), Hit::MISS).unwrap();
+            gpu.intersect(
+                &b,
+                &buf,
+                Query::Scene,
+                mode,
+                &mut scene_hits,
+                &mut Stats::default(),
+            )
+            .unwrap();
+            let scene_hits = b.download(&scene_hits).unwrap();
+            assert!(scene_hits.iter().any(|h| h.is_hit()), "{name}: no hits");
+            for (culling, budget, with_reach) in [
+                (true, 64.0, true),
+                (false, 64.0, false),
+                (true, 0.002, true),
+            ] {
+                let what = format!("{name} {kind:?} culling {culling} budget {budget}");
+                let h: RayHierarchy<Wgpu> = RayHierarchy {
+                    order: b.upload(&order).unwrap(),
+                    levels: vec![b.upload(&nodes).unwrap()],
+                    subdivision: 256,
+                    leaf_offsets: Some(b.upload(&offsets).unwrap()),
+                    reach: if with_reach {
+                        vec![b.upload(&reach).unwrap()]
+                    } else {
+                        Vec::new()
+                    },
+                };
+                let mut spec = StageSpec::new("crsh");
+                spec.params
+                    .insert("mesh_culling".into(), crsh_core::ParamValue::Bool(culling));
+                spec.params.insert(
+                    "candidate_budget_mb".into(),
+                    crsh_core::ParamValue::Float(budget),
+                );
+                let trav = crsh_wgpu::traverse::crsh::Crsh::new(&g, &spec).unwrap();
+                let mut hits = b.filled(rays.len(), Hit::MISS).unwrap();
+                let mut batches = 0;
+                let mut stats = Stats::default();
+                trav.traverse(
+                    &b,
+                    &buf,
+                    kind,
+                    &h,
+                    &mut |batch, st| {
+                        batches += 1;
+                        let pairs: Vec<Candidate> = b.download(&batch.pairs).unwrap();
+                        assert!(pairs.iter().all(|c| (c.node as usize) < nodes.len()));
+                        gpu.intersect(
+                            &b,
+                            &buf,
+                            Query::Candidates {
+                                hierarchy: &h,
+                                batch: &batch,
+                            },
+                            mode,
+                            &mut hits,
+                            st,
+                        )
+                    },
+                    &mut stats,
+                )
+                .unwrap_or_else(|e| panic!("{what}: {e}"));
+                if budget < 1.0 {
+                    assert!(batches > 1, "{what}: one batch");
+                }
+                let got = b.download(&hits).unwrap();
+                println!(
+                    "{what}: {batches} batches, {} rays, {} hit, {} ray-triangle tests \
+                     (brute force {})",
+                    rays.len(),
+                    got.iter().filter(|h| h.is_hit()).count(),
+                    stats.tests.ray_triangle,
+                    rays.len() * s.triangle_count()
+                );
+                for (i, (g, w)) in got.iter().zip(&scene_hits).enumerate() {
+                    assert_eq!(g, w, "{what}: ray {i}: candidates vs whole scene");
+                }
+                let bad = compare(&s, &rays, &got, &want, mode);
+                assert!(
+                    bad * 1000 <= rays.len(),
+                    "{what}: {bad} mismatches with the CPU"
+                );
+                // The candidates were fewer than brute force's.
+                let brute = (rays.len() * s.triangle_count()) as u64;
+                assert!(
+                    stats.tests.ray_triangle < brute,
+                    "{what}: no culling at all"
+                );
+            }
+            // Bad offsets: clear errors, no panic.
+            let bad_offsets: [Vec<u32>; 3] = [
+                {
+                    let mut o = offsets.clone();
+                    o.swap(2, 3);
+                    o
+                },
+                {
+                    let mut o = offsets.clone();
+                    *o.last_mut().unwrap() -= 1;
+                    o
+                },
+                offsets[..offsets.len() - 1].to_vec(),
+            ];
+            let pairs = vec![Candidate { node: 1, tri: 0 }];
+            let batch = CandidateBatch {
+                pairs: b.upload(&pairs).unwrap(),
+            };
+            for o in &bad_offsets {
+                let h: RayHierarchy<Wgpu> = RayHierarchy {
+                    order: b.upload(&order).unwrap(),
+                    levels: vec![b.upload(&nodes).unwrap()],
+                    subdivision: 256,
+                    leaf_offsets: Some(b.upload(o).unwrap()),
+                    reach: Vec::new(),
+                };
+                let mut hits = b.filled(rays.len(), Hit::MISS).unwrap();
+                let r = gpu.intersect(
+                    &b,
+                    &buf,
+                    Query::Candidates {
+                        hierarchy: &h,
+                        batch: &batch,
+                    },
+                    mode,
+                    &mut hits,
+                    &mut Stats::default(),
+                );
+                assert!(
+                    matches!(&r, Err(CoreError::InvalidInput(m)) if m.contains("offsets")),
+                    "{o:?}: {r:?}"
+                );
+                let mut spec = StageSpec::new("crsh");
+                spec.params
+                    .insert("mesh_culling".into(), crsh_core::ParamValue::Bool(true));
+                spec.params.insert(
+                    "candidate_budget_mb".into(),
+                    crsh_core::ParamValue::Float(64.0),
+                );
+                let trav = crsh_wgpu::traverse::crsh::Crsh::new(&g, &spec);
+                let r = trav.unwrap().traverse(
+                    &b,
+                    &buf,
+                    kind,
+                    &h,
+                    &mut |_, _| Ok(()),
+                    &mut Stats::default(),
+                );
+                assert!(
+                    matches!(&r, Err(CoreError::InvalidInput(m)) if m.contains("offsets")),
+                    "traversal {o:?}: {r:?}"
+                );
+            }
+        }
+    }
+}

@@ -2,3 +2,4 @@
 
 pub mod morton_octa;
 pub mod thesis;
+pub mod tile;

@@ -55,7 +55,11 @@ impl SphereConeKernels {
             kernel: Kernel::new(
                 ctx,
                 "crsh sphere-cone",
-                &format!("{SHADER}\n{}", include_str!("../kernels/trig.wgsl")),
+                &crate::kernels::compose(&[
+                    crate::kernels::REACH_WGSL,
+                    SHADER,
+                    crate::kernels::TRIG_WGSL,
+                ]),
                 &["leaves", "inner"],
                 &slots,
             )?,

@@ -1,5 +1,6 @@
 // `sphere_cone` on the device: the twin of crsh_cpu::hierarchy::sphere_cone in f32 (see
-// sphere_cone.rs for what differs). Prepended: common.wgsl; trig.wgsl is appended.
+// sphere_cone.rs for what differs). Prepended: common.wgsl, kernels/reach.wgsl (round_up and
+// the reach guard); trig.wgsl is appended.
 
 const PI: f32 = 3.14159265358979;
 const MAX_SUB: u32 = 64u;
@@ -10,7 +11,6 @@ const CONE_ABS: f32 = 1e-6;
 const SPHERE_REL: f32 = 2e-6;
 // Times max(1, |centre|∞, |point|∞): the rounding of distances between f32 points.
 const SPHERE_ABS: f32 = 1e-6;
-const REACH_REL: f32 = 1e-5;
 
 struct Params {
     // Nodes in this level, children per node, and nodes (or leaves) below.
@@ -161,15 +161,6 @@ fn max_abs3(v: vec3<f32>) -> f32 {
     return max(abs(v.x), max(abs(v.y), abs(v.z)));
 }
 
-// Rounds up by the relative margin and one f32 step.
-fn round_up(x: f32, rel: f32) -> f32 {
-    if (!(x < inf())) {
-        return inf();
-    }
-    let y = x * (1.0 + rel);
-    return bitcast<f32>(bitcast<u32>(y) + 1u);
-}
-
 // The point a leaf ray's sphere bounds and the length its reach adds (segment_starts).
 fn leaf_start(r: Ray) -> vec4<f32> {
     let o = ray_origin(r);
@@ -242,7 +233,7 @@ fn leaves(@builtin(global_invocation_id) gid: vec3<u32>,
         radius = round_up(far * (1.0 + SPHERE_REL) + SPHERE_ABS * scale, 0.0);
     }
     out_nodes[i] = SphereCone(c, radius, stored_axis, half);
-    out_reach[i] = round_up(reach + SPHERE_ABS * scale, REACH_REL);
+    out_reach[i] = reach_guard(reach, scale);
 }
 
 // Upper levels: node i over children i·sub .. min((i+1)·sub, below).
@@ -298,5 +289,5 @@ fn inner(@builtin(global_invocation_id) gid: vec3<u32>,
     }
     let radius = round_up(far * (1.0 + SPHERE_REL) + SPHERE_ABS * scale, 0.0);
     out_nodes[i] = SphereCone(c, radius, stored_axis, half);
-    out_reach[i] = round_up(reach + SPHERE_ABS * scale, REACH_REL);
+    out_reach[i] = reach_guard(reach, scale);
 }

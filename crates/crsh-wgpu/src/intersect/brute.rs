@@ -20,7 +20,13 @@
 //!   of its node (found by binary search in the pairs, which must be strictly increasing by
 //!   (node, triangle) as the traversals emit them; pairs that are not are sorted on the host
 //!   first), in increasing triangle order, with the CPU's merge rules; every test and every
-//!   test that hit are counted (the level-0 row of [`Stats::levels`]).
+//!   test that hit are counted (the level-0 row of [`Stats::levels`]). A leaf's node is
+//!   `leaf / subdivision` (seed 000's fixed groups) or, when the hierarchy has
+//!   [`RayHierarchy::leaf_offsets`] (seed 004's tile cones), the node whose range
+//!   `leaf_offsets[k] .. leaf_offsets[k + 1]` holds it (a binary search in the offsets; one
+//!   kernel, a uniform flag). The offsets are checked on the device in the pass that checks
+//!   the pairs (`levels[0].len() + 1` entries on the host; 0 first, the ray count last,
+//!   non-decreasing) and a violation is a [`CoreError::InvalidInput`] naming it.
 //!
 //! Rays are bound in chunks of one storage binding for whole-scene queries; candidate queries
 //! bind the whole ray buffer (a leaf may name any ray) and fail with
@@ -34,6 +40,9 @@ use crsh_core::{
     Candidate, CoreError, Hit, HitMode, Intersector, Query, Ray, RayKind, Registry, Result,
     StageSpec, Stats,
 };
+
+#[cfg(doc)]
+use crsh_core::RayHierarchy;
 use crsh_cpu::triangle::{PreparedTriangle, TriangleSet};
 
 use crate::adapter::GpuContext;
@@ -54,7 +63,10 @@ struct Params {
     n_pairs: u32,
     subdivision: u32,
     first: u32,
-    pad: [u32; 2],
+    has_offsets: u32,
+    n_nodes: u32,
+    n_leaves: u32,
+    pad: [u32; 3],
 }
 
 /// The compiled kernels (one per device).
@@ -77,6 +89,7 @@ impl BruteKernels {
                     Slot::Read,
                     Slot::ReadWrite,
                     Slot::ReadWrite,
+                    Slot::Read,
                     Slot::Read,
                     Slot::Read,
                 ],
@@ -143,7 +156,10 @@ impl BruteForce {
                 n_pairs: 0,
                 subdivision: 1,
                 first: range.start as u32,
-                pad: [0; 2],
+                has_offsets: 0,
+                n_nodes: 0,
+                n_leaves: 0,
+                pad: [0; 3],
             };
             let u = uniform(ctx, "crsh brute params", &params);
             let bg = k.kernel.bind_group(
@@ -154,6 +170,7 @@ impl BruteForce {
                     self.tris.binding(),
                     hits.slice_binding(range.clone()),
                     counters.binding(),
+                    dummy.binding(),
                     dummy.binding(),
                     dummy.binding(),
                 ],
@@ -173,7 +190,9 @@ impl BruteForce {
     }
 
     /// Candidate query; returns `(tests, hits found)`, or `None` when the pairs are not
-    /// strictly increasing (the caller sorts them).
+    /// strictly increasing (the caller sorts them). `offsets`: the hierarchy's leaf offsets
+    /// (`n_nodes + 1` entries, checked here on the device, reported on the host), or `None`
+    /// for fixed groups of `subdivision` leaves.
     #[allow(clippy::too_many_arguments)]
     fn candidate_query(
         &self,
@@ -181,6 +200,7 @@ impl BruteForce {
         order: &GpuBuffer<u32>,
         n_nodes: usize,
         subdivision: u32,
+        offsets: Option<&GpuBuffer<u32>>,
         pairs: &GpuBuffer<Candidate>,
         any_hit: bool,
         hits: &GpuBuffer<Hit>,
@@ -190,8 +210,16 @@ impl BruteForce {
         ctx.check_storage_binding("candidate rays", rays.byte_len())?;
         ctx.check_storage_binding("candidate hits", hits.byte_len())?;
         ctx.check_storage_binding("candidate pairs", pairs.byte_len())?;
+        if let Some(o) = offsets {
+            ctx.check_storage_binding("hierarchy leaf offsets", o.byte_len())?;
+        }
         let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh brute counters", 6)?;
-        let leaves = order.len().min(n_nodes * subdivision as usize);
+        let dummy = GpuBuffer::<u32>::zeroed(ctx, "crsh brute unused", 4)?;
+        // With offsets every leaf belongs to a node (the last offset is the ray count).
+        let leaves = match offsets {
+            Some(_) => order.len(),
+            None => order.len().min(n_nodes * subdivision as usize),
+        };
         let params = Params {
             n: leaves as u32,
             n_tris: self.n_tris,
@@ -199,11 +227,10 @@ impl BruteForce {
             n_pairs: pairs.len() as u32,
             subdivision,
             first: 0,
-            pad: [0; 2],
-        };
-        let check = Params {
-            n: n_nodes as u32,
-            ..params
+            has_offsets: u32::from(offsets.is_some()),
+            n_nodes: n_nodes as u32,
+            n_leaves: order.len() as u32,
+            pad: [0; 3],
         };
         let bind = |p: &Params| {
             let u = uniform(ctx, "crsh brute params", p);
@@ -217,18 +244,31 @@ impl BruteForce {
                     counters.binding(),
                     order.binding(),
                     pairs.binding(),
+                    offsets.unwrap_or(&dummy).binding(),
                 ],
             )
         };
-        let check_bg = bind(&check);
+        let check_bg = bind(&params);
+        let checks = match offsets {
+            Some(_) => pairs.len().max(n_nodes + 1),
+            None => pairs.len(),
+        };
         let mut enc = encoder(ctx, "crsh brute check pairs");
         {
             let mut pass = ctx.compute_pass(&mut enc, "crsh brute check pairs");
             k.kernel
-                .dispatch(ctx, &mut pass, "check_pairs", &check_bg, pairs.len() as u32)?;
+                .dispatch(ctx, &mut pass, "check_pairs", &check_bg, checks as u32)?;
         }
         submit(ctx, "crsh brute check pairs", enc)?;
         let flags = counters.to_vec(ctx)?;
+        if let (true, Some(o)) = (flags[4] & 4 != 0, offsets) {
+            // The host check names the first violation.
+            let host = o.to_vec(ctx)?;
+            crate::hierarchy::check_leaf_offsets(&host, n_nodes, order.len())?;
+            return Err(CoreError::InvalidInput(
+                "hierarchy leaf offsets are not 0, non-decreasing, ..., the ray count".into(),
+            ));
+        }
         if flags[4] & 2 != 0 {
             return Err(CoreError::InvalidInput(format!(
                 "a candidate pair is out of range ({n_nodes} nodes, {} triangles)",
@@ -238,7 +278,7 @@ impl BruteForce {
         if flags[4] & 1 != 0 {
             return Ok(None);
         }
-        let bg = bind(&params);
+        let bg = check_bg;
         let mut enc = encoder(ctx, "crsh brute candidates");
         {
             let mut pass = ctx.compute_pass(&mut enc, "crsh brute candidates");
@@ -303,8 +343,20 @@ impl Intersector<Wgpu> for BruteForce {
                 let Some(level0) = hierarchy.levels.first() else {
                     return Err(CoreError::InvalidInput("hierarchy has no levels".into()));
                 };
-                if hierarchy.subdivision == 0 {
+                let offsets = hierarchy.leaf_offsets.as_ref();
+                if hierarchy.subdivision == 0 && offsets.is_none() {
                     return Err(CoreError::InvalidInput("hierarchy subdivision is 0".into()));
+                }
+                if let Some(o) = offsets {
+                    if o.len() != level0.len() + 1 {
+                        return Err(CoreError::InvalidInput(format!(
+                            "hierarchy leaf offsets have {} entries for {} lowest nodes \
+                             (expected {})",
+                            o.len(),
+                            level0.len(),
+                            level0.len() + 1
+                        )));
+                    }
                 }
                 if hierarchy.order.len() != rays.len() {
                     return Err(CoreError::InvalidInput(format!(
@@ -319,6 +371,7 @@ impl Intersector<Wgpu> for BruteForce {
                         &hierarchy.order,
                         level0.len(),
                         hierarchy.subdivision,
+                        offsets,
                         pairs,
                         any_hit,
                         hits,

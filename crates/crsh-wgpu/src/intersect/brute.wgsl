@@ -12,6 +12,13 @@ struct Params {
     subdivision: u32,
     // Scene queries: index of the chunk's first ray in the batch.
     first: u32,
+    // Candidate queries: 1 when the hierarchy has leaf offsets (`offsets` is bound; node k
+    // holds leaves offsets[k] .. offsets[k + 1]), 0 for fixed groups (node = leaf / subdivision).
+    has_offsets: u32,
+    // Candidate queries: nodes of levels[0], and leaves (the order's length).
+    n_nodes: u32,
+    n_leaves: u32,
+    _a: u32,
     _b: u32,
     _c: u32,
 }
@@ -25,6 +32,8 @@ struct Params {
 // Candidate queries: the hierarchy's order (leaf -> ray) and the sorted pairs.
 @group(0) @binding(5) var<storage, read> order: array<u32>;
 @group(0) @binding(6) var<storage, read> pairs: array<Candidate>;
+// Candidate queries with has_offsets: the hierarchy's leaf offsets (n_nodes + 1 entries).
+@group(0) @binding(7) var<storage, read> offsets: array<u32>;
 
 const LANES: u32 = 8u;
 
@@ -139,6 +148,22 @@ fn first_pair(node: u32) -> u32 {
     return lo;
 }
 
+// The levels[0] node holding `leaf` under leaf offsets: the first k with offsets[k + 1] > leaf
+// (offsets non-decreasing from 0 to n_leaves, checked by check_pairs; empty nodes are skipped).
+fn node_of_leaf(leaf: u32) -> u32 {
+    var lo = 0u;
+    var hi = p.n_nodes;
+    while (lo < hi) {
+        let mid = lo + (hi - lo) / 2u;
+        if (offsets[mid + 1u] <= leaf) {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    return lo;
+}
+
 // One invocation per hierarchy leaf: its ray against the triangles paired with its node, in
 // increasing id order (pairs strictly increasing), merged into its current hit like the CPU's
 // candidate mode (any-hit: a hit ray is skipped, the first hit stops it). Counts every test
@@ -156,7 +181,12 @@ fn candidates(@builtin(global_invocation_id) gid: vec3<u32>,
     var tests = 0u;
     var found = 0u;
     if (leaf < p.n) {
-        let node = leaf / p.subdivision;
+        var node: u32;
+        if (p.has_offsets != 0u) {
+            node = node_of_leaf(leaf);
+        } else {
+            node = leaf / p.subdivision;
+        }
         let ri = order[leaf];
         let r = rays[ri];
         var best = hits[ri];
@@ -192,18 +222,26 @@ fn candidates(@builtin(global_invocation_id) gid: vec3<u32>,
     }
 }
 
-// 1 in flags[0] when the pairs are not strictly increasing or reference a node or triangle
-// out of range (then the host sorts / reports them).
+// Bits of counters[4]: 1 when the pairs are not strictly increasing (the host sorts them), 2
+// when a pair references a node or triangle out of range, 4 when the leaf offsets are not
+// 0, non-decreasing, ..., n_leaves (both reported by the host). One invocation per pair and,
+// with offsets, per offset entry.
 @compute @workgroup_size(WG)
 fn check_pairs(@builtin(global_invocation_id) gid: vec3<u32>,
                @builtin(num_workgroups) nwg: vec3<u32>) {
     let k = linear_id(gid, nwg);
+    if (p.has_offsets != 0u && k <= p.n_nodes) {
+        let o = offsets[k];
+        if ((k == 0u && o != 0u) || (k == p.n_nodes && o != p.n_leaves) || o > p.n_leaves
+            || (k > 0u && offsets[k - 1u] > o)) {
+            atomicOr(&counters[4], 4u);
+        }
+    }
     if (k >= p.n_pairs) {
         return;
     }
     let c = pairs[k];
-    // n = nodes here.
-    if (c.node >= p.n || c.tri >= p.n_tris) {
+    if (c.node >= p.n_nodes || c.tri >= p.n_tris) {
         atomicOr(&counters[4], 2u);
     }
     if (k + 1u < p.n_pairs) {

@@ -34,12 +34,17 @@ pub const RNG_WGSL: &str = include_str!("rng.wgsl");
 /// ray generation; after [`GLAM_WGSL`].
 pub const SEGMENT_WGSL: &str = include_str!("segment.wgsl");
 
+/// `round_up` and `reach_guard`: the rounding guard of a node's reach computed in `f32`,
+/// shared by the hierarchy builders (`sphere_cone`, `tile_cone`) so their reaches are guarded
+/// alike; after `common.wgsl` only.
+pub const REACH_WGSL: &str = include_str!("reach.wgsl");
+
 /// `origin_offset.wgsl` without its constants: see [`origin_offset_wgsl`].
 const ORIGIN_OFFSET_BODY: &str = include_str!("origin_offset.wgsl");
 
 /// The WGSL constant declaration `const NAME: f32 = x;` with `x` written so that it reads back
 /// as the same `f32` (Rust's shortest round-trip form).
-fn f32_const(name: &str, x: f32) -> String {
+pub(crate) fn f32_const(name: &str, x: f32) -> String {
     format!("const {name}: f32 = {x:?}f;\n")
 }
 

@@ -17,6 +17,14 @@
 //!    children is computed from its node's run, found by binary search), so the final pairs
 //!    go to the intersector's candidate query already sorted.
 //!
+//! Hierarchies with [`RayHierarchy::leaf_offsets`] (seed 004's tile cones) are accepted:
+//! `levels[0]` then has `leaf_offsets.len() − 1` nodes (each level above
+//! `⌈below / subdivision⌉`), the offsets are checked once per traversal (downloaded: 0 first,
+//! the ray count last, non-decreasing), and the pairs name `levels[0]` nodes as always. Any
+//! node that keeps the hierarchy's contract is traversed correctly, apex cones included
+//! (sphere radius 0 at the apex, half-angles up to π: from `π − ANGLE_MARGIN` on, every
+//! direction passes).
+//!
 //! What differs: the node-sphere test runs in `f32` (the CPU's in `f64`) with the CPU's
 //! margins plus an acceptance that bounds the test's own rounding (the radicand of
 //! `√(D² − ρ²)` off by at most `8ε(D² + ρ²)`, the products and sums by a few `ε`), with `sin`
@@ -369,13 +377,29 @@ impl Traverser<Wgpu> for Crsh {
         let sub = h.subdivision;
         let level_lens: Vec<usize> = h.levels.iter().map(|l| l.len()).collect();
         let reach_lens: Vec<usize> = h.reach.iter().map(|r| r.len()).collect();
-        crsh_cpu::traverse::crsh::check_shape(
-            n_rays,
-            sub,
-            h.order.len(),
-            &level_lens,
-            &reach_lens,
-        )?;
+        match &h.leaf_offsets {
+            None => crsh_cpu::traverse::crsh::check_shape(
+                n_rays,
+                sub,
+                h.order.len(),
+                &level_lens,
+                &reach_lens,
+            )?,
+            Some(offsets) => {
+                crate::hierarchy::check_offsets_shape(
+                    n_rays,
+                    sub,
+                    h.order.len(),
+                    offsets.len(),
+                    &level_lens,
+                    &reach_lens,
+                )?;
+                // The traversal never reads them (its pairs name lowest nodes), but a
+                // hierarchy whose offsets the intersector would refuse is refused here, once.
+                let host = offsets.to_vec(ctx)?;
+                crate::hierarchy::check_leaf_offsets(&host, level_lens[0], n_rays)?;
+            }
+        }
         let has_reach = !h.reach.is_empty();
         let k = ctx.kernel(CrshKernels::new)?;
         // Prepare every level's bounds.

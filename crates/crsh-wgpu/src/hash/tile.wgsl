@@ -1,0 +1,36 @@
+// `tile` hashing on the device: the twin of crsh_cpu::hash::tile (see tile.rs). Prepended:
+// common.wgsl, RAY_KIND_SHADOW, tile_group.wgsl.
+
+struct Params {
+    // Rays in this chunk.
+    n: u32,
+    width: u32,
+    height: u32,
+    tile_size: u32,
+    tiles_x: u32,
+    tiles: u32,
+    // The all-ones key of key_bits (lo, hi): the key of a ray outside the frame.
+    none_lo: u32,
+    none_hi: u32,
+}
+
+@group(0) @binding(0) var<uniform> p: Params;
+@group(0) @binding(1) var<storage, read> rays: array<Ray>;
+@group(0) @binding(2) var<storage, read_write> keys: array<vec2<u32>>;
+
+@compute @workgroup_size(WG)
+fn hash(@builtin(global_invocation_id) gid: vec3<u32>,
+        @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_id(gid, nwg);
+    if (i >= p.n) {
+        return;
+    }
+    let r = rays[i];
+    let g = tile_group(r.pixel, r.light, r.kind, p.width, p.height, p.tile_size, p.tiles_x,
+                       p.tiles);
+    if (g.z == 0u) {
+        keys[i] = vec2<u32>(p.none_lo, p.none_hi);
+    } else {
+        keys[i] = g.xy;
+    }
+}

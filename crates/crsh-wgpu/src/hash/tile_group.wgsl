@@ -1,0 +1,44 @@
+// Seed 004's screen-tile group of a ray: the twin of crate::hash::tile::TileGrid::group.
+// Prepended: common.wgsl and the generated constant RAY_KIND_SHADOW (crate::hash::tile).
+//
+// tile = (y / ts)·tiles_x + x / ts for the pixel y·width + x; group = tile, or for shadow rays
+// light·tiles + tile (so that a node never mixes two lights), as a u64 in (lo, hi).
+
+// a·b as a u64 (lo, hi) from 16-bit halves.
+fn mul_wide(a: u32, b: u32) -> vec2<u32> {
+    let a_lo = a & 0xffffu;
+    let a_hi = a >> 16u;
+    let b_lo = b & 0xffffu;
+    let b_hi = b >> 16u;
+    let ll = a_lo * b_lo;
+    let lh = a_lo * b_hi;
+    let hl = a_hi * b_lo;
+    let hh = a_hi * b_hi;
+    let mid = (ll >> 16u) + (lh & 0xffffu) + (hl & 0xffffu);
+    let lo = (ll & 0xffffu) | (mid << 16u);
+    let hi = hh + (lh >> 16u) + (hl >> 16u) + (mid >> 16u);
+    return vec2<u32>(lo, hi);
+}
+
+// The group of a ray with `pixel`, `light` and `kind` in a frame of `width × height` cut into
+// tiles of `ts` pixels (`tiles_x` per row, `tiles` in all): (lo, hi, 1), or (0, 0, 0) when the
+// pixel is outside the frame.
+fn tile_group(pixel: u32, light: u32, kind: u32, width: u32, height: u32, ts: u32,
+              tiles_x: u32, tiles: u32) -> vec3<u32> {
+    let y = pixel / width;
+    let x = pixel % width;
+    if (y >= height) {
+        return vec3<u32>(0u, 0u, 0u);
+    }
+    let tile = (y / ts) * tiles_x + x / ts;
+    if (kind != RAY_KIND_SHADOW) {
+        return vec3<u32>(tile, 0u, 1u);
+    }
+    let m = mul_wide(light, tiles);
+    let lo = m.x + tile;
+    var hi = m.y;
+    if (lo < m.x) {
+        hi += 1u;
+    }
+    return vec3<u32>(lo, hi, 1u);
+}
