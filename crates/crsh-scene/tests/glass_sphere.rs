@@ -311,7 +311,7 @@ fn sphere_normals_are_unit_and_outward_and_walls_face_inward() {
                 m.name
             );
             colours.push(mat.diffuse);
-            centres.push(m.aabb.center() / 6.0);
+            centres.push(m.aabb.center());
             for t in m.first_tri..m.first_tri + m.tri_count {
                 let [a, b, c] = s.triangle(t as usize);
                 let n = (b - a).cross(c - a).normalize();
@@ -321,17 +321,28 @@ fn sphere_normals_are_unit_and_outward_and_walls_face_inward() {
                 }
             }
         }
-        // The six walls close the box [-6, 6]³.
-        for axis in [Vec3::X, Vec3::Y, Vec3::Z, -Vec3::X, -Vec3::Y, -Vec3::Z] {
-            assert!(
-                centres.iter().any(|c| (*c - axis).length() < 1e-6),
-                "{name}: no wall at {axis}"
-            );
+        // The six walls close the box: each is a whole face of it.
+        let (lo, hi) = (glass_sphere::ROOM_MIN, glass_sphere::ROOM_MAX);
+        assert_eq!((s.bounds.min, s.bounds.max), (lo, hi));
+        let mid = (lo + hi) / 2.0;
+        for axis in 0..3 {
+            for level in [lo[axis], hi[axis]] {
+                let mut face = mid;
+                face[axis] = level;
+                assert!(
+                    centres.iter().any(|c| (*c - face).length() < 1e-6),
+                    "{name}: no wall at {face}"
+                );
+            }
         }
+        // The sphere and the eye are inside.
+        assert!(lo.cmplt(Vec3::splat(-1.0)).all() && hi.cmpgt(Vec3::ONE).all());
+        let eye = s.camera.eye;
+        assert!(eye.cmpgt(lo).all() && eye.cmplt(hi).all());
         // One light inside the box, off the camera's axis, not behind the sphere.
         assert_eq!(s.lights.len(), 1);
         let l = s.lights[0].position;
-        assert!(l.abs().max_element() < 6.0 && l.length() > 1.0);
+        assert!(l.cmpgt(lo).all() && l.cmplt(hi).all() && l.length() > 1.0);
         let axis_dist = miss_distance(s.camera.eye, -Vec3::Z).max(0.0);
         assert!(axis_dist < 1e-9);
         assert!(Vec3::new(l.x, l.y, 0.0).length() > 1.0, "off axis");

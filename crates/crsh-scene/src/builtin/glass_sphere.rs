@@ -1,21 +1,27 @@
 //! `glass-sphere` and `glass-sphere-N`: a clear glass UV sphere that fills the whole view,
-//! inside a closed box of opaque diffuse walls, lit by one point light. Every primary ray hits
-//! glass, so after the primary hit the frame is nothing but refraction rays (and the shadow
-//! rays of the walls they end on).
+//! inside a closed box (a long corridor) of opaque diffuse walls, lit by one point light. Every
+//! primary ray hits glass, so after the primary hit the frame is nothing but refraction rays
+//! (and the shadow rays of the walls they end on).
 //!
 //! # Why
 //!
 //! Seed 004 (Szécsi, "The Hierarchical Ray Engine", §7) measures its ray engine on "refractive
 //! objects" where "a refractive surface was visible in every pixel", traced through several
 //! generations of refraction (fig. 4 shows 1, 2, 4 and 8 iterations, fig. 7 uses paths of
-//! length 5), and sweeps the object's triangle count: 100, 500, 1000 and 5000
-//! ([`PAPER_TRIANGLES`]; fig. 5 and 7, 5000 in the throughput estimate). This scene is that
+//! length 5, fig. 5 shows such renders), and sweeps the object's triangle count (fig. 7:
+//! 100, 500, 1000 and 5000, [`PAPER_TRIANGLES`]; 5000 is its throughput estimate's case,
+//! 100 the count where the hierarchy already runs twice as fast). This scene is that
 //! setup: `glass-sphere` is the headline case of 5000 object triangles
 //! ([`DEFAULT_TRIANGLES`]), `glass-sphere-N` the same scene with an object of exactly `N`
 //! triangles. The paper queries an environment map for rays that leave the object; here the
 //! environment is a box of six two-triangle walls, so every ray that leaves the sphere ends on
 //! a wall and every path terminates. The number of generations is the pipeline's `--depth`,
-//! not part of the scene (use `--depth 8` for fig. 4's deepest column).
+//! not part of the scene (`--depth 8` for fig. 4's deepest column), but note that one convex
+//! sphere refracts every path exactly twice: a ray entering a sphere at incidence `i` meets the
+//! far side at `r = asin(sin i / 1.5) < 41.8°`, the critical angle, so it always leaves (no
+//! total internal reflection) and then ends on a wall. At 256² the render counts exactly two
+//! refraction rays per pixel for N = 100, 500 and 5000, whatever the depth ≥ 2; deeper
+//! generations need a non-convex object or several glass objects.
 //!
 //! # Names and triangle counts
 //!
@@ -64,10 +70,15 @@
 //! black diffuse and specular. Its local weight `1 − reflectivity − transparency` is 0, so the
 //! Whitted generator spawns only refraction rays at the sphere (no shadow or reflection rays;
 //! total internal reflection keeps the refraction kind). The walls are opaque diffuse
-//! (reflectivity and transparency 0, no specular), each its own mesh and colour, normals facing
-//! the inside of the box [`ROOM_MIN`]..[`ROOM_MAX`] = `[-6, 6]³`; they spawn only shadow rays.
-//! The point light sits at [`LIGHT_POSITION`], above, right of and in front of the sphere, off
-//! the camera's axis and not behind the sphere.
+//! (reflectivity and transparency 0, no specular), each its own mesh and colour (floor grey,
+//! ceiling light grey, left red, right green, back blue, front yellow), normals facing the
+//! inside of the box [`ROOM_MIN`]..[`ROOM_MAX`] = `[-2, 2] × [-2, 2] × [-12, 4]`; they spawn
+//! only shadow rays. The box is a corridor so that the refraction shows: the sphere is a ball
+//! lens that turns the view around, and only rays leaving it within about 8° of the axis
+//! reach the back wall, so the image is the corridor upside down, the blue back wall in the
+//! middle and the four long walls around it (a cube such as `[-6, 6]³` would show the back
+//! wall in every pixel). The point light sits at [`LIGHT_POSITION`], above, right of and in
+//! front of the sphere, off the camera's axis and not behind the sphere.
 //!
 //! # Camera and coverage
 //!
@@ -124,10 +135,10 @@ pub const MAX_TRIANGLES: u32 = 200_000;
 pub const ENVIRONMENT_TRIANGLES: usize = 12;
 
 /// Lower corner of the closed box of walls.
-pub const ROOM_MIN: Vec3 = Vec3::splat(-6.0);
+pub const ROOM_MIN: Vec3 = Vec3::new(-2.0, -2.0, -12.0);
 
 /// Upper corner of the closed box of walls.
-pub const ROOM_MAX: Vec3 = Vec3::splat(6.0);
+pub const ROOM_MAX: Vec3 = Vec3::new(2.0, 2.0, 4.0);
 
 /// Distance of the eye (on `+z`) from the sphere's centre.
 pub const EYE_DISTANCE: f32 = 3.0;
@@ -143,7 +154,7 @@ pub const COVER_MARGIN: f64 = 0.02;
 pub const IOR: f32 = 1.5;
 
 /// Where the point light sits: inside the box, off the camera's axis, in front of the sphere.
-pub const LIGHT_POSITION: Vec3 = Vec3::new(2.5, 4.0, 2.0);
+pub const LIGHT_POSITION: Vec3 = Vec3::new(1.2, 1.6, 2.0);
 
 /// The slices and stacks of a UV sphere.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -411,8 +422,8 @@ pub fn builder(triangles: u32) -> Result<SceneBuilder, SceneError> {
     };
     let (lo, hi) = (ROOM_MIN, ROOM_MAX);
     let v = Vec3::new;
-    // (name, colour, a corner of the wall's plane on each axis: the wall is the face of the
-    // box at `lo` or `hi` along its axis, and faces the inside.)
+    // (name, colour, axis, whether the wall is the box's face at `hi` (else `lo`) along that
+    // axis); each faces the inside.
     let walls: [(&str, Vec3, usize, bool); 6] = [
         ("floor", v(0.7, 0.7, 0.65), 1, false),
         ("ceiling", v(0.85, 0.85, 0.85), 1, true),

@@ -4,15 +4,15 @@
 //!   mirror walls, one point light (reflection-heavy).
 //! - [`office_boxes`]: a deterministic procedural office with ~140 separate meshes and two
 //!   lights (shadow-ray work), plus one glass and one mirror object.
+//!
+//! - `cornell-mirrors-animated`: `cornell-mirrors` with a spinning, bouncing cube, a waving
+//!   flag and a twisting column ([`CORNELL_MIRRORS_ANIMATED`], a manifest of built-in shapes:
+//!   see [`crate::animation`]).
 //! - [`glass_sphere`]: seed 004 §7's refractive object that fills the whole view — a clear
 //!   glass UV sphere in a box of diffuse walls (refraction-heavy). `glass-sphere` has 5000
 //!   object triangles; `glass-sphere-N` exactly `N` (even, 8..=200000, `N/2 = s·(t−1)` with
 //!   `s ≥ 3`, `t − 1 ≥ 2`), e.g. the paper's `glass-sphere-100`, `-500`, `-1000`. [`NAMES`]
 //!   lists only the parameterless name; [`is_name`] and [`PATTERNS`] cover the sized ones.
-//!
-//! - `cornell-mirrors-animated`: `cornell-mirrors` with a spinning, bouncing cube, a waving
-//!   flag and a twisting column ([`CORNELL_MIRRORS_ANIMATED`], a manifest of built-in shapes:
-//!   see [`crate::animation`]).
 //!
 //! Every built-in is deterministic: the same arrays on every call and machine.
 
