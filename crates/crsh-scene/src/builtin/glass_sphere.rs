@@ -74,10 +74,11 @@
 //! ceiling light grey, left red, right green, back blue, front yellow), normals facing the
 //! inside of the box [`ROOM_MIN`]..[`ROOM_MAX`] = `[-2, 2] × [-2, 2] × [-12, 4]`; they spawn
 //! only shadow rays. The box is a corridor so that the refraction shows: the sphere is a ball
-//! lens that turns the view around, and only rays leaving it within about 8° of the axis
-//! reach the back wall, so the image is the corridor upside down, the blue back wall in the
-//! middle and the four long walls around it (a cube such as `[-6, 6]³` would show the back
-//! wall in every pixel). The point light sits at [`LIGHT_POSITION`], above, right of and in
+//! lens that turns the view around and spreads it (a ray 16.7° off the axis, a square
+//! frame's corner, leaves at 32°), and only rays leaving within about 12° of the axis reach
+//! the back wall, so the image is the corridor upside down, the blue back wall in the middle
+//! (out to about 10° of the 12° half field of view) and the four long walls around it (a cube
+//! such as `[-6, 6]³` would show the back wall in every pixel). The point light sits at [`LIGHT_POSITION`], above, right of and in
 //! front of the sphere, off the camera's axis and not behind the sphere.
 //!
 //! # Camera and coverage
@@ -100,9 +101,9 @@
 //! Pixels are square and the horizontal extent grows with the image's `width / height` `a`
 //! ([`Camera::direction`]): a corner ray has `tan α = tan 12°·√(1 + a²)`. Portrait and square
 //! frames (`a ≤ 1`) are fully covered; landscape frames are fully covered by the unit sphere up
-//! to `a = 1.329`, by the mesh up to `a ≈ 1.14` for N = 100 and `a ≈ 1.31` for N ≥ 500. So 4:3
-//! and 16:9 frames show the walls in their corners (the paper used square 256² and 512²
-//! frames).
+//! to `a = 1.329`, by the mesh's inscribed ball up to `a ≈ 1.14` for N = 100, 1.29 for 500,
+//! 1.30 for 1000 and 1.32 for 5000. So 4:3 and 16:9 frames show the walls in their corners
+//! (the paper used square 256² and 512² frames).
 
 use std::f64::consts::PI;
 
