@@ -67,9 +67,12 @@
 //! # Material
 //!
 //! Clear glass ([`glass`]): transparency 1, reflectivity 0, index of refraction [`IOR`] = 1.5,
-//! black diffuse and specular. Its local weight `1 − reflectivity − transparency` is 0, so the
-//! Whitted generator spawns only refraction rays at the sphere (no shadow or reflection rays;
-//! total internal reflection keeps the refraction kind). The walls are opaque diffuse
+//! no specular, a tiny grey diffuse ([`GLASS_DIFFUSE`]). Its local weight `1 − reflectivity −
+//! transparency` is 0, so the Whitted generator spawns only refraction rays at the sphere (no
+//! shadow or reflection rays; total internal reflection keeps the refraction kind) and the
+//! Phong shader gives it no local colour: the diffuse colour matters only to the AO and
+//! diffuse generators, which treat every material as opaque and diffuse, and it is not black
+//! so that their images of this scene are not black either. The walls are opaque diffuse
 //! (reflectivity and transparency 0, no specular), each its own mesh and colour (floor grey,
 //! ceiling light grey, left red, right green, back blue, front yellow), normals facing the
 //! inside of the box [`ROOM_MIN`]..[`ROOM_MAX`] = `[-2, 2] × [-2, 2] × [-12, 4]`; they spawn
@@ -153,6 +156,10 @@ pub const COVER_MARGIN: f64 = 0.02;
 
 /// Index of refraction of the glass.
 pub const IOR: f32 = 1.5;
+
+/// Diffuse colour of the glass: unused by Whitted shading (its local weight is 0), seen only
+/// by the AO and diffuse generators, which treat the sphere as an opaque dark grey ball.
+pub const GLASS_DIFFUSE: Vec3 = Vec3::splat(0.05);
 
 /// Where the point light sits: inside the box, off the camera's axis, in front of the sphere.
 pub const LIGHT_POSITION: Vec3 = Vec3::new(1.2, 1.6, 2.0);
@@ -299,12 +306,13 @@ pub fn allowed() -> String {
     )
 }
 
-/// The glass of the sphere: transparency 1, reflectivity 0, ior [`IOR`], black diffuse and
-/// specular (its local weight is 0, so only refraction rays leave it).
+/// The glass of the sphere: transparency 1, reflectivity 0, ior [`IOR`], diffuse
+/// [`GLASS_DIFFUSE`], no specular (its local weight is 0, so only refraction rays leave it in
+/// a Whitted frame).
 pub fn glass() -> Material {
     Material {
         name: "glass".into(),
-        diffuse: Vec3::ZERO,
+        diffuse: GLASS_DIFFUSE,
         specular: Vec3::ZERO,
         shininess: 1.0,
         reflectivity: 0.0,
