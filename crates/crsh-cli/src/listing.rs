@@ -31,9 +31,17 @@ struct ManifestRow {
     problem: Option<String>,
 }
 
+/// A parameterized built-in name (`glass-sphere-N`) and what it means.
+#[derive(Debug, Serialize)]
+struct PatternEntry {
+    name: String,
+    doc: String,
+}
+
 #[derive(Debug, Serialize)]
 struct ScenesListing {
     builtins: Vec<BuiltinEntry>,
+    patterns: Vec<PatternEntry>,
     scenes_dir: String,
     manifests: Vec<ManifestRow>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -56,8 +64,16 @@ pub fn scenes(args: &ScenesArgs) -> CliResult<()> {
     }
     let dir = &args.scenes_dir;
     let (manifests, note) = manifests(dir)?;
+    let patterns = crsh_scene::builtin::PATTERNS
+        .iter()
+        .map(|(name, doc)| PatternEntry {
+            name: name.to_string(),
+            doc: doc.to_string(),
+        })
+        .collect();
     let listing = ScenesListing {
         builtins,
+        patterns,
         scenes_dir: dir.display().to_string(),
         manifests,
         note,
@@ -99,7 +115,10 @@ fn manifests(dir: &Path) -> CliResult<(Vec<ManifestRow>, Option<String>)> {
 
 fn scenes_text(l: &ScenesListing) -> String {
     let mut s = String::from("Built-in scenes (--scene NAME):\n");
-    let w = l.builtins.iter().map(|b| b.name.len()).max().unwrap_or(0);
+    let w = (l.builtins.iter().map(|b| b.name.len()))
+        .chain(l.patterns.iter().map(|p| p.name.len()))
+        .max()
+        .unwrap_or(0);
     for b in &l.builtins {
         let _ = writeln!(
             s,
@@ -109,6 +128,9 @@ fn scenes_text(l: &ScenesListing) -> String {
             count(b.meshes, "mesh", "meshes"),
             count(b.lights, "light", "lights"),
         );
+    }
+    for p in &l.patterns {
+        let _ = writeln!(s, "  {:w$}  {}", p.name, p.doc);
     }
     let _ = writeln!(s, "\nScene manifests in {} (--scene PATH):", l.scenes_dir);
     let w = l.manifests.iter().map(|m| m.name.len()).max().unwrap_or(0);

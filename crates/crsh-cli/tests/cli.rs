@@ -497,7 +497,14 @@ fn scenes_lists_builtins_and_notes_a_missing_dir() {
     let o = crsh(&dir, &["scenes", "--scenes-dir", "nowhere"]);
     assert_ok(&o);
     let out = stdout(&o);
-    for needle in ["cornell-mirrors", "office-boxes", "triangles", "not found"] {
+    for needle in [
+        "cornell-mirrors",
+        "office-boxes",
+        "glass-sphere ",
+        "glass-sphere-N",
+        "triangles",
+        "not found",
+    ] {
         assert!(
             out.contains(needle),
             "`crsh scenes` lacks `{needle}`:\n{out}"
@@ -513,6 +520,14 @@ fn scenes_lists_builtins_and_notes_a_missing_dir() {
     assert!(builtins
         .iter()
         .any(|b| b["name"] == "office-boxes" && b["lights"].as_u64().unwrap() >= 2));
+    assert!(builtins
+        .iter()
+        .any(|b| b["name"] == "glass-sphere" && b["triangles"].as_u64() == Some(5012)));
+    assert!(v["patterns"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|p| p["name"] == "glass-sphere-N"));
     assert!(v["manifests"].as_array().unwrap().is_empty());
 
     // A directory with one manifest, through the environment variable.

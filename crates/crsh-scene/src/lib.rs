@@ -6,9 +6,10 @@
 //! `../shared/scenes`; built-in procedural scenes need no files.
 //!
 //! Entry points:
-//! - [`load`] / [`load_with_report`]: a built-in name ([`builtin::NAMES`]), a `.toml`
-//!   manifest ([`manifest`]) or a bare `.obj` ([`obj`]); the report carries non-fatal warnings
-//!   such as a missing MTL file.
+//! - [`load`] / [`load_with_report`]: a built-in name ([`builtin::NAMES`], or a sized one
+//!   such as `glass-sphere-500`: [`builtin::PATTERNS`]), a `.toml` manifest ([`manifest`]) or
+//!   a bare `.obj` ([`obj`]); the report carries non-fatal warnings such as a missing MTL
+//!   file.
 //! - [`load_path`] / [`load_path_with_report`]: a file, by extension.
 //! - [`manifest::list`]: the manifests of a scenes directory, for `crsh scenes`.
 //! - [`SceneBuilder`]: builds and validates a [`Scene`] from meshes, computing normals,
@@ -86,20 +87,26 @@ pub struct LoadReport {
 
 fn accepted() -> String {
     format!(
-        "expected a built-in scene name ({}), a .toml manifest or an .obj file",
-        builtin::NAMES.join(", ")
+        "expected a built-in scene name ({}, {}), a .toml manifest or an .obj file",
+        builtin::NAMES.join(", "),
+        builtin::PATTERNS
+            .iter()
+            .map(|(p, _)| *p)
+            .collect::<Vec<_>>()
+            .join(", ")
     )
 }
 
-/// Loads a scene from `spec`: a built-in name ([`builtin::NAMES`]), or a path to a `.toml`
-/// manifest or an `.obj` file.
+/// Loads a scene from `spec`: a built-in name ([`builtin::NAMES`], or a sized one such as
+/// `glass-sphere-500`: [`builtin::is_name`]), or a path to a `.toml` manifest or an `.obj`
+/// file.
 pub fn load(spec: &str) -> Result<Scene, SceneError> {
     load_with_report(spec).map(|(s, _)| s)
 }
 
 /// [`load`], also returning the [`LoadReport`] (warnings such as a missing MTL file).
 pub fn load_with_report(spec: &str) -> Result<(Scene, LoadReport), SceneError> {
-    if builtin::NAMES.contains(&spec) {
+    if builtin::is_name(spec) {
         let (scene, warnings) = builtin::build_with_warnings(spec)?;
         return Ok((
             scene,
@@ -126,7 +133,7 @@ pub fn load_animated(spec: &str) -> Result<(AnimatedScene, LoadReport), SceneErr
         source: spec.to_string(),
         warnings,
     };
-    if builtin::NAMES.contains(&spec) {
+    if builtin::is_name(spec) {
         let (anim, warnings) = builtin::animated_with_warnings(spec)?;
         return Ok((anim, report(warnings)));
     }

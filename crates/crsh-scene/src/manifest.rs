@@ -78,8 +78,9 @@ pub struct Manifest {
     /// Scene name used in reports (default: the manifest's file stem).
     #[serde(default)]
     pub name: Option<String>,
-    /// A scene this one adds to: a manifest path (relative to this manifest) or a built-in
-    /// scene name.
+    /// A scene this one adds to: a manifest path (relative to this manifest) or the name of a
+    /// built-in scene that never moves ([`crate::builtin::is_static`], e.g. `office-boxes` or
+    /// `glass-sphere-500`).
     #[serde(default)]
     pub extends: Option<String>,
     /// The OBJ file, relative to the manifest (or absolute).
@@ -408,7 +409,7 @@ fn add_manifest(
                 format!("extends `{base}`: more than {MAX_EXTENDS_DEPTH} levels (a cycle?)"),
             ));
         }
-        if crate::builtin::STATIC_NAMES.contains(&base.as_str()) {
+        if crate::builtin::is_static(base) {
             let name = builder.name().to_string();
             *builder = crate::builtin::builder(base)?;
             builder.rename(name);

@@ -424,7 +424,7 @@ impl Cell {
 /// Resolves a scene spec: built-in names stay; `${CRSH_SCENES}` expands; a relative path is
 /// tried in `plan_dir` (when given), the current directory and the scenes directory.
 pub fn resolve_scene(spec: &str, plan_dir: Option<&Path>) -> Result<String, String> {
-    if crsh_scene::builtin::NAMES.contains(&spec) {
+    if crsh_scene::builtin::is_name(spec) {
         return Ok(spec.to_string());
     }
     let env_dir = std::env::var_os("CRSH_SCENES").map(PathBuf::from);
@@ -462,9 +462,14 @@ pub fn resolve_scene(spec: &str, plan_dir: Option<&Path>) -> Result<String, Stri
         .ok_or_else(|| {
             let tried: Vec<String> = candidates.iter().map(|c| c.display().to_string()).collect();
             format!(
-                "scene not found: {spec} (tried {}; not a built-in scene: {})",
+                "scene not found: {spec} (tried {}; not a built-in scene: {}, {})",
                 tried.join(", "),
-                crsh_scene::builtin::NAMES.join(", ")
+                crsh_scene::builtin::NAMES.join(", "),
+                crsh_scene::builtin::PATTERNS
+                    .iter()
+                    .map(|(p, _)| *p)
+                    .collect::<Vec<_>>()
+                    .join(", ")
             )
         })
 }
@@ -1226,5 +1231,9 @@ mod tests {
             .unwrap_err()
             .starts_with("scene not found: no/such/scene.toml"));
         assert_eq!(resolve_scene("office-boxes", None).unwrap(), "office-boxes");
+        // Sized built-ins stay names; a bad size is left for the loader to refuse.
+        for name in ["glass-sphere", "glass-sphere-500", "glass-sphere-7"] {
+            assert_eq!(resolve_scene(name, None).unwrap(), name);
+        }
     }
 }

@@ -8,10 +8,16 @@
 //! - `cornell-mirrors-animated`: `cornell-mirrors` with a spinning, bouncing cube, a waving
 //!   flag and a twisting column ([`CORNELL_MIRRORS_ANIMATED`], a manifest of built-in shapes:
 //!   see [`crate::animation`]).
+//! - [`glass_sphere`]: seed 004 §7's refractive object that fills the whole view — a clear
+//!   glass UV sphere in a box of diffuse walls (refraction-heavy). `glass-sphere` has 5000
+//!   object triangles; `glass-sphere-N` exactly `N` (even, 8..=200000, `N/2 = s·(t−1)` with
+//!   `s ≥ 3`, `t − 1 ≥ 2`), e.g. the paper's `glass-sphere-100`, `-500`, `-1000`. [`NAMES`]
+//!   lists only the parameterless name; [`is_name`] and [`PATTERNS`] cover the sized ones.
 //!
 //! Every built-in is deterministic: the same arrays on every call and machine.
 
 pub mod cornell_mirrors;
+pub mod glass_sphere;
 pub mod office_boxes;
 
 use std::path::Path;
@@ -23,38 +29,68 @@ use crate::error::SceneError;
 use crate::manifest::Manifest;
 use crate::model::{Scene, SceneBuilder};
 
-/// Names of the built-in scenes, as accepted by [`build`] and [`crate::load`].
+/// Names of the parameterless built-in scenes, as accepted by [`build`] and [`crate::load`].
+/// The sized forms of [`PATTERNS`] (`glass-sphere-N`) are accepted too: [`is_name`].
 pub const NAMES: &[&str] = &[
     "cornell-mirrors",
     "office-boxes",
     "cornell-mirrors-animated",
+    "glass-sphere",
 ];
 
-/// The built-ins that never move (a manifest may `extends` them).
-pub const STATIC_NAMES: &[&str] = &["cornell-mirrors", "office-boxes"];
+/// The parameterless built-ins that never move (a manifest may `extends` them, and the sized
+/// forms of [`PATTERNS`], which never move either: [`is_static`]).
+pub const STATIC_NAMES: &[&str] = &["cornell-mirrors", "office-boxes", "glass-sphere"];
+
+/// The parameterized built-in names, for listings: the pattern and what it means.
+pub const PATTERNS: &[(&str, &str)] = &[(
+    "glass-sphere-N",
+    "glass-sphere with exactly N object triangles (N even, 8..=200000, N/2 = s*(t-1), s >= 3, \
+     t-1 >= 2; seed 004's 100, 500, 1000, 5000)",
+)];
+
+/// Whether `name` names a built-in scene: one of [`NAMES`] or a `glass-sphere-N` (well-formed
+/// or not: [`build`] refuses a bad `N` with an error that names the allowed values, rather
+/// than the caller treating it as a file).
+pub fn is_name(name: &str) -> bool {
+    NAMES.contains(&name) || glass_sphere::is_name(name)
+}
+
+/// Whether `name` names a built-in scene that never moves ([`STATIC_NAMES`] or a
+/// `glass-sphere-N`), which a manifest may `extends`.
+pub fn is_static(name: &str) -> bool {
+    STATIC_NAMES.contains(&name) || glass_sphere::is_name(name)
+}
 
 /// The manifest of `cornell-mirrors-animated`: the built-in `cornell-mirrors` plus a cube that
 /// spins and bounces (rigid: rotation and keyframes), a flag that waves and a column that
 /// twists (deforming: every vertex moves relative to the others).
 pub const CORNELL_MIRRORS_ANIMATED: &str = include_str!("cornell_mirrors_animated.toml");
 
-/// The builder of the static built-in `name` (one of [`STATIC_NAMES`]).
+/// The builder of the static built-in `name` (one of [`STATIC_NAMES`], or `glass-sphere-N`).
 pub fn builder(name: &str) -> Result<SceneBuilder, SceneError> {
     match name {
         "cornell-mirrors" => Ok(cornell_mirrors::builder()),
         "office-boxes" => Ok(office_boxes::builder()),
+        _ if glass_sphere::is_name(name) => glass_sphere::builder_named(name),
         _ => Err(unknown(name)),
     }
 }
 
 fn unknown(name: &str) -> SceneError {
+    let patterns: Vec<&str> = PATTERNS.iter().map(|(p, _)| *p).collect();
     SceneError::invalid(
         format!("built-in scene '{name}'"),
-        format!("unknown (built-ins: {})", NAMES.join(", ")),
+        format!(
+            "unknown (built-ins: {}, {})",
+            NAMES.join(", "),
+            patterns.join(", ")
+        ),
     )
 }
 
-/// Builds the built-in scene `name` (one of [`NAMES`]; an animated one at frame 0).
+/// Builds the built-in scene `name` (one of [`NAMES`] or [`PATTERNS`], see [`is_name`]; an
+/// animated one at frame 0).
 pub fn build(name: &str) -> Result<Scene, SceneError> {
     build_with_warnings(name).map(|(s, _)| s)
 }
@@ -297,7 +333,9 @@ mod tests {
     fn unknown_builtin_lists_the_names() {
         let e = build("nope").unwrap_err().to_string();
         assert!(
-            e.contains("cornell-mirrors") && e.contains("office-boxes"),
+            e.contains("cornell-mirrors")
+                && e.contains("office-boxes")
+                && e.contains("glass-sphere, glass-sphere-N"),
             "{e}"
         );
     }
