@@ -28,6 +28,7 @@ impl BuiltinVariants for Cpu {
         crate::raygen::diffuse::register(registry)?;
         crate::hash::thesis::register(registry)?;
         crate::hash::morton_octa::register(registry)?;
+        crate::hash::tile::register(registry)?;
         crate::sort::compress::register(registry)?;
         crate::sort::radix::register(registry)?;
         crate::hierarchy::sphere_cone::register(registry)?;
