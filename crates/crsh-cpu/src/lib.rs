@@ -3,7 +3,7 @@
 //! The CPU backend of crsh ([`Cpu`]): every stage variant as a rayon implementation of the
 //! `crsh-core` stage traits, registered in the backend's [`crsh_core::Registry`]
 //! ([`Registry::<Cpu>::builtin`](crsh_core::Registry::builtin), see [`registry`]) with the
-//! presets `brute`, `bvh`, `crsh` and `rah`.
+//! presets `brute`, `bvh`, `grid`, `crsh`, `rah` and `tile_cone`.
 //!
 //! ```
 //! use std::sync::Arc;
