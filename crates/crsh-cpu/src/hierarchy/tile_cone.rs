@@ -106,7 +106,7 @@
 
 use std::f32::consts::{FRAC_PI_2, PI};
 
-use crsh_core::glam::Vec3;
+use crsh_core::glam::{DVec3, Vec3};
 use crsh_core::{
     Cone, CoreError, FrameSize, HierarchyBuilder, ParamInfo, Ray, RayHierarchy, Registry, Result,
     Sphere, SphereCone, StageKind, StageSpec, StageVariantInfo, Stats,
@@ -530,6 +530,75 @@ pub fn node_reach(rays: &[Ray], leaves: &[u32], apex: Vec3) -> f32 {
     round_up_reach(far)
 }
 
+/// Checks, in `f64`, what the tile cones promise (the spec's containment test, for the tests of
+/// both twins): for node `k` (leaves `order[offsets[k] .. offsets[k + 1]]`) with the stored
+/// (`f32`) apex `a`, axis `x` and half-angle `φ`, sphere radius 0, and for each of its rays,
+/// `angle(x, d) ≤ φ` and `angle(x, o − a) ≤ φ` (unless `o = a`) or `φ = π`, and the reach bounds
+/// `|o − a|` and `|o + d·t_max − a|` (infinite when `t_max` is not finite). Returns the number
+/// of π nodes.
+///
+/// # Errors
+/// A description of the first violation (or of mismatched lengths).
+pub fn check_containment(
+    rays: &[Ray],
+    order: &[u32],
+    offsets: &[u32],
+    nodes: &[SphereCone],
+    reach: &[f32],
+) -> std::result::Result<usize, String> {
+    crsh_core::check_leaf_offsets(offsets, nodes.len(), order.len()).map_err(|e| e.to_string())?;
+    if reach.len() != nodes.len() {
+        return Err(format!(
+            "{} reach bounds for {} nodes",
+            reach.len(),
+            nodes.len()
+        ));
+    }
+    let angle64 = |a: DVec3, b: DVec3| a.cross(b).length().atan2(a.dot(b));
+    // `v ≤ bound`, false for NaN.
+    let within = |v: f64, bound: f64| v <= bound;
+    let mut full = 0;
+    for (k, (node, w)) in nodes.iter().zip(offsets.windows(2)).enumerate() {
+        let a = node.sphere.center.as_dvec3();
+        let x = node.cone.axis.as_dvec3();
+        let phi = node.cone.half_angle as f64;
+        let bound = reach[k] as f64;
+        if node.sphere.radius != 0.0 || !within(0.0, phi) {
+            return Err(format!("node {k} is not an apex cone: {node:?}"));
+        }
+        full += (node.cone.half_angle >= PI) as usize;
+        for &i in &order[w[0] as usize..w[1] as usize] {
+            let r = rays
+                .get(i as usize)
+                .ok_or_else(|| format!("node {k} names ray {i} of {}", rays.len()))?;
+            let o = r.origin.as_dvec3();
+            let d = r.dir.as_dvec3();
+            if node.cone.half_angle < PI {
+                let ad = angle64(x, d);
+                if !within(ad, phi) {
+                    return Err(format!("node {k} ray {i}: direction at {ad} rad > {phi}"));
+                }
+                if o != a {
+                    let ao = angle64(x, o - a);
+                    if !within(ao, phi) {
+                        return Err(format!("node {k} ray {i}: origin at {ao} rad > {phi}"));
+                    }
+                }
+            }
+            let end = if r.t_max.is_finite() {
+                (o + d * r.t_max as f64 - a).length()
+            } else {
+                f64::INFINITY
+            };
+            let far = (o - a).length().max(end);
+            if !within(far, bound) {
+                return Err(format!("node {k} ray {i}: reaches {far} > reach {bound}"));
+            }
+        }
+    }
+    Ok(full)
+}
+
 /// The `tile_cone` hierarchy builder (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TileConeBuilder {
@@ -603,60 +672,15 @@ pub(crate) mod tests {
         a.cross(b).length().atan2(a.dot(b))
     }
 
-    /// Checks the containment contract in `f64` for every ray of every node (half-angle π
-    /// passes), and the reach bound; returns the number of π nodes.
+    /// [`check_containment`], panicking with `what` on a violation; the number of π nodes.
     pub(crate) fn assert_contains(
         cones: &TileCones,
         rays: &[Ray],
         order: &[u32],
         what: &str,
     ) -> usize {
-        let mut full = 0;
-        for (k, w) in cones.offsets.windows(2).enumerate() {
-            let node = &cones.nodes[k];
-            let a = node.sphere.center.as_dvec3();
-            let x = node.cone.axis.as_dvec3();
-            let phi = node.cone.half_angle as f64;
-            assert_eq!(node.sphere.radius, 0.0, "{what}: node {k}");
-            assert!(node.cone.half_angle >= 0.0, "{what}: node {k}");
-            let reach = cones.reach[k] as f64;
-            if node.cone.half_angle >= PI {
-                full += 1;
-            }
-            for &i in &order[w[0] as usize..w[1] as usize] {
-                let r = &rays[i as usize];
-                let o = r.origin.as_dvec3();
-                let d = r.dir.as_dvec3();
-                if node.cone.half_angle < PI {
-                    let ad = angle64(x, d);
-                    assert!(
-                        ad <= phi,
-                        "{what}: node {k} ray {i}: direction at {ad} > {phi}"
-                    );
-                    if o != a {
-                        let ao = angle64(x, o - a);
-                        assert!(
-                            ao <= phi,
-                            "{what}: node {k} ray {i}: origin at {ao} > {phi}"
-                        );
-                    }
-                }
-                assert!(
-                    (o - a).length() <= reach,
-                    "{what}: node {k} ray {i}: origin beyond reach"
-                );
-                if r.t_max.is_finite() {
-                    let end = o + d * r.t_max as f64;
-                    assert!(
-                        (end - a).length() <= reach,
-                        "{what}: node {k} ray {i}: end beyond reach"
-                    );
-                } else {
-                    assert_eq!(reach, f64::INFINITY, "{what}: node {k}");
-                }
-            }
-        }
-        full
+        check_containment(rays, order, &cones.offsets, &cones.nodes, &cones.reach)
+            .unwrap_or_else(|e| panic!("{what}: {e}"))
     }
 
     /// Checks the offsets: first 0, last n, strictly increasing, one group per run, adjacent
