@@ -70,10 +70,11 @@
 //! 2. **Cone-sphere test.** The paper culls a triangle's bounding sphere `(v, r)` unless
 //!    `φ > arccos[(v − a)·x] − arcsin[r / |v − a|]` (§4). As printed, `v − a` is not
 //!    normalized (it must be: `arccos((v − a)·x / |v − a|)`), a sphere containing the apex
-//!    (`|v − a| ≤ r`, where `arcsin` is undefined) must count as a hit, and the test is only
-//!    valid for a convex cone: for `φ ≥ 90°` the "cone" of directions is no longer convex, so
-//!    the builder stores π and culling is disabled for that node (only the reach still culls).
-//!    The `crsh` traverser's [`NodeBound::may_hit`](crate::traverse::crsh::NodeBound::may_hit)
+//!    (`|v − a| ≤ r`, where `arcsin` is undefined) must count as a hit, and `φ ≥ 90°` must
+//!    disable culling: such a cone is no longer convex, so holding every origin and every
+//!    direction no longer implies holding the half-lines `o + t·d` (for a convex cone `K`,
+//!    `(o − a) + t·d ∈ K + K ⊆ K`); the builder stores π for it, and that node culls only by
+//!    its reach. The `crsh` traverser's [`NodeBound::may_hit`](crate::traverse::crsh::NodeBound::may_hit)
 //!    with sphere radius 0 is exactly this corrected test (with small margins): it passes
 //!    when the apex lies in the sphere, and otherwise iff
 //!    `angle(x, v − a) ≤ φ + arcsin(r / |v − a|)`, evaluated without trigonometry, every
@@ -91,9 +92,22 @@
 //!    (`normalize(cross(x, (1,0,0)))` if `|x.x| < 0.9`, else with `(0,1,0)`).
 //! 5. **Beyond a half-space.** The paper's cone extension is minimal only while the result
 //!    is narrower than a hemisphere: when `|e + r| ≤ 10⁻⁶` (`r` opposite `e`) or
-//!    `cos φ_new ≤ 0` the node is marked *full* and stores half-angle π. Should the
-//!    incremental apex or axis ever stop being finite (never seen: it needs an overflow), the
-//!    node is full too, its apex the first ray's origin (a safety net beyond the spec).
+//!    `cos φ_new ≤ 0` the node is marked *full* and stores half-angle π. These two checks only
+//!    catch an exact opposition: for `φ + angle(x, r) > π` (`x·r < −cos φ`) the sum `e + r`
+//!    bisects the other, shorter arc from `e` to `r`, so the "extended" cone misses the old
+//!    axis and `cos φ_new > 0`. The spec keeps the paper's checks; the re-measured half-angle
+//!    then exceeds π/2 (the node stores π without being flagged *full*) unless the later rays
+//!    happen to fit a narrower cone about the new axis, which the re-measure also honours.
+//!    Should the incremental apex or axis ever stop being finite (never seen: it needs an
+//!    overflow), the node is full too, its apex the first ray's origin (a safety net beyond
+//!    the spec).
+//! 6. **Origins behind the apex.** The translation puts the origin on the near generator's
+//!    *line*: `p − a_new = λ·n` with `λ = |c|·sin(θ + φ) / sin 2φ` (`θ = angle(x, c)`), which
+//!    is negative when `θ > π − φ`, i.e. when `p` lies in the mirror image of the cone behind
+//!    its apex (an origin on the axis line behind the apex, for instance). The paper does not
+//!    treat this case and neither does the spec: the re-measured angle then exceeds π/2 and
+//!    the node stores π. (The cone with apex `p` itself would hold the old cone in that case,
+//!    `a − p` lying inside it.)
 //!
 //! # Degenerate input
 //!
@@ -981,6 +995,41 @@ pub(crate) mod tests {
             "{paper}"
         );
         assert!((at(paper) - 120.0).abs() < 1e-3, "{}", at(paper));
+    }
+
+    #[test]
+    fn what_the_spec_leaves_to_the_re_measure() {
+        let params = TileConeParams::default();
+        let (s, c) = params.sin_cos_min();
+        let r = |o: Vec3, d: Vec3, p: u32| ray(RayKind::Reflection, p, u32::MAX, o, d, 1.0);
+        // Module docs item 5: z, then x (a 45° cone about (x + z)/√2), then a direction 150°
+        // from that axis: φ + θ = 195° > 180°, so e + r bisects the wrong arc. Nothing flags
+        // the node full; the re-measured angle exceeds 90° and it stores π.
+        let axis = (Vec3::X + Vec3::Z).normalize();
+        let (u, _) = axis.any_orthonormal_pair();
+        let t = 150f32.to_radians();
+        let back = axis * t.cos() + u * t.sin();
+        let rays = [
+            r(Vec3::ZERO, Vec3::Z, 0),
+            r(Vec3::ZERO, Vec3::X, 1),
+            r(Vec3::ZERO, back, 2),
+        ];
+        let (node, full) = node_cone(&rays, &[0, 1, 2], s, c);
+        assert_eq!((node.cone.half_angle, full), (PI, false));
+        // Item 6: an origin behind the apex, on the axis line: the translation puts it on the
+        // backward extension of the near generator, 180° − φ = 170° from the axis, not φ.
+        let p = Vec3::new(0.0, 0.0, -1.0);
+        let (sin10, cos10) = (10f32.to_radians().sin(), 10f32.to_radians().cos());
+        let moved =
+            translate_apex(Vec3::ZERO, Vec3::Z, cos10, sin10, p, ApexSign::Corrected).unwrap();
+        let seen = angle64(DVec3::Z, (p - moved).as_dvec3()).to_degrees();
+        assert!((seen - 170.0).abs() < 1e-3, "{seen}");
+        let rays = [r(Vec3::ZERO, Vec3::Z, 0), r(p, Vec3::Z, 1)];
+        let (node, full) = node_cone(&rays, &[0, 1], s, c);
+        assert_eq!((node.cone.half_angle, full), (PI, false));
+        // The same two rays the other way round: the second origin is ahead, on the axis.
+        let (node, _) = node_cone(&rays, &[1, 0], s, c);
+        assert!(node.cone.half_angle < 1e-5, "{node:?}");
     }
 
     #[test]
