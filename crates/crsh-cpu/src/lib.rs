@@ -34,7 +34,8 @@
 //! - [`raygen::whitted`]: shadow, reflection and refraction rays (eq. 3.1-3.7).
 //! - [`shade::phong`]: barycentric normals and Phong with attenuation (eq. 3.17-3.19).
 //! - [`hash`], [`sort`], [`hierarchy`], [`traverse`]: the ray-space hierarchy stages
-//!   (seed 000 §3.2.3-3.2.8); [`trim`]: head-flag scan compaction (fig. 3.10).
+//!   (seed 000 §3.2.3-3.2.8), and seed 004's screen tiles and tile cones ([`hash::tile`],
+//!   [`hierarchy::tile_cone`]); [`trim`]: head-flag scan compaction (fig. 3.10).
 //! - [`stress`]: runs the stability suite of `crsh_scene::stress` against pipelines.
 //! - [`grid_timing`]: timed rebuilds of the uniform grid, pass by pass (seed 002 §5.1,
 //!   table 1; `crsh grid-build`).
