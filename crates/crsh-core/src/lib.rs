@@ -62,8 +62,8 @@ pub use pipeline::{
 pub use ray::{Hit, HitMode, Ray, RayKind, Surface, NO_HIT};
 pub use registry::{BuiltinVariants, Preset, Registry, StageContext};
 pub use stage::{
-    Candidate, CandidateBatch, Hasher, HierarchyBuilder, Intersector, PrimaryVisibility, Query,
-    RayGen, RayHierarchy, Shader, Sorter, Traverser,
+    check_leaf_offsets, lowest_node_leaves, Candidate, CandidateBatch, Hasher, HierarchyBuilder,
+    Intersector, PrimaryVisibility, Query, RayGen, RayHierarchy, Shader, Sorter, Traverser,
 };
 pub use stats::{
     AccuracyCounts, CullStats, GenerationStats, KindStats, LevelStats, RayCounts, Stats,

@@ -140,6 +140,75 @@ pub struct RayHierarchy<B: Backend> {
     pub reach: Vec<B::Buffer<f32>>,
 }
 
+/// The leaves (positions in [`RayHierarchy::order`]) of node `node` of `levels[0]` in a
+/// hierarchy over `leaves` rays: `leaf_offsets[node] .. leaf_offsets[node + 1]` when the
+/// hierarchy has [`RayHierarchy::leaf_offsets`], else the fixed group
+/// `node·subdivision .. min((node + 1)·subdivision, leaves)`.
+///
+/// The one definition every consumer that maps a lowest node to its rays uses. It never
+/// panics: both ends are clamped to `leaves`, the end to at least the start, and a node past
+/// the end of the offsets is empty, so offsets that [`check_leaf_offsets`] would refuse give
+/// wrong ranges, not out-of-bounds slices. Check the offsets once per hierarchy for an error.
+pub fn lowest_node_leaves(
+    node: usize,
+    subdivision: u32,
+    leaf_offsets: Option<&[u32]>,
+    leaves: usize,
+) -> std::ops::Range<usize> {
+    let (start, end) = match leaf_offsets {
+        Some(offsets) => (
+            offsets.get(node).map_or(leaves, |&o| o as usize),
+            offsets
+                .get(node.saturating_add(1))
+                .map_or(leaves, |&o| o as usize),
+        ),
+        None => {
+            let s = subdivision as usize;
+            (
+                node.saturating_mul(s),
+                node.saturating_add(1).saturating_mul(s),
+            )
+        }
+    };
+    let start = start.min(leaves);
+    start..end.clamp(start, leaves)
+}
+
+/// Checks [`RayHierarchy::leaf_offsets`] against a lowest level of `nodes` nodes over
+/// `leaves` rays: `nodes + 1` entries, the first 0, the last `leaves`, non-decreasing.
+///
+/// # Errors
+/// [`CoreError::InvalidInput`](crate::CoreError::InvalidInput) naming the first violation.
+pub fn check_leaf_offsets(offsets: &[u32], nodes: usize, leaves: usize) -> Result<()> {
+    let bad = |what: String| {
+        Err(crate::CoreError::InvalidInput(format!(
+            "hierarchy leaf offsets {what}"
+        )))
+    };
+    if offsets.len() != nodes.saturating_add(1) {
+        return bad(format!(
+            "have {} entries for {nodes} lowest nodes (expected {})",
+            offsets.len(),
+            nodes.saturating_add(1)
+        ));
+    }
+    if offsets[0] != 0 {
+        return bad(format!("start at {}, not 0", offsets[0]));
+    }
+    let last = offsets[nodes] as usize;
+    if last != leaves {
+        return bad(format!("end at {last}, not at the ray count {leaves}"));
+    }
+    if let Some(i) = offsets.windows(2).position(|w| w[1] < w[0]) {
+        return bad(format!(
+            "decrease at node {i} ({} then {})",
+            offsets[i],
+            offsets[i + 1]
+        ));
+    }
+    Ok(())
+}
+
 /// Hierarchy creation (seed 000 §3.2.7, eq. 3.8-3.15).
 pub trait HierarchyBuilder<B: Backend>: Send + Sync {
     /// Variant name.
@@ -270,4 +339,48 @@ pub trait Shader<B: Backend>: Send + Sync {
         hits: &B::Buffer<Hit>,
         stats: &mut Stats,
     ) -> Result<B::Buffer<Surface>>;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lowest_node_leaves_fixed_groups_and_offsets() {
+        // Fixed groups of 4 over 10 leaves: the last is partial, past the end empty.
+        assert_eq!(lowest_node_leaves(0, 4, None, 10), 0..4);
+        assert_eq!(lowest_node_leaves(2, 4, None, 10), 8..10);
+        assert_eq!(lowest_node_leaves(3, 4, None, 10), 10..10);
+        assert_eq!(lowest_node_leaves(usize::MAX, 4, None, 10), 10..10);
+        // Offsets: variable sizes, empty nodes allowed.
+        let offsets = [0, 3, 3, 7, 10];
+        let ranges: Vec<_> = (0..4)
+            .map(|k| lowest_node_leaves(k, 4, Some(&offsets), 10))
+            .collect();
+        assert_eq!(ranges, [0..3, 3..3, 3..7, 7..10]);
+        assert_eq!(lowest_node_leaves(4, 4, Some(&offsets), 10), 10..10);
+        // Bad offsets give clamped ranges, never a panic.
+        assert_eq!(lowest_node_leaves(0, 4, Some(&[5, 2]), 10), 5..5);
+        assert_eq!(lowest_node_leaves(0, 4, Some(&[0, 99]), 10), 0..10);
+    }
+
+    #[test]
+    fn leaf_offsets_are_checked() {
+        assert!(check_leaf_offsets(&[0, 3, 3, 7, 10], 4, 10).is_ok());
+        assert!(check_leaf_offsets(&[0], 0, 0).is_ok());
+        for (offsets, nodes, leaves) in [
+            (&[0u32, 3, 10][..], 3, 10), // too short
+            (&[1, 3, 10], 2, 10),        // does not start at 0
+            (&[0, 3, 9], 2, 10),         // does not end at the ray count
+            (&[0, 3, 11], 2, 10),        // past the ray count
+            (&[0, 5, 4, 10], 3, 10),     // decreasing
+            (&[], 0, 0),                 // no entry at all
+        ] {
+            let r = check_leaf_offsets(offsets, nodes, leaves);
+            assert!(
+                matches!(r, Err(crate::CoreError::InvalidInput(_))),
+                "{offsets:?}: {r:?}"
+            );
+        }
+    }
 }

@@ -3,7 +3,7 @@
 //! The CPU backend of crsh ([`Cpu`]): every stage variant as a rayon implementation of the
 //! `crsh-core` stage traits, registered in the backend's [`crsh_core::Registry`]
 //! ([`Registry::<Cpu>::builtin`](crsh_core::Registry::builtin), see [`registry`]) with the
-//! presets `brute`, `bvh`, `crsh` and `rah`.
+//! presets `brute`, `bvh`, `grid`, `crsh`, `rah` and `tile_cone`.
 //!
 //! ```
 //! use std::sync::Arc;
@@ -34,7 +34,8 @@
 //! - [`raygen::whitted`]: shadow, reflection and refraction rays (eq. 3.1-3.7).
 //! - [`shade::phong`]: barycentric normals and Phong with attenuation (eq. 3.17-3.19).
 //! - [`hash`], [`sort`], [`hierarchy`], [`traverse`]: the ray-space hierarchy stages
-//!   (seed 000 §3.2.3-3.2.8); [`trim`]: head-flag scan compaction (fig. 3.10).
+//!   (seed 000 §3.2.3-3.2.8), and seed 004's screen tiles and tile cones ([`hash::tile`],
+//!   [`hierarchy::tile_cone`]); [`trim`]: head-flag scan compaction (fig. 3.10).
 //! - [`stress`]: runs the stability suite of `crsh_scene::stress` against pipelines.
 //! - [`grid_timing`]: timed rebuilds of the uniform grid, pass by pass (seed 002 §5.1,
 //!   table 1; `crsh grid-build`).

@@ -28,9 +28,11 @@ impl BuiltinVariants for Cpu {
         crate::raygen::diffuse::register(registry)?;
         crate::hash::thesis::register(registry)?;
         crate::hash::morton_octa::register(registry)?;
+        crate::hash::tile::register(registry)?;
         crate::sort::compress::register(registry)?;
         crate::sort::radix::register(registry)?;
         crate::hierarchy::sphere_cone::register(registry)?;
+        crate::hierarchy::tile_cone::register(registry)?;
         crate::traverse::crsh::register(registry)?;
         crate::intersect::brute::register(registry)?;
         crate::intersect::brute64::register(registry)?;
@@ -44,9 +46,9 @@ impl BuiltinVariants for Cpu {
     }
 }
 
-/// The presets `brute`, `bvh`, `crsh` and `rah` (raster primaries, Whitted ray generation and
-/// Phong shading; they differ in how rays are traced), added to `registry`, whose variants
-/// they use. The wgpu backend registers the same ones.
+/// The presets `brute`, `bvh`, `grid`, `crsh`, `rah` and `tile_cone` (raster primaries,
+/// Whitted ray generation and Phong shading; they differ in how rays are traced), added to
+/// `registry`, whose variants they use. The wgpu backend registers the same ones.
 pub fn add_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<()> {
     for (name, doc, cfg) in presets() {
         registry.add_preset(name, doc, cfg)?;
@@ -100,7 +102,36 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
              in generation order (no hashing or sorting), no mesh culling",
             hierarchy_pipeline("rah", false),
         ),
+        (
+            "tile_cone",
+            "seed 004's hierarchical ray engine (Szécsi 2006): rays sorted by 16×16 screen \
+             tile, one enclosing cone per tile (§4, apex sign corrected), every triangle's \
+             sphere tested against every tile cone (no mesh culling), final tests on the \
+             survivors",
+            tile_cone_pipeline(),
+        ),
     ]
+}
+
+/// The `tile_cone` preset's pipeline: `tile` hash and `tile_cone` hierarchy with 16-pixel
+/// tiles (seed 004 §7), `radix` sort (stable, so tiles keep generation order), `crsh`
+/// traversal without mesh culling (the paper culls per triangle only), `brute` final tests.
+fn tile_cone_pipeline() -> PipelineConfig {
+    let tile = ParamValue::Int(crate::hash::tile::DEFAULT_TILE_SIZE as i64);
+    let mut cfg = PipelineConfig::whitted("tile_cone", "brute");
+    let mut hash = StageSpec::new("tile");
+    hash.params.insert("tile_size".into(), tile.clone());
+    cfg.hash = Some(hash);
+    cfg.sort = Some(StageSpec::new("radix"));
+    let mut hierarchy = StageSpec::new("tile_cone");
+    hierarchy.params.insert("tile_size".into(), tile);
+    cfg.hierarchy = Some(hierarchy);
+    let mut traverse = StageSpec::new("crsh");
+    traverse
+        .params
+        .insert("mesh_culling".into(), ParamValue::Bool(false));
+    cfg.traverse = Some(traverse);
+    cfg
 }
 
 /// Runs `f` on a dedicated rayon pool of `threads` worker threads (0: rayon's default, one per
@@ -123,7 +154,7 @@ mod tests {
     fn presets_resolve_against_the_registry() {
         let registry = Registry::<Cpu>::builtin();
         let names: Vec<&str> = registry.presets().iter().map(|p| p.name.as_str()).collect();
-        assert_eq!(names, ["brute", "bvh", "grid", "crsh", "rah"]);
+        assert_eq!(names, ["brute", "bvh", "grid", "crsh", "rah", "tile_cone"]);
         for p in registry.presets() {
             let cfg = &p.config;
             let name = p.name.as_str();
@@ -134,8 +165,9 @@ mod tests {
                 "brute"
             };
             assert_eq!(cfg.intersect.kind, expect);
-            assert_eq!(cfg.hierarchy.is_some(), ["crsh", "rah"].contains(&name));
-            assert_eq!(cfg.hash.is_some(), name == "crsh");
+            let hierarchies = ["crsh", "rah", "tile_cone"];
+            assert_eq!(cfg.hierarchy.is_some(), hierarchies.contains(&name));
+            assert_eq!(cfg.hash.is_some(), ["crsh", "tile_cone"].contains(&name));
             if let Some(t) = &cfg.traverse {
                 assert_eq!(t.bool("mesh_culling").unwrap(), name == "crsh");
             }
@@ -143,6 +175,28 @@ mod tests {
             assert_eq!(cfg.shade.f64("ambient").unwrap(), 0.05);
         }
         assert!(registry.preset("kdtree").is_none());
+    }
+
+    #[test]
+    fn the_tile_cone_preset_is_seed_004s_engine() {
+        let registry = Registry::<Cpu>::builtin();
+        let cfg = registry.preset("tile_cone").unwrap();
+        let hash = cfg.hash.as_ref().unwrap();
+        let hierarchy = cfg.hierarchy.as_ref().unwrap();
+        assert_eq!(
+            (hash.kind.as_str(), hash.i64("tile_size").unwrap()),
+            ("tile", 16)
+        );
+        assert_eq!(cfg.sort.as_ref().unwrap().kind, "radix");
+        assert_eq!(hierarchy.kind, "tile_cone");
+        assert_eq!(hierarchy.i64("tile_size").unwrap(), 16);
+        assert_eq!(hierarchy.f64("min_half_angle_deg").unwrap(), 0.05);
+        let traverse = cfg.traverse.as_ref().unwrap();
+        assert_eq!(traverse.kind, "crsh");
+        assert!(!traverse.bool("mesh_culling").unwrap());
+        assert_eq!(cfg.intersect.kind, "brute");
+        assert_eq!(cfg.primary.kind, "raster");
+        assert_eq!(cfg.raygen, registry.preset("crsh").unwrap().raygen);
     }
 
     #[test]

@@ -5,6 +5,8 @@
 //!   origin, then the spherical direction) for reflection and refraction rays.
 //! - [`morton_octa`]: the variant `morton` (ours): a 5-D Morton code of the quantized origin
 //!   and the octahedral direction.
+//! - [`tile`]: the variant `tile`, seed 004's screen tiles: the tile of the ray's pixel (per
+//!   light for shadow rays), so that each tile's rays become one node of the tile cones.
 //! - The quantizers and bit interleaving the hashers share live in [`crsh_core::quantize`], so
 //!   the wgpu backend and third-party hashers use the same ones.
 
@@ -12,6 +14,7 @@ pub mod morton_octa;
 pub mod thesis;
 pub mod thesis_bounce;
 pub mod thesis_shadow;
+pub mod tile;
 
 /// Scenes for the hasher and sorter tests.
 #[cfg(test)]

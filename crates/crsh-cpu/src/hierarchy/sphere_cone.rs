@@ -205,7 +205,7 @@ impl SphereConeBuilder {
     /// The node levels over `rays` taken in `order`, lowest first (what
     /// [`HierarchyBuilder::build`] stores in [`RayHierarchy::levels`]).
     pub fn build_levels(&self, rays: &[Ray], order: &[u32]) -> Result<Vec<Vec<SphereCone>>> {
-        validate(rays, order)?;
+        validate_leaves("sphere_cone", rays, order)?;
         let s = self.subdivision as usize;
         let mut levels: Vec<Vec<SphereCone>> = Vec::new();
         if order.is_empty() {
@@ -294,13 +294,6 @@ pub fn reach_levels(
     subdivision: u32,
 ) -> Vec<Vec<f32>> {
     let s = subdivision as usize;
-    let round_up = |x: f64| -> f32 {
-        if !x.is_finite() {
-            return f32::INFINITY;
-        }
-        let up = x * (1.0 + 1e-6) + 1e-6 * x.abs().max(1.0) * f32::EPSILON as f64;
-        (up as f32).next_up()
-    };
     let mut out: Vec<Vec<f32>> = Vec::with_capacity(levels.len());
     for (l, level) in levels.iter().enumerate() {
         let reach: Vec<f32> = if l == 0 {
@@ -314,7 +307,7 @@ pub fn reach_levels(
                         let len = r.t_max as f64 * r.dir.as_dvec3().length();
                         m.max((r.origin.as_dvec3() - c).length() + len)
                     });
-                    round_up(far)
+                    round_up_reach(far)
                 })
                 .collect()
         } else {
@@ -328,13 +321,25 @@ pub fn reach_levels(
                     let far = children.iter().zip(reaches).fold(0.0f64, |m, (k, &r)| {
                         m.max((k.sphere.center.as_dvec3() - c).length() + r as f64)
                     });
-                    round_up(far)
+                    round_up_reach(far)
                 })
                 .collect()
         };
         out.push(reach);
     }
     out
+}
+
+/// A reach bound computed in `f64` as an `f32` that is not below it, with room to spare:
+/// `x·(1 + 10⁻⁶) + 10⁻⁶·max(|x|, 1)·ε_f32`, rounded to `f32` and then up by one ulp;
+/// `f32::INFINITY` for a non-finite `x`. The guard of [`reach_levels`] and of the tile cones'
+/// reach ([`crate::hierarchy::tile_cone`]).
+pub fn round_up_reach(x: f64) -> f32 {
+    if !x.is_finite() {
+        return f32::INFINITY;
+    }
+    let up = x * (1.0 + 1e-6) + 1e-6 * x.abs().max(1.0) * f32::EPSILON as f64;
+    (up as f32).next_up()
 }
 
 /// Node counts per level for `n` leaves: level `l` (0-based) has `ceil(n / subdivision^(l+1))`
@@ -371,21 +376,23 @@ pub fn leaf_range(
     start..end
 }
 
-/// The first leaf whose index is out of range or whose ray is unusable, as an error.
-fn validate(rays: &[Ray], order: &[u32]) -> Result<()> {
+/// The first leaf whose index is out of range or whose ray is unusable, as an error of
+/// `variant` (`order` must be a permutation of the batch; every ray needs a finite origin and
+/// a finite non-zero direction). Shared by the hierarchy builders.
+pub(crate) fn validate_leaves(variant: &str, rays: &[Ray], order: &[u32]) -> Result<()> {
     if let Some(leaf) = order
         .par_iter()
         .position_first(|&i| i as usize >= rays.len())
     {
         return Err(CoreError::InvalidInput(format!(
-            "sphere_cone: leaf {leaf} refers to ray {} of a batch of {} rays",
+            "{variant}: leaf {leaf} refers to ray {} of a batch of {} rays",
             order[leaf],
             rays.len()
         )));
     }
     if order.len() != rays.len() {
         return Err(CoreError::InvalidInput(format!(
-            "sphere_cone: {} leaves for a batch of {} rays (the order must be a permutation)",
+            "{variant}: {} leaves for a batch of {} rays (the order must be a permutation)",
             order.len(),
             rays.len()
         )));
@@ -394,7 +401,7 @@ fn validate(rays: &[Ray], order: &[u32]) -> Result<()> {
     for (leaf, &i) in order.iter().enumerate() {
         if std::mem::replace(&mut seen[i as usize], true) {
             return Err(CoreError::InvalidInput(format!(
-                "sphere_cone: ray {i} appears twice in the order (again at leaf {leaf})"
+                "{variant}: ray {i} appears twice in the order (again at leaf {leaf})"
             )));
         }
     }
@@ -405,7 +412,7 @@ fn validate(rays: &[Ray], order: &[u32]) -> Result<()> {
     if let Some(leaf) = order.par_iter().position_first(|&i| bad(&rays[i as usize])) {
         let r = &rays[order[leaf] as usize];
         return Err(CoreError::InvalidInput(format!(
-            "sphere_cone: ray {} (leaf {leaf}) has origin {} and direction {}: needs a finite \
+            "{variant}: ray {} (leaf {leaf}) has origin {} and direction {}: needs a finite \
              origin and a finite non-zero direction",
             order[leaf], r.origin, r.dir
         )));

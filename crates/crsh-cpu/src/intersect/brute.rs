@@ -24,7 +24,9 @@
 //! # Candidate queries
 //!
 //! [`Query::Candidates`] tests only the listed (node, triangle) pairs: node `n` of
-//! `hierarchy.levels[0]` covers the leaves `n·subdivision .. min((n+1)·subdivision, rays)`,
+//! `hierarchy.levels[0]` covers the leaves [`crsh_core::lowest_node_leaves`] gives
+//! (`leaf_offsets[n] .. leaf_offsets[n+1]` when the hierarchy has
+//! [`RayHierarchy::leaf_offsets`], else `n·subdivision .. min((n+1)·subdivision, rays)`),
 //! whose rays are `hierarchy.order[leaf]`. Pairs are sorted and de-duplicated first, so the
 //! result does not depend on their order; per ray the triangles are tested in increasing id
 //! order with the same merge rules as above (any-hit: the lowest-id hit, stop at the first).
@@ -44,7 +46,8 @@
 //! [`CoreError::InvalidInput`] when `hits` and `rays` differ in length, a ray is not valid
 //! ([`Ray::is_valid`]: NaN / infinite origin or direction, zero direction, NaN interval), or
 //! a candidate batch is inconsistent (node or triangle out of range, `order` not a
-//! permutation of the rays, zero subdivision, no level).
+//! permutation of the rays, zero subdivision without leaf offsets, no level, leaf offsets
+//! refused by [`crsh_core::check_leaf_offsets`]: checked on every batch, O(nodes)).
 //!
 //! The traverser sends many candidate batches per hierarchy, and its batches shrink as rays
 //! grow, so checking all of `order` and every ray per batch would make a traversal
@@ -59,8 +62,9 @@
 use std::sync::{Arc, Mutex};
 
 use crsh_core::{
-    Candidate, CoreError, Hit, HitMode, Intersector, ParamInfo, Query, Ray, RayHierarchy, RayKind,
-    Registry, Result, StageKind, StageSpec, StageVariantInfo, Stats,
+    check_leaf_offsets, lowest_node_leaves, Candidate, CoreError, Hit, HitMode, Intersector,
+    ParamInfo, Query, Ray, RayHierarchy, RayKind, Registry, Result, StageKind, StageSpec,
+    StageVariantInfo, Stats,
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
@@ -112,6 +116,8 @@ struct RaysKey {
     level0: usize,
     nodes: usize,
     subdivision: u32,
+    /// Address and length of the leaf offsets, if any.
+    leaf_offsets: Option<(usize, usize)>,
 }
 
 /// The catalogue entry of the `brute` intersector.
@@ -274,7 +280,8 @@ impl BruteForce {
         }
         let n_rays = rays.len();
         let sub = hierarchy.subdivision as usize;
-        if sub == 0 {
+        let offsets = hierarchy.leaf_offsets.as_deref();
+        if sub == 0 && offsets.is_none() {
             return Err(CoreError::InvalidInput("hierarchy subdivision is 0".into()));
         }
         let Some(level0) = hierarchy.levels.first() else {
@@ -282,6 +289,11 @@ impl BruteForce {
         };
         let order = &hierarchy.order;
         let n_nodes = level0.len();
+        if let Some(offsets) = offsets {
+            // O(nodes), cheaper than the order compare below: checked on every batch, so
+            // offsets changed in place are caught too.
+            check_leaf_offsets(offsets, n_nodes, n_rays)?;
+        }
         let key = RaysKey {
             rays: rays.as_ptr() as usize,
             n_rays,
@@ -290,6 +302,7 @@ impl BruteForce {
             level0: level0.as_ptr() as usize,
             nodes: n_nodes,
             subdivision: hierarchy.subdivision,
+            leaf_offsets: offsets.map(|o| (o.as_ptr() as usize, o.len())),
         };
         // The O(rays) checks, skipped when this traversal's earlier batches did them (see the
         // module doc); the rays a batch tests are checked below anyway.
@@ -333,11 +346,19 @@ impl BruteForce {
             owned = v;
             &owned
         };
-        let groups = node_runs(sorted, sub, n_rays);
+        let groups = node_runs(sorted, hierarchy.subdivision, offsets, n_rays);
 
-        // Each active node gets `sub` slots of `local` (the last node may use fewer): its
-        // rays' current hits are gathered, updated in parallel, and scattered back.
-        let mut local = vec![Hit::MISS; groups.len() * sub];
+        // Each active node gets one slot of `local` per leaf (`groups[i].slot ..`): its rays'
+        // current hits are gathered, updated in parallel, and scattered back.
+        let slots = groups.last().map_or(0, |g| g.slot + g.leaves);
+        let mut local = vec![Hit::MISS; slots];
+        let mut outs: Vec<&mut [Hit]> = Vec::with_capacity(groups.len());
+        let mut rest = local.as_mut_slice();
+        for g in &groups {
+            let (out, tail) = rest.split_at_mut(g.leaves);
+            outs.push(out);
+            rest = tail;
+        }
         let tris = set.triangles();
         let current: &[Hit] = hits;
         // The rays a node tests and its order entries are checked as they are read (cheap,
@@ -346,7 +367,7 @@ impl BruteForce {
         let (tests, found, bad) = groups
             .par_iter()
             .enumerate()
-            .zip(local.par_chunks_mut(sub))
+            .zip(outs.into_par_iter())
             .map(|((gi, g), out)| {
                 let leaves = &order[g.first_leaf..g.first_leaf + g.leaves];
                 let usable = leaves.iter().all(|&r| rays[r as usize].is_valid());
@@ -382,7 +403,8 @@ impl BruteForce {
                 sorted[groups[bad].pairs.start].node
             )));
         }
-        for (g, out) in groups.iter().zip(local.chunks(sub)) {
+        for g in &groups {
+            let out = &local[g.slot..g.slot + g.leaves];
             for (&r, h) in order[g.first_leaf..g.first_leaf + g.leaves].iter().zip(out) {
                 hits[r as usize] = *h;
             }
@@ -392,28 +414,37 @@ impl BruteForce {
 }
 
 /// A run of candidate pairs that share a node with rays: the pairs' range in the sorted
-/// array and the node's leaves.
+/// array, the node's leaves, and where its rays' hits sit in the gathered array.
 struct NodeRun {
     pairs: std::ops::Range<usize>,
     first_leaf: usize,
     leaves: usize,
+    slot: usize,
 }
 
-/// Splits the sorted pairs into runs of one node each, skipping nodes without leaves.
-fn node_runs(sorted: &[Candidate], sub: usize, n_rays: usize) -> Vec<NodeRun> {
+/// Splits the sorted pairs into runs of one node each (leaves by
+/// [`crsh_core::lowest_node_leaves`]), skipping nodes without leaves.
+fn node_runs(
+    sorted: &[Candidate],
+    subdivision: u32,
+    offsets: Option<&[u32]>,
+    n_rays: usize,
+) -> Vec<NodeRun> {
     let mut runs = Vec::new();
     let mut start = 0;
+    let mut slot = 0;
     while start < sorted.len() {
         let node = sorted[start].node;
         let end = start + sorted[start..].partition_point(|c| c.node == node);
-        let first_leaf = (node as usize * sub).min(n_rays);
-        let leaves = ((node as usize + 1) * sub).min(n_rays) - first_leaf;
-        if leaves > 0 {
+        let leaves = lowest_node_leaves(node as usize, subdivision, offsets, n_rays);
+        if !leaves.is_empty() {
             runs.push(NodeRun {
                 pairs: start..end,
-                first_leaf,
-                leaves,
+                first_leaf: leaves.start,
+                leaves: leaves.len(),
+                slot,
             });
+            slot += leaves.len();
         }
         start = end;
     }
@@ -1003,7 +1034,6 @@ pub(crate) mod tests {
         let mut sorted = pairs.to_vec();
         sorted.sort();
         sorted.dedup();
-        let sub = h.subdivision as usize;
         let (mut tests, mut found) = (0, 0);
         for node in 0..h.levels[0].len() {
             let tris: Vec<u32> = sorted
@@ -1011,7 +1041,8 @@ pub(crate) mod tests {
                 .filter(|c| c.node as usize == node)
                 .map(|c| c.tri)
                 .collect();
-            let leaves = (node * sub).min(rays.len())..((node + 1) * sub).min(rays.len());
+            let leaves =
+                lowest_node_leaves(node, h.subdivision, h.leaf_offsets.as_deref(), rays.len());
             for &r in &h.order[leaves] {
                 let ray = &rays[r as usize];
                 let best = &mut hits[r as usize];
@@ -1113,6 +1144,141 @@ pub(crate) mod tests {
                 let found: u64 = stats.levels.iter().map(|r| r.hits).sum();
                 assert_eq!(found, counts.1, "{what}");
                 assert!(counts.1 > 0, "{what}: no hits, not a test");
+            }
+        }
+    }
+
+    /// A one-level hierarchy with variable-size lowest nodes: `offsets` over `order`.
+    fn hierarchy_with_offsets(order: Vec<u32>, offsets: Vec<u32>) -> RayHierarchy<Cpu> {
+        let nodes = offsets.len().saturating_sub(1);
+        RayHierarchy {
+            leaf_offsets: Some(offsets),
+            order,
+            levels: vec![vec![<SphereCone as bytemuck::Zeroable>::zeroed(); nodes]],
+            subdivision: 256,
+            reach: vec![],
+        }
+    }
+
+    /// Random cut points over `n` leaves: nodes of 0 to 40 leaves (empty ones included, some
+    /// above `LANES`, so a node spans several packets).
+    fn random_offsets(rng: &mut TestRng, n: usize) -> Vec<u32> {
+        let mut offsets = vec![0u32];
+        let mut at = 0usize;
+        while at < n {
+            let size = match rng.next_u64() % 5 {
+                0 => 0,
+                1 => 1,
+                2 => 17 + (rng.next_u64() % 24) as usize,
+                _ => 1 + (rng.next_u64() % 9) as usize,
+            };
+            at = (at + size).min(n);
+            offsets.push(at as u32);
+        }
+        offsets
+    }
+
+    #[test]
+    fn candidates_with_leaf_offsets_agree_with_brute_force() {
+        for kind in TestKind::ALL {
+            let scene = soup(31, 90);
+            let b = BruteForce::with_test(&scene, kind);
+            let rays = random_rays(&scene, 32, 157);
+            let mut rng = TestRng(33);
+            let mut order: Vec<u32> = (0..rays.len() as u32).collect();
+            for i in (1..order.len()).rev() {
+                order.swap(i, rng.next_u64() as usize % (i + 1));
+            }
+            let offsets = random_offsets(&mut rng, rays.len());
+            let h = hierarchy_with_offsets(order, offsets);
+            let nodes = h.levels[0].len() as u32;
+            let all: Vec<Candidate> = (0..nodes)
+                .flat_map(|node| {
+                    (0..b.triangles().len() as u32).map(move |tri| Candidate { node, tri })
+                })
+                .collect();
+            // Every pair: the scene query's answer, N×M tests.
+            let (want, _) = run(&b, &rays, Query::Scene, HitMode::Closest);
+            let batch = CandidateBatch::<Cpu> { pairs: all.clone() };
+            let q = Query::Candidates {
+                hierarchy: &h,
+                batch: &batch,
+            };
+            let (got, stats) = run(&b, &rays, q, HitMode::Closest);
+            assert_eq!(got, want, "{kind:?}");
+            assert_eq!(
+                stats.tests.ray_triangle,
+                (rays.len() * b.triangles().len()) as u64
+            );
+            // A random half of the pairs, shuffled: the naive per-node loop over the offsets.
+            let mut half: Vec<Candidate> = all
+                .into_iter()
+                .filter(|_| rng.next_u64() & 1 == 0)
+                .collect();
+            for i in (1..half.len()).rev() {
+                half.swap(i, rng.next_u64() as usize % (i + 1));
+            }
+            for mode in [HitMode::Closest, HitMode::Any] {
+                let mut want = vec![Hit::MISS; rays.len()];
+                let counts = naive_candidates(&b.tris, &rays, &h, &half, mode, &mut want);
+                let batch = CandidateBatch::<Cpu> {
+                    pairs: half.clone(),
+                };
+                let q = Query::Candidates {
+                    hierarchy: &h,
+                    batch: &batch,
+                };
+                let (got, stats) = run(&b, &rays, q, mode);
+                assert_eq!(got, want, "{kind:?} {mode:?}");
+                assert_eq!(stats.tests.ray_triangle, counts.0, "{kind:?} {mode:?}");
+                assert!(counts.1 > 0);
+            }
+        }
+    }
+
+    #[test]
+    fn bad_leaf_offsets_are_refused() {
+        let scene = soup(34, 10);
+        let b = BruteForce::from_scene(&scene);
+        let rays = random_rays(&scene, 35, 8);
+        let order: Vec<u32> = (0..8).collect();
+        let ok = hierarchy_with_offsets(order.clone(), vec![0, 3, 3, 8]);
+        let cases = [
+            ok,
+            // Wrong length for the level (3 nodes, 3 offsets).
+            RayHierarchy {
+                leaf_offsets: Some(vec![0, 3, 8]),
+                ..hierarchy_with_offsets(order.clone(), vec![0, 3, 3, 8])
+            },
+            hierarchy_with_offsets(order.clone(), vec![1, 3, 3, 8]),
+            hierarchy_with_offsets(order.clone(), vec![0, 3, 3, 7]),
+            hierarchy_with_offsets(order.clone(), vec![0, 3, 3, 9]),
+            hierarchy_with_offsets(order.clone(), vec![0, 4, 3, 8]),
+            hierarchy_with_offsets(order.clone(), vec![0, u32::MAX, 3, 8]),
+        ];
+        for (i, h) in cases.iter().enumerate() {
+            let batch = CandidateBatch::<Cpu> {
+                pairs: vec![Candidate { node: 0, tri: 0 }, Candidate { node: 2, tri: 1 }],
+            };
+            let mut hits = vec![Hit::MISS; rays.len()];
+            let r = b.intersect(
+                &Cpu,
+                &rays,
+                Query::Candidates {
+                    hierarchy: h,
+                    batch: &batch,
+                },
+                HitMode::Closest,
+                &mut hits,
+                &mut Stats::default(),
+            );
+            if i == 0 {
+                r.unwrap();
+            } else {
+                assert!(
+                    matches!(r, Err(CoreError::InvalidInput(_))),
+                    "case {i}: {r:?}"
+                );
             }
         }
     }

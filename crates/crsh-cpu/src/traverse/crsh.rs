@@ -96,17 +96,33 @@
 //! # Errors
 //!
 //! [`CoreError::InvalidParam`] for a budget that is not a finite positive number;
-//! [`CoreError::InvalidInput`] for an inconsistent hierarchy: zero subdivision, no level,
-//! `order` of the wrong length, a level whose length is not `⌈below / subdivision⌉`
-//! (`levels[0]` over the rays), or a node with a non-finite or negative radius or
+//! [`CoreError::InvalidInput`] for an inconsistent hierarchy: zero subdivision where it is
+//! used, no level, `order` of the wrong length, a level whose length is not
+//! `⌈below / subdivision⌉` (`levels[0]` over the rays; with [`RayHierarchy::leaf_offsets`]
+//! `levels[0]` has `offsets − 1` nodes instead and the offsets must pass
+//! [`crsh_core::check_leaf_offsets`]), or a node with a non-finite or negative radius or
 //! half-angle, or a cone axis that cannot be normalized.
+//!
+//! # Apex cones (seed 004)
+//!
+//! A hierarchy of seed 004's tile cones ([`crate::hierarchy::tile_cone`]) has one level of
+//! variable-size nodes ([`RayHierarchy::leaf_offsets`]), each a [`SphereCone`] of sphere
+//! radius 0 at the cone's apex. The traversal needs nothing else: it only emits
+//! (node, triangle) pairs, and the intersector maps nodes to rays. With `r = 0`,
+//! [`NodeBound::may_hit`] is exactly the paper's cone-sphere test (§4, *the cone intersects
+//! the sphere if φ > arccos((v − a)·x) − arcsin(r / |v − a|)*) with the direction to the
+//! sphere centre normalized, a sphere containing the apex counted as a hit, and every sphere
+//! passing once `φ + arcsin(r / |v − a|) ≥ π` (the derivation above, with margins); a
+//! half-angle of π (the builder's "wider than a hemisphere") passes every sphere, within the
+//! reach.
 
 use std::sync::Arc;
 
 use crsh_core::glam::DVec3;
 use crsh_core::{
-    Candidate, CandidateBatch, CoreError, ParamInfo, Ray, RayHierarchy, RayKind, Registry, Result,
-    Sphere, SphereCone, StageKind, StageSpec, StageVariantInfo, Stats, Traverser,
+    check_leaf_offsets, Candidate, CandidateBatch, CoreError, ParamInfo, Ray, RayHierarchy,
+    RayKind, Registry, Result, Sphere, SphereCone, StageKind, StageSpec, StageVariantInfo, Stats,
+    Traverser,
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
@@ -271,6 +287,7 @@ impl NodeBound {
 /// Checks a hierarchy's shape for a traversal of `n_rays` rays (shared by the backends): a
 /// non-zero `subdivision`, at least one level, `order_len == n_rays`, level `i` holding
 /// `⌈below / subdivision⌉` nodes, and reach bounds either absent or shaped like the levels.
+/// A hierarchy without [`RayHierarchy::leaf_offsets`]: see [`check_shape_with_offsets`].
 pub fn check_shape(
     n_rays: usize,
     subdivision: u32,
@@ -278,8 +295,24 @@ pub fn check_shape(
     level_lens: &[usize],
     reach_lens: &[usize],
 ) -> Result<()> {
+    check_shape_with_offsets(n_rays, subdivision, order_len, level_lens, reach_lens, None)
+}
+
+/// [`check_shape`] for a hierarchy whose [`RayHierarchy::leaf_offsets`] has `offsets_len`
+/// entries (`None`: no offsets). With offsets, `levels[0]` must hold `offsets_len − 1` nodes
+/// (whatever `subdivision` says) and `subdivision` must be non-zero only when there are
+/// levels above it. The offsets' contents are checked apart
+/// ([`crsh_core::check_leaf_offsets`]).
+pub fn check_shape_with_offsets(
+    n_rays: usize,
+    subdivision: u32,
+    order_len: usize,
+    level_lens: &[usize],
+    reach_lens: &[usize],
+    offsets_len: Option<usize>,
+) -> Result<()> {
     let sub = subdivision as usize;
-    if sub == 0 {
+    if sub == 0 && (offsets_len.is_none() || level_lens.len() > 1) {
         return Err(CoreError::InvalidInput("hierarchy subdivision is 0".into()));
     }
     if level_lens.is_empty() {
@@ -292,8 +325,21 @@ pub fn check_shape(
     }
     let mut below = n_rays;
     for (i, &len) in level_lens.iter().enumerate() {
-        let want = below.div_ceil(sub);
+        let want = match offsets_len {
+            Some(0) if i == 0 => {
+                return Err(CoreError::InvalidInput(
+                    "hierarchy leaf offsets are empty (need nodes + 1 entries)".into(),
+                ))
+            }
+            Some(o) if i == 0 => o - 1,
+            _ => below.div_ceil(sub),
+        };
         if len != want {
+            if let (0, Some(o)) = (i, offsets_len) {
+                return Err(CoreError::InvalidInput(format!(
+                    "hierarchy level 0 has {len} nodes but {o} leaf offsets (nodes + 1 expected)"
+                )));
+            }
             return Err(CoreError::InvalidInput(format!(
                 "hierarchy level {i} has {len} nodes, expected {want} (⌈{below} / {sub}⌉)"
             )));
@@ -393,13 +439,17 @@ impl Crsh {
     fn prepare(&self, n_rays: usize, h: &RayHierarchy<Cpu>) -> Result<Vec<Vec<NodeBound>>> {
         let level_lens: Vec<usize> = h.levels.iter().map(Vec::len).collect();
         let reach_lens: Vec<usize> = h.reach.iter().map(Vec::len).collect();
-        check_shape(
+        check_shape_with_offsets(
             n_rays,
             h.subdivision,
             h.order.len(),
             &level_lens,
             &reach_lens,
+            h.leaf_offsets.as_ref().map(Vec::len),
         )?;
+        if let Some(offsets) = &h.leaf_offsets {
+            check_leaf_offsets(offsets, level_lens[0], n_rays)?;
+        }
         h.levels
             .iter()
             .enumerate()
@@ -944,6 +994,115 @@ mod tests {
         }
     }
 
+    /// A test-only hierarchy with variable-size lowest nodes: node `k` of `levels[0]` bounds
+    /// the leaves `offsets[k] .. offsets[k + 1]`, node `n` of level `i > 0` the leaves of its
+    /// `sub^i` lowest descendants; every node is the [`bound`] of its rays.
+    fn build_with_offsets(
+        rays: &[Ray],
+        order: Vec<u32>,
+        offsets: Vec<u32>,
+        sub: u32,
+        levels: usize,
+    ) -> RayHierarchy<Cpu> {
+        let nodes0 = offsets.len() - 1;
+        let mut out = Vec::new();
+        let mut span = 1usize;
+        let mut count = nodes0;
+        for _ in 0..levels {
+            let level: Vec<SphereCone> = (0..count)
+                .map(|n| {
+                    let a = offsets[(n * span).min(nodes0)] as usize;
+                    let b = offsets[((n + 1) * span).min(nodes0)] as usize;
+                    let rs: Vec<Ray> = order[a..b].iter().map(|&r| rays[r as usize]).collect();
+                    bound(&rs)
+                })
+                .collect();
+            out.push(level);
+            span *= sub as usize;
+            count = count.div_ceil(sub as usize);
+        }
+        RayHierarchy {
+            leaf_offsets: Some(offsets),
+            order,
+            levels: out,
+            subdivision: sub,
+            reach: vec![],
+        }
+    }
+
+    /// Cut points over `n` leaves: nodes of 1 to 40 leaves.
+    fn random_offsets(rng: &mut TestRng, n: usize) -> Vec<u32> {
+        let mut offsets = vec![0u32];
+        let mut at = 0usize;
+        while at < n {
+            at = (at + 1 + (rng.next_u64() % 40) as usize).min(n);
+            offsets.push(at as u32);
+        }
+        offsets
+    }
+
+    #[test]
+    fn hierarchies_with_leaf_offsets_give_the_brute_force_hits() {
+        let scene = Arc::new(clustered(61, 6, 30));
+        let brute = BruteForce::from_scene(&scene);
+        let rays = test_rays(&scene, 62, 300);
+        let refs = [HitMode::Closest, HitMode::Any].map(|m| reference(&brute, &rays, m));
+        let mut rng = TestRng(63);
+        let offsets = random_offsets(&mut rng, rays.len());
+        for (sub, levels) in [(4u32, 1usize), (4, 2), (3, 3)] {
+            let h = build_with_offsets(
+                &rays,
+                shuffled(rays.len(), 64),
+                offsets.clone(),
+                sub,
+                levels,
+            );
+            for culling in [true, false] {
+                let trav = Crsh::with_options(&scene, culling, 0.05).unwrap();
+                for (mode, want) in [HitMode::Closest, HitMode::Any].iter().zip(&refs) {
+                    let (hits, batches, _, _) = trace(&trav, &brute, &rays, &h, *mode);
+                    let what = format!("sub {sub} levels {levels} culling {culling} {mode:?}");
+                    assert_same(&hits, want, *mode, &what);
+                    let n: usize = batches.iter().map(Vec::len).sum();
+                    assert!(n < h.levels[0].len() * scene.triangle_count(), "{what}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn apex_cones_of_radius_zero_and_full_cones_are_accepted() {
+        let apex = |alpha: f32| {
+            NodeBound::new(&SphereCone {
+                sphere: Sphere::new(Vec3::ZERO, 0.0),
+                cone: Cone {
+                    axis: Vec3::Z,
+                    half_angle: alpha,
+                },
+            })
+            .unwrap()
+        };
+        let behind = Sphere::new(Vec3::new(0.0, 0.0, -10.0), 1.0);
+        let ahead = Sphere::new(Vec3::new(0.0, 0.0, 10.0), 1.0);
+        // The paper's test: φ > arccos((v − a)·x / |v − a|) − arcsin(r / |v − a|).
+        assert!(apex(0.0).may_hit(&ahead));
+        assert!(!apex(0.0).may_hit(&behind));
+        let off = Sphere::new(
+            Vec3::new(10.0 * 0.2f32.sin(), 0.0, 10.0 * 0.2f32.cos()),
+            1.0,
+        );
+        // asin(0.1) ≈ 0.1002: needs φ above ≈ 0.0998.
+        assert!(apex(0.11).may_hit(&off));
+        assert!(!apex(0.09).may_hit(&off));
+        // A sphere containing the apex is a hit whatever the direction.
+        assert!(apex(0.0).may_hit(&Sphere::new(Vec3::new(0.0, 0.0, -0.5), 1.0)));
+        // Half-angle π: every sphere, but still limited by the reach.
+        let full = apex(std::f32::consts::PI);
+        assert!(full.may_hit(&behind));
+        assert!(!full.with_reach(5.0).may_hit(&behind));
+        assert!(full.with_reach(9.5).may_hit(&behind));
+    }
+
     /// A uniform direction within the cone `(axis, alpha)`.
     fn dir_in_cone(rng: &mut TestRng, axis: DVec3, alpha: f64) -> DVec3 {
         let (u, v) = axis.any_orthonormal_pair();
@@ -1365,6 +1524,28 @@ mod tests {
             nan,
             zero_axis,
             negative,
+            // Leaf offsets: level 0 not offsets − 1 nodes long, bad contents, no entry.
+            RayHierarchy {
+                leaf_offsets: Some(vec![0, 10, 20]),
+                ..build(&rays, (0..20).collect(), 4, 1)
+            },
+            RayHierarchy {
+                leaf_offsets: Some(vec![0, 5, 4, 15, 20]),
+                ..build(&rays, (0..20).collect(), 4, 1)
+            },
+            RayHierarchy {
+                leaf_offsets: Some(vec![0, 5, 10, 15, 19]),
+                ..build(&rays, (0..20).collect(), 4, 1)
+            },
+            RayHierarchy {
+                leaf_offsets: Some(vec![]),
+                ..build(&rays, (0..20).collect(), 4, 1)
+            },
+            RayHierarchy {
+                leaf_offsets: Some(vec![0, 5, 10, 15, 20]),
+                subdivision: 0,
+                ..build(&rays, (0..20).collect(), 4, 2)
+            },
         ];
         for (i, h) in cases.iter().enumerate() {
             let r = trav.traverse(

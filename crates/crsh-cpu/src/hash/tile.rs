@@ -1,0 +1,432 @@
+//! `tile`: the screen tile of a ray's pixel as its key (seed 004 §3 and §7: Szécsi's
+//! hierarchical ray engine splits the render target into tiles of assumedly coherent rays,
+//! 16×16 in his results, and bounds each tile's rays by one cone).
+//!
+//! # Key
+//!
+//! With the frame `width × height` of the stage context and the parameter `tile_size` (`ts`),
+//! `tiles_x = ⌈width / ts⌉`, `tiles_y = ⌈height / ts⌉` and `tiles = tiles_x · tiles_y`; the
+//! last column and row of tiles are partial when `ts` does not divide the frame. A ray of
+//! pixel `p = y·width + x` ([`Ray::pixel`]) lies in tile `(y / ts)·tiles_x + x / ts`. Its key is
+//! its *group* ([`TileGrid::group`]): the tile, except for shadow rays, whose group is
+//! `light·tiles + tile` ([`Ray::light`]), so that a node never mixes rays of two lights (in
+//! the thesis's convention the shadow rays of one light share its position as their origin;
+//! the generator makes them light-major). The tile cone builder
+//! ([`crate::hierarchy::tile_cone`]) groups by the same function.
+//!
+//! [`Hasher::key_bits`] is the bit length of `max(1, lights)·tiles − 1` (at least 1), with
+//! `lights` the scene's light count, so a sorter sorts only the bits a key can have.
+//!
+//! # Order within a tile
+//!
+//! All rays of a group get the same key, and [`crsh_core::Sorter::sort`] is stable by
+//! contract, so within a tile the rays keep their generation order (for Whitted rays: the
+//! order of the surfaces that spawned them, i.e. row-major pixel order; shadow rays light by
+//! light). The hierarchy over the sorted rays then holds each tile's rays consecutively: one
+//! node per (compacted) tile.
+//!
+//! # Errors
+//!
+//! A ray whose pixel lies outside the frame, or a shadow ray whose light index is not below
+//! the scene's light count (its key would not fit `key_bits`), is
+//! [`CoreError::InvalidInput`] naming the first such ray (the generators never make one).
+//! The wgpu twin writes the all-ones key of `key_bits` for such a ray instead.
+//!
+//! Keys depend only on the ray and the frame, so they do not depend on the thread count.
+
+use crsh_core::{
+    CoreError, FrameSize, Hasher, ParamInfo, Ray, RayKind, Registry, Result, StageKind, StageSpec,
+    StageVariantInfo, Stats,
+};
+use rayon::prelude::*;
+
+use crate::backend::Cpu;
+
+/// Default tile side in pixels (seed 004 §7: 16×16 tiles).
+pub const DEFAULT_TILE_SIZE: u32 = 16;
+/// Accepted tile sides in pixels.
+pub const TILE_SIZE_RANGE: std::ops::RangeInclusive<u32> = 1..=4096;
+
+/// The catalogue entry of the `tile` hasher.
+pub fn info() -> StageVariantInfo {
+    StageVariantInfo::new(
+        StageKind::Hash,
+        "tile",
+        "the screen tile of the ray's pixel (shadow rays: light-major, light·tiles + tile), \
+         so that the stable sort gathers each tile's rays in generation order (seed 004 §3, §7)",
+    )
+    .param(tile_size_param())
+}
+
+/// The `tile_size` parameter, shared with the tile cone builder (same meaning and range).
+pub fn tile_size_param() -> ParamInfo {
+    ParamInfo::int(
+        "tile_size",
+        DEFAULT_TILE_SIZE as i64,
+        *TILE_SIZE_RANGE.start() as i64,
+        *TILE_SIZE_RANGE.end() as i64,
+        "tile side in pixels (partial tiles at the right and bottom edges)",
+    )
+}
+
+/// Registers `tile` ([`info`], [`TileHasher::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_hasher(info(), |ctx, spec| {
+        Ok(Box::new(TileHasher::new(
+            ctx.frame,
+            ctx.scene.lights.len(),
+            spec,
+        )?))
+    })?;
+    Ok(())
+}
+
+/// The tiles of a frame, and the group of a ray (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TileGrid {
+    frame: FrameSize,
+    tile_size: u32,
+    tiles_x: u32,
+    tiles_y: u32,
+}
+
+impl TileGrid {
+    /// The tiles of side `tile_size` over `frame`.
+    ///
+    /// # Errors
+    /// [`CoreError::InvalidParam`] for a `tile_size` outside [`TILE_SIZE_RANGE`].
+    pub fn new(frame: FrameSize, tile_size: u32) -> Result<TileGrid> {
+        if !TILE_SIZE_RANGE.contains(&tile_size) {
+            return Err(CoreError::InvalidParam {
+                key: "tile_size".into(),
+                reason: format!(
+                    "{tile_size} is outside {}..={}",
+                    TILE_SIZE_RANGE.start(),
+                    TILE_SIZE_RANGE.end()
+                ),
+            });
+        }
+        Ok(TileGrid {
+            frame,
+            tile_size,
+            tiles_x: frame.width.div_ceil(tile_size),
+            tiles_y: frame.height.div_ceil(tile_size),
+        })
+    }
+
+    /// The frame.
+    pub fn frame(&self) -> FrameSize {
+        self.frame
+    }
+
+    /// The tile side in pixels.
+    pub fn tile_size(&self) -> u32 {
+        self.tile_size
+    }
+
+    /// Tiles per row, `⌈width / tile_size⌉`.
+    pub fn tiles_x(&self) -> u32 {
+        self.tiles_x
+    }
+
+    /// Tiles per column, `⌈height / tile_size⌉`.
+    pub fn tiles_y(&self) -> u32 {
+        self.tiles_y
+    }
+
+    /// Tiles in the frame.
+    pub fn tiles(&self) -> u64 {
+        self.tiles_x as u64 * self.tiles_y as u64
+    }
+
+    /// The tile of pixel `pixel` (`y·width + x`): `(y / ts)·tiles_x + x / ts`; `None` when the
+    /// pixel lies outside the frame.
+    #[inline]
+    pub fn tile(&self, pixel: u32) -> Option<u64> {
+        let w = self.frame.width;
+        let (x, y) = (pixel % w, pixel / w);
+        if y >= self.frame.height {
+            return None;
+        }
+        let ts = self.tile_size;
+        Some((y / ts) as u64 * self.tiles_x as u64 + (x / ts) as u64)
+    }
+
+    /// The group of `ray`: its pixel's tile, plus `light·tiles` for a shadow ray; `None` when
+    /// the pixel lies outside the frame. The key of the `tile` hasher and the node boundary of
+    /// the tile cone builder (one definition for both).
+    #[inline]
+    pub fn group(&self, ray: &Ray) -> Option<u64> {
+        let tile = self.tile(ray.pixel)?;
+        Some(if ray.kind == RayKind::Shadow as u32 {
+            ray.light as u64 * self.tiles() + tile
+        } else {
+            tile
+        })
+    }
+
+    /// The bits a group needs with `lights` lights: the bit length of
+    /// `max(1, lights)·tiles − 1`, at least 1.
+    pub fn key_bits(&self, lights: usize) -> u32 {
+        let top = (lights.max(1) as u64).saturating_mul(self.tiles()) - 1;
+        (64 - top.leading_zeros()).max(1)
+    }
+}
+
+/// The `tile` hasher (see the module docs).
+#[derive(Clone, Debug)]
+pub struct TileHasher {
+    grid: TileGrid,
+    lights: usize,
+}
+
+impl TileHasher {
+    /// The hasher for `frame` and a scene of `lights` lights, with the `tile_size` of a
+    /// resolved `spec`.
+    ///
+    /// # Errors
+    /// [`CoreError::InvalidParam`] for a `tile_size` out of range.
+    pub fn new(frame: FrameSize, lights: usize, spec: &StageSpec) -> Result<TileHasher> {
+        let tile_size = spec.u32_in("tile_size", TILE_SIZE_RANGE)?;
+        Ok(TileHasher::with_grid(
+            TileGrid::new(frame, tile_size)?,
+            lights,
+        ))
+    }
+
+    /// The hasher over `grid` for a scene of `lights` lights.
+    pub fn with_grid(grid: TileGrid, lights: usize) -> TileHasher {
+        TileHasher { grid, lights }
+    }
+
+    /// The tiles.
+    pub fn grid(&self) -> &TileGrid {
+        &self.grid
+    }
+
+    /// The key of `ray`, or why it has none.
+    fn key(&self, ray: &Ray) -> Option<u64> {
+        if ray.kind == RayKind::Shadow as u32 && ray.light as usize >= self.lights {
+            return None;
+        }
+        self.grid.group(ray)
+    }
+}
+
+impl Hasher<Cpu> for TileHasher {
+    fn name(&self) -> &str {
+        "tile"
+    }
+
+    fn key_bits(&self) -> u32 {
+        self.grid.key_bits(self.lights)
+    }
+
+    fn hash(
+        &self,
+        _backend: &Cpu,
+        rays: &Vec<Ray>,
+        _kind: RayKind,
+        _stats: &mut Stats,
+    ) -> Result<Vec<u64>> {
+        if let Some(i) = rays.par_iter().position_first(|r| self.key(r).is_none()) {
+            let r = &rays[i];
+            let f = self.grid.frame;
+            return Err(CoreError::InvalidInput(format!(
+                "tile hash: ray {i} (pixel {}, kind {}, light {}) lies outside the {f} frame \
+                 or names a light the scene's {} lights lack",
+                r.pixel, r.kind, r.light, self.lights
+            )));
+        }
+        Ok(rays
+            .par_iter()
+            .map(|r| self.key(r).unwrap_or(u64::MAX))
+            .collect())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::with_threads;
+    use crsh_core::glam::Vec3;
+    use crsh_core::ParamValue;
+
+    fn ray(kind: RayKind, pixel: u32, light: u32) -> Ray {
+        Ray {
+            origin: Vec3::ZERO,
+            t_min: 0.0,
+            dir: Vec3::Z,
+            t_max: f32::INFINITY,
+            throughput: Vec3::ONE,
+            kind: kind as u32,
+            pixel,
+            light,
+            depth: 1,
+            source: pixel,
+        }
+    }
+
+    fn frame(w: u32, h: u32) -> FrameSize {
+        FrameSize::new(w, h).unwrap()
+    }
+
+    fn hash(h: &TileHasher, rays: &Vec<Ray>) -> Result<Vec<u64>> {
+        h.hash(&Cpu, rays, RayKind::Reflection, &mut Stats::default())
+    }
+
+    #[test]
+    fn keys_of_a_frame_with_partial_tiles() {
+        // 100×37 in tiles of 16: 7 × 3 tiles, the last column 4 wide, the last row 5 high.
+        let grid = TileGrid::new(frame(100, 37), 16).unwrap();
+        assert_eq!((grid.tiles_x(), grid.tiles_y(), grid.tiles()), (7, 3, 21));
+        let h = TileHasher::with_grid(grid, 1);
+        let at = |x: u32, y: u32| y * 100 + x;
+        let cases = [
+            (at(0, 0), 0),
+            (at(15, 15), 0),
+            (at(16, 0), 1),
+            (at(0, 16), 7),
+            (at(95, 0), 5),
+            (at(96, 0), 6),
+            (at(99, 15), 6),
+            (at(31, 17), 8),
+            (at(0, 32), 14),
+            (at(99, 36), 20),
+        ];
+        let rays: Vec<Ray> = cases
+            .iter()
+            .map(|&(p, _)| ray(RayKind::Reflection, p, u32::MAX))
+            .collect();
+        let keys = hash(&h, &rays).unwrap();
+        let want: Vec<u64> = cases.iter().map(|c| c.1).collect();
+        assert_eq!(keys, want);
+        // Every pixel: the tiles hold 16×16, 4×16 (last column), 16×5 (last row), 4×5 pixels.
+        let all: Vec<Ray> = (0..100 * 37)
+            .map(|p| ray(RayKind::Refraction, p, u32::MAX))
+            .collect();
+        let mut count = [0usize; 21];
+        for k in hash(&h, &all).unwrap() {
+            count[k as usize] += 1;
+        }
+        for (t, &c) in count.iter().enumerate() {
+            let w = if t % 7 == 6 { 4 } else { 16 };
+            let hgt = if t / 7 == 2 { 5 } else { 16 };
+            assert_eq!(c, w * hgt, "tile {t}");
+        }
+    }
+
+    #[test]
+    fn shadow_rays_of_two_lights_never_share_a_key() {
+        let grid = TileGrid::new(frame(100, 37), 16).unwrap();
+        let h = TileHasher::with_grid(grid, 2);
+        let rays: Vec<Ray> = (0..2)
+            .flat_map(|l| (0..100 * 37).map(move |p| ray(RayKind::Shadow, p, l)))
+            .collect();
+        let keys = hash(&h, &rays).unwrap();
+        let (a, b) = keys.split_at(100 * 37);
+        let max_a = a.iter().max().unwrap();
+        let min_b = b.iter().min().unwrap();
+        assert!(
+            max_a < min_b,
+            "light 0 keys {max_a} >= light 1 keys {min_b}"
+        );
+        assert_eq!((*max_a, *min_b), (20, 21));
+        let bits = Hasher::<Cpu>::key_bits(&h);
+        assert!(keys.iter().all(|&k| k < 1 << bits));
+        // Other kinds ignore the light field (ao/diffuse keep a sample index there).
+        let ao = vec![ray(RayKind::Ao, 0, 7), ray(RayKind::Diffuse, 99, 3)];
+        assert_eq!(hash(&h, &ao).unwrap(), [0, 6]);
+    }
+
+    #[test]
+    fn key_bits_cover_the_groups() {
+        let grid = TileGrid::new(frame(100, 37), 16).unwrap();
+        // 21 tiles: keys 0..=20 (5 bits); 2 lights: 0..=41 (6 bits); no light counts as one.
+        assert_eq!(grid.key_bits(0), 5);
+        assert_eq!(grid.key_bits(1), 5);
+        assert_eq!(grid.key_bits(2), 6);
+        assert_eq!(grid.key_bits(3), 6);
+        assert_eq!(grid.key_bits(4), 7);
+        // One tile, one light: key 0, still 1 bit.
+        assert_eq!(TileGrid::new(frame(1, 1), 16).unwrap().key_bits(1), 1);
+        assert_eq!(TileGrid::new(frame(100, 37), 4096).unwrap().key_bits(1), 1);
+        // 32×32 in tiles of 16: 4 tiles, keys 0..=3, 2 bits.
+        assert_eq!(TileGrid::new(frame(32, 32), 16).unwrap().key_bits(1), 2);
+        // The largest frame in one-pixel tiles with many lights still fits.
+        let huge = TileGrid::new(frame(16384, 16384), 1).unwrap();
+        assert_eq!(huge.key_bits(1), 28);
+        assert_eq!(huge.key_bits(1000), 38);
+    }
+
+    #[test]
+    fn bad_rays_and_params_are_errors() {
+        let grid = TileGrid::new(frame(10, 10), 4).unwrap();
+        let h = TileHasher::with_grid(grid, 1);
+        for bad in [
+            ray(RayKind::Reflection, 100, u32::MAX),
+            ray(RayKind::Reflection, u32::MAX, u32::MAX),
+            ray(RayKind::Shadow, 5, 1),
+            ray(RayKind::Shadow, 5, u32::MAX),
+        ] {
+            let rays = vec![ray(RayKind::Reflection, 0, 0), bad];
+            let r = hash(&h, &rays);
+            assert!(matches!(r, Err(CoreError::InvalidInput(_))), "{r:?}");
+        }
+        assert!(TileGrid::new(frame(10, 10), 0).is_err());
+        assert!(TileGrid::new(frame(10, 10), 4097).is_err());
+        let mut spec = StageSpec::new("tile");
+        spec.params.insert("tile_size".into(), ParamValue::Int(8));
+        let h = TileHasher::new(frame(100, 37), 2, &spec).unwrap();
+        assert_eq!(h.grid().tile_size(), 8);
+        assert_eq!(
+            Hasher::<Cpu>::key_bits(&h),
+            8,
+            "13 × 5 tiles × 2 lights: keys 0..=129"
+        );
+        spec.params.insert("tile_size".into(), ParamValue::Int(0));
+        assert!(matches!(
+            TileHasher::new(frame(100, 37), 2, &spec),
+            Err(CoreError::InvalidParam { .. })
+        ));
+    }
+
+    #[test]
+    fn registry_builds_it_from_the_frame_and_the_stable_sort_keeps_generation_order() {
+        use crate::hash::test_util::scene_with_lights;
+        use crsh_core::StageContext;
+        let scene = scene_with_lights(2);
+        let registry = Registry::<Cpu>::builtin();
+        let ctx = StageContext::new(&Cpu, &scene, frame(40, 20));
+        let mut cfg = registry.preset("crsh").unwrap();
+        cfg.set("hash.kind=tile").unwrap();
+        cfg.set("hash.tile_size=8").unwrap();
+        cfg.set("sort.kind=radix").unwrap();
+        let pipeline = registry.build(&ctx, &cfg).unwrap();
+        let h = pipeline.stages.hasher.as_ref().unwrap();
+        let sorter = pipeline.stages.sorter.as_ref().unwrap();
+        assert_eq!(h.name(), "tile");
+        // 5 × 3 tiles, 2 lights: 30 groups, 5 bits.
+        assert_eq!(h.key_bits(), 5);
+        let rays: Vec<Ray> = (0..2)
+            .flat_map(|l| (0..800).map(move |p| ray(RayKind::Shadow, p, l)))
+            .collect();
+        let keys = h
+            .hash(&Cpu, &rays, RayKind::Shadow, &mut Stats::default())
+            .unwrap();
+        let order = sorter
+            .sort(&Cpu, &keys, h.key_bits(), &mut Stats::default())
+            .unwrap();
+        // Runs of one group each, in increasing group order, generation order inside.
+        for w in order.windows(2) {
+            let (a, b) = (w[0] as usize, w[1] as usize);
+            assert!(keys[a] < keys[b] || (keys[a] == keys[b] && a < b));
+        }
+        let one = with_threads(1, || {
+            h.hash(&Cpu, &rays, RayKind::Shadow, &mut Stats::default())
+        })
+        .unwrap()
+        .unwrap();
+        assert_eq!(one, keys);
+    }
+}
