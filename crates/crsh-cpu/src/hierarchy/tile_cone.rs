@@ -88,26 +88,22 @@
 //!    wgpu host passes the same two numbers to its kernel).
 //! 4. **`q` undefined.** The paper's `q` divides by `|(x·r)·x − r|`, which is 0 when the ray
 //!    is parallel or opposite to the axis (or the origin lies on the axis line); below
-//!    `10⁻¹²·max(1, |v|)` a fixed perpendicular of `x` is used
-//!    (`normalize(cross(x, (1,0,0)))` if `|x.x| < 0.9`, else with `(0,1,0)`).
+//!    `10⁻⁶·|v|` ([`PERP_EPS`], where `f32` rounding alone makes `w`) a fixed perpendicular
+//!    of `x` is used (`normalize(cross(x, (1,0,0)))` if `|x.x| < 0.9`, else with `(0,1,0)`).
 //! 5. **Beyond a half-space.** The paper's cone extension is minimal only while the result
-//!    is narrower than a hemisphere: when `|e + r| ≤ 10⁻⁶` (`r` opposite `e`) or
-//!    `cos φ_new ≤ 0` the node is marked *full* and stores half-angle π. These two checks only
-//!    catch an exact opposition: for `φ + angle(x, r) > π` (`x·r < −cos φ`) the sum `e + r`
-//!    bisects the other, shorter arc from `e` to `r`, so the "extended" cone misses the old
-//!    axis and `cos φ_new > 0`. The spec keeps the paper's checks; the re-measured half-angle
-//!    then exceeds π/2 (the node stores π without being flagged *full*) unless the later rays
-//!    happen to fit a narrower cone about the new axis, which the re-measure also honours.
-//!    Should the incremental apex or axis ever stop being finite (never seen: it needs an
-//!    overflow), the node is full too, its apex the first ray's origin (a safety net beyond
-//!    the spec).
+//!    is narrower than a hemisphere. For `φ + angle(x, r) ≥ π` (`x·r ≤ −cos φ`) the new
+//!    half-angle `(φ + angle(x, r)) / 2` reaches 90° and `e + r` would bisect the other arc,
+//!    so the node is marked *full* (half-angle π) at once; so it is when `|e + r| ≤ 10⁻⁶` or
+//!    `cos φ_new ≤ 0` after an extension (rounding at the boundary). Should the incremental
+//!    apex or axis ever stop being finite (it needs an overflow), the node is full too, its
+//!    apex the first ray's origin.
 //! 6. **Origins behind the apex.** The translation puts the origin on the near generator's
 //!    *line*: `p − a_new = λ·n` with `λ = |c|·sin(θ + φ) / sin 2φ` (`θ = angle(x, c)`), which
-//!    is negative when `θ > π − φ`, i.e. when `p` lies in the mirror image of the cone behind
+//!    is negative when `θ ≥ π − φ`, i.e. when `p` lies in the mirror image of the cone behind
 //!    its apex (an origin on the axis line behind the apex, for instance). The paper does not
-//!    treat this case and neither does the spec: the re-measured angle then exceeds π/2 and
-//!    the node stores π. (The cone with apex `p` itself would hold the old cone in that case,
-//!    `a − p` lying inside it.)
+//!    treat this case. Then (`−x·c ≥ cos φ·|c|`, after the widening of item 3) the apex moves
+//!    to `p` itself: `a − p` lies in the cone, so the cone of apex `p` holds the old one and
+//!    the origin, with the same axis and angle.
 //!
 //! # Degenerate input
 //!
@@ -143,7 +139,7 @@ pub const GUARD_ADD: f32 = 4e-6;
 pub const EXTEND_EPS: f32 = 1e-6;
 /// Relative length below which the component of a vector orthogonal to the axis counts as
 /// zero (erratum 4).
-pub const PERP_EPS: f32 = 1e-12;
+pub const PERP_EPS: f32 = 1e-6;
 
 /// The catalogue entry of this variant.
 pub fn info() -> StageVariantInfo {
@@ -368,12 +364,13 @@ pub fn any_perpendicular(x: Vec3) -> Vec3 {
 
 /// The paper's `q` (§4): the unit vector from `v` towards the axis line of `x`, in the plane
 /// of `x` and `v`: `w = x·xv − v` (with `xv = x·v`), `w / |w|`; when
-/// `|w| ≤ 10⁻¹²·max(1, |v|)` (`v` parallel or opposite to the axis), [`any_perpendicular`].
+/// `|w| ≤ 10⁻⁶·|v|` ([`PERP_EPS`]: `v` parallel or opposite to the axis to within `f32`
+/// rounding, so `w` is rounding noise), [`any_perpendicular`].
 #[inline]
 pub fn perp_towards_axis(x: Vec3, v: Vec3, xv: f32) -> Vec3 {
     let w = x * xv - v;
     let l = length(w);
-    if l > PERP_EPS * length(v).max(1.0) {
+    if l > PERP_EPS * length(v) {
         Vec3::new(w.x / l, w.y / l, w.z / l)
     } else {
         any_perpendicular(x)
@@ -458,6 +455,12 @@ pub fn node_cone(rays: &[Ray], leaves: &[u32], sin_min: f32, cos_min: f32) -> (S
         // (a) Extend the solid angle to hold r (§4, fig. 2).
         let xr = dot(x, r);
         if xr < cos_phi {
+            if xr <= -cos_phi {
+                // φ + angle(x, r) ≥ π: the new half-angle (φ + angle) / 2 reaches 90° and `e + r`
+                // would bisect the wrong arc; the cone culls nothing any more (erratum 2).
+                full = true;
+                break;
+            }
             let q = perp_towards_axis(x, r, xr);
             let e = x * cos_phi + q * sin_phi;
             let s = e + r;
@@ -476,10 +479,19 @@ pub fn node_cone(rays: &[Ray], leaves: &[u32], sin_min: f32, cos_min: f32) -> (S
         }
         // (b) Translate to hold the origin (§4, fig. 3), apex sign corrected (erratum 1).
         let c = k.origin - a;
-        if dot(x, c) < cos_phi * length(c) {
+        let (xc, lc) = (dot(x, c), length(c));
+        if xc < cos_phi * lc {
             if sin_phi < sin_min {
                 cos_phi = cos_min;
                 sin_phi = sin_min;
+            }
+            if -xc >= cos_phi * lc {
+                // The origin lies in the backward cone (angle(x, c) ≥ π − φ): the cone with its
+                // apex there holds the old one (a − p is within φ of x) and the origin, with
+                // the same axis and angle; translating along a generator would put the origin
+                // on the near generator's backward extension instead.
+                a = k.origin;
+                continue;
             }
             match translate_apex(a, x, cos_phi, sin_phi, k.origin, ApexSign::Corrected) {
                 Some(moved) => a = moved,
@@ -998,13 +1010,13 @@ pub(crate) mod tests {
     }
 
     #[test]
-    fn what_the_spec_leaves_to_the_re_measure() {
+    fn beyond_a_half_space_and_behind_the_apex() {
         let params = TileConeParams::default();
         let (s, c) = params.sin_cos_min();
         let r = |o: Vec3, d: Vec3, p: u32| ray(RayKind::Reflection, p, u32::MAX, o, d, 1.0);
         // Module docs item 5: z, then x (a 45° cone about (x + z)/√2), then a direction 150°
-        // from that axis: φ + θ = 195° > 180°, so e + r bisects the wrong arc. Nothing flags
-        // the node full; the re-measured angle exceeds 90° and it stores π.
+        // from that axis: φ + θ = 195° ≥ 180°, so the node is flagged full at once (e + r
+        // would bisect the wrong arc).
         let axis = (Vec3::X + Vec3::Z).normalize();
         let (u, _) = axis.any_orthonormal_pair();
         let t = 150f32.to_radians();
@@ -1015,9 +1027,20 @@ pub(crate) mod tests {
             r(Vec3::ZERO, back, 2),
         ];
         let (node, full) = node_cone(&rays, &[0, 1, 2], s, c);
-        assert_eq!((node.cone.half_angle, full), (PI, false));
-        // Item 6: an origin behind the apex, on the axis line: the translation puts it on the
-        // backward extension of the near generator, 180° − φ = 170° from the axis, not φ.
+        assert_eq!((node.cone.half_angle, full), (PI, true));
+        // 120° instead: φ + θ = 165°, a cone of about 82.5° that holds all three.
+        let t = 120f32.to_radians();
+        let side = axis * t.cos() + u * t.sin();
+        let rays = [
+            r(Vec3::ZERO, Vec3::Z, 0),
+            r(Vec3::ZERO, Vec3::X, 1),
+            r(Vec3::ZERO, side, 2),
+        ];
+        let (node, full) = node_cone(&rays, &[0, 1, 2], s, c);
+        assert!(!full && node.cone.half_angle < 83f32.to_radians(), "{node:?}");
+        // Item 6: an origin behind the apex, on the axis line. One translation step would put
+        // it on the backward extension of the near generator, 180° − φ = 170° from the axis;
+        // the builder moves the apex onto it instead, which keeps a thin cone.
         let p = Vec3::new(0.0, 0.0, -1.0);
         let (sin10, cos10) = (10f32.to_radians().sin(), 10f32.to_radians().cos());
         let moved =
@@ -1026,7 +1049,8 @@ pub(crate) mod tests {
         assert!((seen - 170.0).abs() < 1e-3, "{seen}");
         let rays = [r(Vec3::ZERO, Vec3::Z, 0), r(p, Vec3::Z, 1)];
         let (node, full) = node_cone(&rays, &[0, 1], s, c);
-        assert_eq!((node.cone.half_angle, full), (PI, false));
+        assert!(!full && node.cone.half_angle < 1e-5, "{node:?}");
+        assert_eq!(node.sphere.center, p);
         // The same two rays the other way round: the second origin is ahead, on the axis.
         let (node, _) = node_cone(&rays, &[1, 0], s, c);
         assert!(node.cone.half_angle < 1e-5, "{node:?}");
