@@ -190,7 +190,7 @@ mod tests {
         assert_eq!(cfg.sort.as_ref().unwrap().kind, "radix");
         assert_eq!(hierarchy.kind, "tile_cone");
         assert_eq!(hierarchy.i64("tile_size").unwrap(), 16);
-        assert_eq!(hierarchy.f64("min_half_angle_deg").unwrap(), 0.05);
+        assert_eq!(hierarchy.f64("min_half_angle_deg").unwrap(), 1.0);
         let traverse = cfg.traverse.as_ref().unwrap();
         assert_eq!(traverse.kind, "crsh");
         assert!(!traverse.bool("mesh_culling").unwrap());
