@@ -31,7 +31,7 @@ struct ManifestRow {
     problem: Option<String>,
 }
 
-/// A parameterized built-in name (`glass-sphere-N`) and what it means.
+/// A parameterized built-in name (`glass-sphere-N`, `glass-shell-N`) and what it means.
 #[derive(Debug, Serialize)]
 struct PatternEntry {
     name: String,

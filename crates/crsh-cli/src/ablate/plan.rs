@@ -1232,7 +1232,14 @@ mod tests {
             .starts_with("scene not found: no/such/scene.toml"));
         assert_eq!(resolve_scene("office-boxes", None).unwrap(), "office-boxes");
         // Sized built-ins stay names; a bad size is left for the loader to refuse.
-        for name in ["glass-sphere", "glass-sphere-500", "glass-sphere-7"] {
+        for name in [
+            "glass-sphere",
+            "glass-sphere-500",
+            "glass-sphere-7",
+            "glass-shell",
+            "glass-shell-500",
+            "glass-shell-502",
+        ] {
             assert_eq!(resolve_scene(name, None).unwrap(), name);
         }
     }

@@ -261,26 +261,50 @@ impl UvGrid {
 /// `glass-sphere-` followed by a suffix without `.`, `/` or `\` (so that a file such as
 /// `glass-sphere-5.toml` stays a file). [`triangles_for_name`] then accepts or refuses it.
 pub fn is_name(name: &str) -> bool {
-    name == NAME
+    is_sized_name(name, NAME, PREFIX)
+}
+
+/// Whether `name` is `base` or `prefix` followed by a suffix without `.`, `/` or `\` (a sized
+/// built-in name, well-formed or not; a file such as `prefix5.toml` stays a file). Shared by
+/// `glass-sphere-N` and `glass-shell-N`.
+pub(crate) fn is_sized_name(name: &str, base: &str, prefix: &str) -> bool {
+    name == base
         || name
-            .strip_prefix(PREFIX)
+            .strip_prefix(prefix)
             .is_some_and(|rest| !rest.contains(['.', '/', '\\']))
 }
 
 /// The object triangle count a name asks for: [`DEFAULT_TRIANGLES`] for `glass-sphere`, `N`
 /// for `glass-sphere-N`; an error naming the scene and the allowed values for anything else.
 pub fn triangles_for_name(name: &str) -> Result<u32, SceneError> {
-    if name == NAME {
-        return Ok(DEFAULT_TRIANGLES);
+    sized_triangles(name, NAME, PREFIX, DEFAULT_TRIANGLES, &allowed(), |n| {
+        UvGrid::for_triangles(n).map(|_| ())
+    })
+}
+
+/// The triangle count a sized built-in name asks for: `default` for `base`, `N` for `prefixN`
+/// when `check(N)` accepts it; otherwise an error naming the scene, why, and `allowed`. The
+/// suffix must be a plain decimal number (no sign, no leading zero). Shared by
+/// `glass-sphere-N` and `glass-shell-N`.
+pub(crate) fn sized_triangles(
+    name: &str,
+    base: &str,
+    prefix: &str,
+    default: u32,
+    allowed: &str,
+    check: impl Fn(u32) -> Result<(), String>,
+) -> Result<u32, SceneError> {
+    if name == base {
+        return Ok(default);
     }
     let refuse = |why: String| {
         SceneError::invalid(
             format!("built-in scene '{name}'"),
-            format!("{why}; {}", allowed()),
+            format!("{why}; {allowed}"),
         )
     };
-    let Some(suffix) = name.strip_prefix(PREFIX) else {
-        return Err(refuse("not a glass-sphere name".into()));
+    let Some(suffix) = name.strip_prefix(prefix) else {
+        return Err(refuse(format!("not a {base} name")));
     };
     if suffix.is_empty()
         || !suffix.bytes().all(|b| b.is_ascii_digit())
@@ -293,7 +317,7 @@ pub fn triangles_for_name(name: &str) -> Result<u32, SceneError> {
     let n: u32 = suffix
         .parse()
         .map_err(|_| refuse(format!("{suffix} triangles is too large")))?;
-    UvGrid::for_triangles(n).map_err(refuse)?;
+    check(n).map_err(refuse)?;
     Ok(n)
 }
 
@@ -344,15 +368,19 @@ pub fn camera(grid: UvGrid) -> Camera {
     }
 }
 
-/// The unit UV sphere of `grid` (module docs): north pole first, then the rings from north
-/// to south (`s` vertices each, azimuth 0 on `+z`, increasing towards `+x`), then the south
-/// pole; normals equal positions; outward winding.
-pub(crate) fn uv_sphere(grid: UvGrid) -> Geometry {
+/// The UV sphere of `grid` and `radius` about the origin (module docs): north pole first, then
+/// the rings from north to south (`s` vertices each, azimuth 0 on `+z`, increasing towards
+/// `+x`), then the south pole. `outward`: normals are the unit positions and the winding is
+/// counter-clockwise seen from outside (front faces outside); otherwise both are reversed
+/// (normals toward the centre, front faces inside, as a cavity's wall). Radius 1 and outward
+/// is `glass-sphere`'s object and `glass-shell`'s outer surface.
+pub(crate) fn uv_sphere(grid: UvGrid, radius: f32, outward: bool) -> Geometry {
     let (s, t) = (grid.slices, grid.stacks);
     let mut g = Geometry::default();
-    let mut vertex = |p: Vec3| {
-        g.positions.push(p);
-        g.normals.push(p);
+    let sign = if outward { 1.0 } else { -1.0 };
+    let mut vertex = |unit: Vec3| {
+        g.positions.push(unit * radius);
+        g.normals.push(unit * sign);
     };
     vertex(Vec3::Y);
     for i in 1..t {
@@ -387,6 +415,11 @@ pub(crate) fn uv_sphere(grid: UvGrid) -> Geometry {
     for j in 0..s {
         g.indices.push([south, ring(t - 1, j + 1), ring(t - 1, j)]);
     }
+    if !outward {
+        for tri in &mut g.indices {
+            tri.swap(1, 2);
+        }
+    }
     g
 }
 
@@ -411,7 +444,7 @@ pub fn builder(triangles: u32) -> Result<SceneBuilder, SceneError> {
     })?;
     let mut b = SceneBuilder::new(name);
     let glass = b.material(glass());
-    let sphere = uv_sphere(grid);
+    let sphere = uv_sphere(grid, 1.0, true);
     b.mesh(
         "glass-sphere",
         &sphere.positions,
@@ -419,6 +452,16 @@ pub fn builder(triangles: u32) -> Result<SceneBuilder, SceneError> {
         &sphere.indices,
         glass,
     );
+    corridor(&mut b);
+    b.camera(camera(grid));
+    Ok(b)
+}
+
+/// Adds the environment shared by `glass-sphere` and `glass-shell` to `b`: the six diffuse
+/// walls of the corridor [`ROOM_MIN`]..[`ROOM_MAX`] (one mesh and material each, in the order
+/// floor, ceiling, left, right, back, front, facing the inside; [`ENVIRONMENT_TRIANGLES`]) and
+/// the point light at [`LIGHT_POSITION`].
+pub(crate) fn corridor(b: &mut SceneBuilder) {
     let wall = |name: &str, diffuse: Vec3| Material {
         name: name.into(),
         diffuse,
@@ -470,6 +513,4 @@ pub fn builder(triangles: u32) -> Result<SceneBuilder, SceneError> {
         intensity: 1.0,
         attenuation: [1.0, 0.0, 0.0],
     });
-    b.camera(camera(grid));
-    Ok(b)
 }

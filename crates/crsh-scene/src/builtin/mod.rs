@@ -13,10 +13,15 @@
 //!   object triangles; `glass-sphere-N` exactly `N` (even, 8..=200000, `N/2 = s·(t−1)` with
 //!   `s ≥ 3`, `t − 1 ≥ 2`), e.g. the paper's `glass-sphere-100`, `-500`, `-1000`. [`NAMES`]
 //!   lists only the parameterless name; [`is_name`] and [`PATTERNS`] cover the sized ones.
+//! - [`glass_shell`]: the same corridor, camera and light around a hollow glass sphere (outer
+//!   radius 1, concentric cavity of radius 0.6), so paths refract up to 4 times and 27.5 % of
+//!   them are totally internally reflected. `glass-shell` has 5000 object triangles (2500 per
+//!   sphere); `glass-shell-N` exactly `N` (a multiple of 4, 16..=200000, `N/4 = s·(t−1)`).
 //!
 //! Every built-in is deterministic: the same arrays on every call and machine.
 
 pub mod cornell_mirrors;
+pub mod glass_shell;
 pub mod glass_sphere;
 pub mod office_boxes;
 
@@ -30,36 +35,55 @@ use crate::manifest::Manifest;
 use crate::model::{Scene, SceneBuilder};
 
 /// Names of the parameterless built-in scenes, as accepted by [`build`] and [`crate::load`].
-/// The sized forms of [`PATTERNS`] (`glass-sphere-N`) are accepted too: [`is_name`].
+/// The sized forms of [`PATTERNS`] (`glass-sphere-N`, `glass-shell-N`) are accepted too:
+/// [`is_name`].
 pub const NAMES: &[&str] = &[
     "cornell-mirrors",
     "office-boxes",
     "cornell-mirrors-animated",
     "glass-sphere",
+    "glass-shell",
 ];
 
 /// The parameterless built-ins that never move (a manifest may `extends` them, and the sized
 /// forms of [`PATTERNS`], which never move either: [`is_static`]).
-pub const STATIC_NAMES: &[&str] = &["cornell-mirrors", "office-boxes", "glass-sphere"];
+pub const STATIC_NAMES: &[&str] = &[
+    "cornell-mirrors",
+    "office-boxes",
+    "glass-sphere",
+    "glass-shell",
+];
 
 /// The parameterized built-in names, for listings: the pattern and what it means.
-pub const PATTERNS: &[(&str, &str)] = &[(
-    "glass-sphere-N",
-    "glass-sphere with exactly N object triangles (N even, 8..=200000, N/2 = s*(t-1), s >= 3, \
-     t-1 >= 2; seed 004's 100, 500, 1000, 5000)",
-)];
+pub const PATTERNS: &[(&str, &str)] = &[
+    (
+        "glass-sphere-N",
+        "glass-sphere with exactly N object triangles (N even, 8..=200000, N/2 = s*(t-1), \
+         s >= 3, t-1 >= 2; seed 004's 100, 500, 1000, 5000)",
+    ),
+    (
+        "glass-shell-N",
+        "glass-shell with exactly N object triangles, N/2 per sphere (N a multiple of 4, \
+         16..=200000, N/4 = s*(t-1), s >= 3, t-1 >= 2; seed 004's 100, 500, 1000, 5000)",
+    ),
+];
 
-/// Whether `name` names a built-in scene: one of [`NAMES`] or a `glass-sphere-N` (well-formed
-/// or not: [`build`] refuses a bad `N` with an error that names the allowed values, rather
-/// than the caller treating it as a file).
+/// Whether `name` names a built-in scene: one of [`NAMES`] or a `glass-sphere-N` or
+/// `glass-shell-N` (well-formed or not: [`build`] refuses a bad `N` with an error that names
+/// the allowed values, rather than the caller treating it as a file).
 pub fn is_name(name: &str) -> bool {
-    NAMES.contains(&name) || glass_sphere::is_name(name)
+    NAMES.contains(&name) || is_sized(name)
 }
 
-/// Whether `name` names a built-in scene that never moves ([`STATIC_NAMES`] or a
-/// `glass-sphere-N`), which a manifest may `extends`.
+/// Whether `name` is one of the sized built-ins of [`PATTERNS`] (or its parameterless form).
+fn is_sized(name: &str) -> bool {
+    glass_sphere::is_name(name) || glass_shell::is_name(name)
+}
+
+/// Whether `name` names a built-in scene that never moves ([`STATIC_NAMES`], a
+/// `glass-sphere-N` or a `glass-shell-N`), which a manifest may `extends`.
 pub fn is_static(name: &str) -> bool {
-    STATIC_NAMES.contains(&name) || glass_sphere::is_name(name)
+    STATIC_NAMES.contains(&name) || is_sized(name)
 }
 
 /// The manifest of `cornell-mirrors-animated`: the built-in `cornell-mirrors` plus a cube that
@@ -67,12 +91,14 @@ pub fn is_static(name: &str) -> bool {
 /// twists (deforming: every vertex moves relative to the others).
 pub const CORNELL_MIRRORS_ANIMATED: &str = include_str!("cornell_mirrors_animated.toml");
 
-/// The builder of the static built-in `name` (one of [`STATIC_NAMES`], or `glass-sphere-N`).
+/// The builder of the static built-in `name` (one of [`STATIC_NAMES`], `glass-sphere-N` or
+/// `glass-shell-N`).
 pub fn builder(name: &str) -> Result<SceneBuilder, SceneError> {
     match name {
         "cornell-mirrors" => Ok(cornell_mirrors::builder()),
         "office-boxes" => Ok(office_boxes::builder()),
         _ if glass_sphere::is_name(name) => glass_sphere::builder_named(name),
+        _ if glass_shell::is_name(name) => glass_shell::builder_named(name),
         _ => Err(unknown(name)),
     }
 }
@@ -335,7 +361,7 @@ mod tests {
         assert!(
             e.contains("cornell-mirrors")
                 && e.contains("office-boxes")
-                && e.contains("glass-sphere, glass-sphere-N"),
+                && e.contains("glass-sphere, glass-shell, glass-sphere-N, glass-shell-N"),
             "{e}"
         );
     }
