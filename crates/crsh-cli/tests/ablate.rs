@@ -1677,3 +1677,73 @@ fn baseline_ratios_divide_the_cells_figures() {
         "{md}"
     );
 }
+
+/// The shipped seed 004 plan (`plans/ray-engine.toml`) validates, and a tiny version of it
+/// (24 pixels, the 100-triangle sphere and shell, generations 1 and 5) runs every pipeline
+/// exactly: hit agreement 1 against brute force on every cell, and every tile-cone cell needs
+/// fewer tests than brute force.
+#[test]
+fn ray_engine_plan_is_exact_on_every_cell() {
+    let dir = scratch("ray-engine");
+    let shipped_path = repo_root().join("plans/ray-engine.toml");
+    let shipped = std::fs::read_to_string(&shipped_path).unwrap();
+    for needle in [
+        "width = 256",
+        "depth = [1, 2, 5, 8]",
+        "reference = \"brute\"",
+        "\"glass-sphere-5000\"",
+        "\"glass-shell-5000\"",
+        "label = \"tile_cone-8\"",
+        "label = \"tile_cone-32\"",
+        "\"hierarchy.min_half_angle_deg\" = [1.0, 0.05]",
+    ] {
+        assert!(
+            shipped.contains(needle),
+            "ray-engine.toml changed: {needle}"
+        );
+    }
+    let o = crsh(
+        &dir,
+        &[
+            "ablate",
+            "--plan",
+            shipped_path.to_str().unwrap(),
+            "--dry-run",
+        ],
+    );
+    assert_ok(&o);
+    let start = shipped.find("scenes = [").unwrap();
+    let end = start + shipped[start..].find("]\n").unwrap() + 2;
+    let small = format!(
+        "{}scenes = [\"glass-sphere-100\", \"glass-shell-100\"]\n{}",
+        &shipped[..start],
+        &shipped[end..]
+    )
+    .replace("width = 256", "width = 24")
+    .replace("depth = [1, 2, 5, 8]", "depth = [1, 5]");
+    let plan = dir.join("ray-engine-small.toml");
+    std::fs::write(&plan, small).unwrap();
+    let o = crsh(
+        &dir,
+        &["ablate", "--plan", plan.to_str().unwrap(), "--out", "out"],
+    );
+    assert_ok(&o);
+    let v = read_json(&dir.join("out/results.json"));
+    let cs = cells(&v);
+    // 2 scenes × 2 depths × (brute, bvh, rah, crsh, tile 8, tile 16 × 2 angles, tile 32).
+    assert_eq!(cs.len(), 32);
+    let mut tile_cells = 0;
+    for c in cs {
+        assert_eq!(c["status"], "ok", "{c:#}");
+        let m = &c["measures"];
+        assert_eq!(m["accuracy"]["reference"], "brute");
+        assert_eq!(m["accuracy"]["hit_agreement"], 1.0, "{c:#}");
+        if c["pipeline"].as_str().unwrap().starts_with("tile_cone") {
+            tile_cells += 1;
+            let tests = m["tests"]["total"].as_u64().unwrap();
+            let brute = m["tests"]["brute_force"].as_u64().unwrap();
+            assert!(tests < brute, "{tests} >= {brute}: {c:#}");
+        }
+    }
+    assert_eq!(tile_cells, 16);
+}

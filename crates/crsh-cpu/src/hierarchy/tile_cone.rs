@@ -1044,7 +1044,10 @@ pub(crate) mod tests {
             r(Vec3::ZERO, side, 2),
         ];
         let (node, full) = node_cone(&rays, &[0, 1, 2], s, c);
-        assert!(!full && node.cone.half_angle < 83f32.to_radians(), "{node:?}");
+        assert!(
+            !full && node.cone.half_angle < 83f32.to_radians(),
+            "{node:?}"
+        );
         // Item 6: an origin behind the apex, on the axis line. One translation step would put
         // it on the backward extension of the near generator, 180° − φ = 170° from the axis;
         // the builder moves the apex onto it instead, which keeps a thin cone.
