@@ -147,6 +147,8 @@ pub const EXTEND_EPS: f32 = 1e-6;
 /// Relative length below which the component of a vector orthogonal to the axis counts as
 /// zero (erratum 4).
 pub const PERP_EPS: f32 = 1e-6;
+/// `|x.x|` below which [`any_perpendicular`] crosses `x` with the x axis (else the y axis).
+pub const PERP_SWITCH: f32 = 0.9;
 
 /// The catalogue entry of this variant.
 pub fn info() -> StageVariantInfo {
@@ -359,10 +361,10 @@ fn angle(x: Vec3, v: Vec3) -> f32 {
 }
 
 /// A unit vector perpendicular to `x` (erratum 4): `normalize(cross(x, (1, 0, 0)))` if
-/// `|x.x| < 0.9`, else `normalize(cross(x, (0, 1, 0)))`.
+/// `|x.x| <` [`PERP_SWITCH`] (0.9), else `normalize(cross(x, (0, 1, 0)))`.
 #[inline]
 pub fn any_perpendicular(x: Vec3) -> Vec3 {
-    if x.x.abs() < 0.9 {
+    if x.x.abs() < PERP_SWITCH {
         normalize(x.cross(Vec3::X))
     } else {
         normalize(x.cross(Vec3::Y))

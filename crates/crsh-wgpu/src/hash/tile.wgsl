@@ -1,4 +1,4 @@
-// `tile` hashing on the device: the twin of crsh_cpu::hash::tile (see tile.rs). Prepended:
+// `tile` hashing on the device: the twin of crsh_cpu::hash::tile::TileHasher (see tile.rs). Prepended:
 // common.wgsl, RAY_KIND_SHADOW, tile_group.wgsl.
 
 struct Params {
@@ -9,9 +9,15 @@ struct Params {
     tile_size: u32,
     tiles_x: u32,
     tiles: u32,
-    // The all-ones key of key_bits (lo, hi): the key of a ray outside the frame.
+    // The scene's light count (min(lights, 2^32 - 1)).
+    lights: u32,
+    // The all-ones key of key_bits (lo, hi): the key of a ray outside the frame or of a shadow
+    // ray naming a light the scene lacks (the CPU twin's errors).
     none_lo: u32,
     none_hi: u32,
+    _a: u32,
+    _b: u32,
+    _c: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -28,7 +34,7 @@ fn hash(@builtin(global_invocation_id) gid: vec3<u32>,
     let r = rays[i];
     let g = tile_group(r.pixel, r.light, r.kind, p.width, p.height, p.tile_size, p.tiles_x,
                        p.tiles);
-    if (g.z == 0u) {
+    if (g.z == 0u || (r.kind == RAY_KIND_SHADOW && r.light >= p.lights)) {
         keys[i] = vec2<u32>(p.none_lo, p.none_hi);
     } else {
         keys[i] = g.xy;

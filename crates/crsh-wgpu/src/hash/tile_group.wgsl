@@ -1,5 +1,6 @@
-// Seed 004's screen-tile group of a ray: the twin of crate::hash::tile::TileGrid::group.
-// Prepended: common.wgsl and the generated constant RAY_KIND_SHADOW (crate::hash::tile).
+// Seed 004's screen-tile group of a ray: the twin of
+// crsh_cpu::hash::tile::TileGrid::group. Prepended: common.wgsl and the generated constant
+// RAY_KIND_SHADOW (crate::hash::tile).
 //
 // tile = (y / ts)·tiles_x + x / ts for the pixel y·width + x; group = tile, or for shadow rays
 // light·tiles + tile (so that a node never mixes two lights), as a u64 in (lo, hi).

@@ -17,37 +17,21 @@
 //! and half-angle (the containment that [`RayHierarchy::levels`] asks for), or the half-angle
 //! is π and the node passes every test.
 //!
-//! Per node, in `f32` (one invocation per node, the rays in order, operation for operation as
-//! the shared spec of the CPU and wgpu twins says): start with the zero-angle cone of the
-//! first ray (`a = o₀`, `x = d₀/|d₀|`), then for each further ray (a) extend the cone's solid
-//! angle to hold its direction (§4, fig. 2: `q` towards the axis, the far generator
-//! `e = x cos φ + q sin φ`, the new axis `(e + r)/|e + r|`, `cos φ = x·r`) and (b) translate
-//! the cone along its far generator until the near generator `n = x cos φ − q sin φ` holds the
-//! origin (§4, fig. 3: `g = c − n(n·c)`, `t = g²/(e·g)`). A final pass measures the half-angle
-//! that is stored against the stored apex and axis and computes the reach.
-//!
-//! # Errata (how the paper's construction is corrected)
-//!
-//! 1. **Apex sign.** The paper prints `a_new = a − e·t`; with `t = g²/(e·g) < 0` that moves the
-//!    apex towards the origin's side and the cone misses it. The apex moves by `+e·t` (the
-//!    tests show the literal update failing containment).
-//! 2. **Opening beyond 90°.** The construction assumes a convex cone: when extending makes
-//!    `cos φ ≤ 0`, or the new direction is opposite the far generator (`|e + r| ≤`
-//!    [`FULL_LENGTH`]), or the final measured angle reaches π/2, the node's half-angle is π
-//!    (culling is disabled for that node, which stays correct).
-//! 3. **Translating a zero-angle cone.** With `φ = 0` the near and far generators coincide with
-//!    the axis and `e·g = 0`: a cone whose angle is below `min_half_angle_deg` is first widened
-//!    to it (parameter, default 0.05°), then translated. `e·g ≥ 0` (impossible in exact
-//!    arithmetic) gives π too.
-//! 4. **Undefined `q`.** When the ray is opposite the axis or the origin lies on the axis line,
-//!    `(x·v)x − v` vanishes; any unit perpendicular of the axis is used (`|w| ≤`
-//!    [`PERP_REL`]` · max(1, |v|)`; the cross product with the x axis, or the y axis when
-//!    `|x.x| ≥` [`PERP_SWITCH`]).
-//! 5. **Rounding.** The incremental result only chooses the apex and the axis: the stored
-//!    half-angle is `max` over the node's rays of the angles from the axis to `d` and to
-//!    `o − a` (`atan2(|x × v|, x·v)`, skipped when `o = a`), times `1 +`
-//!    [`ANGLE_GUARD_REL`] plus [`ANGLE_GUARD_ABS`], so every ray is inside in exact arithmetic
-//!    (the tests check it in `f64`).
+//! Per node, in `f32` (one invocation per node, the rays in order), the construction is the
+//! CPU twin's [`crsh_cpu::hierarchy::tile_cone::node_cone`] operation for operation: start with
+//! the zero-angle cone of the first ray (`a = o₀`, `x = d₀/|d₀|`), then for each further ray
+//! (a) extend the cone's solid angle to hold its direction (§4, fig. 2: `q` towards the axis,
+//! the far generator `e = x cos φ + q sin φ`, the new axis `(e + r)/|e + r|`,
+//! `cos φ = x·r`) and (b) translate the cone along its far generator until the near generator
+//! `n = x cos φ − q sin φ` holds the origin (§4, fig. 3: `g = c − n(n·c)`, `t = g²/(e·g)`). A
+//! final pass measures the half-angle that is stored against the stored apex and axis, and
+//! computes the reach. The errata and choices (the apex sign `a + e·t`, a node flagged full
+//! as soon as `x·r ≤ −cos φ` or `|e + r| ≤` [`EXTEND_EPS`] or `cos φ ≤ 0`, the widening to
+//! `min_half_angle_deg` before a translation, an origin in the backward cone becoming the
+//! apex, the fixed perpendicular below `|w| ≤` [`PERP_EPS`]`·|v|`, the guard
+//! `φ·`[`GUARD_SCALE`]` + `[`GUARD_ADD`], π for a full node or `φ ≥ π/2`) are documented
+//! there, in the CPU module; the WGSL constants are generated from the CPU's, and the minimum
+//! angle's sine and cosine are [`TileConeParams::sin_cos_min`]'s.
 //!
 //! The reach of a node is the largest distance from the apex to a ray's origin or to its end
 //! `o + d·t_max` (infinite for an unbounded ray), rounded up by the guard of the sphere-cone
@@ -62,15 +46,16 @@
 //! `cones` (one invocation per node, the construction above). The groups come from
 //! `hash/tile_group.wgsl`, the tile hasher's own function.
 //!
-//! The twin is the CPU `tile_cone` builder (`crsh_cpu::hierarchy::tile_cone`, written from the
-//! same spec on another branch): the same operations in the same order, so the nodes agree up
-//! to WGSL's rounding of `sqrt` and division (lavapipe's are correctly rounded), the
-//! contraction of multiply-adds a driver may do, and the angles of `kernels/trig.wgsl`'s
-//! `atan2` (a few 1e-8 rad from the CPU's). The reach is guarded in `f32` on the device
-//! (`+1e-6·max(1, |coordinates|)`, `+1e-5` relative), a little wider than a bound computed in
-//! `f64`. Until the twin lands, this module carries the catalogue entry ([`info`]) and the
-//! construction's constants ([`FULL_LENGTH`] and the others), from which the WGSL constants
-//! are generated.
+//! The twin is [`crsh_cpu::hierarchy::tile_cone`]: this variant registers under its catalogue
+//! entry ([`crsh_cpu::hierarchy::tile_cone::info`]), reads its parameters through it
+//! ([`TileConeParams`]) and groups by its grid ([`TileGrid`], whose WGSL twin
+//! `hash/tile_group.wgsl` the `tile` hasher shares). Same operations in the same order
+//! (`normalize` as a division per component, `dot` as `(x·x + y·y) + z·z`), so the offsets
+//! are equal and the nodes agree up to WGSL's rounding of `sqrt` and division (lavapipe's are
+//! correctly rounded), the contraction of multiply-adds a driver may do, and the angles of
+//! `kernels/trig.wgsl`'s `atan2` (a few 1e-8 rad from the CPU's); `tests/tile_cone.rs`
+//! compares them. The reach is guarded in `f32` on the device (`+1e-6·max(1, |coordinates|)`,
+//! `+1e-5` relative), a little wider than the CPU's bound computed in `f64`.
 //!
 //! # Errors
 //!
@@ -80,86 +65,44 @@
 
 use bytemuck::{Pod, Zeroable};
 use crsh_core::{
-    CoreError, FrameSize, HierarchyBuilder, ParamInfo, Ray, RayHierarchy, Registry, Result,
-    SphereCone, StageKind, StageSpec, StageVariantInfo, Stats,
+    CoreError, FrameSize, HierarchyBuilder, Ray, RayHierarchy, Registry, Result, SphereCone,
+    StageSpec, Stats,
+};
+use crsh_cpu::hash::tile::TileGrid;
+use crsh_cpu::hierarchy::tile_cone::{
+    TileConeBuilder as CpuTileCone, TileConeParams, EXTEND_EPS, GUARD_ADD, GUARD_SCALE, PERP_EPS,
+    PERP_SWITCH,
 };
 
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::error::GpuResult;
-use crate::hash::tile::{tile_group_wgsl, tile_size_param, TileGrid, MAX_TILE_SIZE};
+use crate::hash::tile::{grid_u32, tile_group_wgsl};
 use crate::kernel::{encoder, submit, uniform, Kernel, Slot};
 use crate::kernels::{compose, f32_const, GLAM_WGSL, REACH_WGSL, TRIG_WGSL};
 
 const SHADER: &str = include_str!("tile_cone.wgsl");
 
-/// Default `min_half_angle_deg`: the opening a zero-angle cone gets before it is translated
-/// (erratum 3), in degrees.
-pub const DEFAULT_MIN_HALF_ANGLE_DEG: f64 = 0.05;
-/// Largest `min_half_angle_deg` (the smallest is above 0).
-pub const MAX_MIN_HALF_ANGLE_DEG: f64 = 10.0;
-/// `|e + r|` at or below which the new direction is opposite the far generator: the node can
-/// only be bounded by more than a half-space (half-angle π, erratum 2).
-pub const FULL_LENGTH: f32 = 1e-6;
-/// `perp_towards_axis` falls back to a fixed perpendicular when `|(x·v)x − v|` is at most this
-/// times `max(1, |v|)` (erratum 4).
-pub const PERP_REL: f32 = 1e-12;
-/// `any_perpendicular(x)` crosses `x` with the x axis when `|x.x|` is below this, else with the
-/// y axis.
-pub const PERP_SWITCH: f32 = 0.9;
-/// Relative rounding guard of the measured half-angle (erratum 5).
-pub const ANGLE_GUARD_REL: f32 = 1e-5;
-/// Absolute rounding guard of the measured half-angle, in radians (erratum 5).
-pub const ANGLE_GUARD_ABS: f32 = 4e-6;
-
-/// `sin` and `cos` of `min_half_angle_deg` as the construction uses them: the angle converted
-/// to radians in `f64`, rounded to `f32`, and its `f32` sine and cosine (computed once, on the
-/// host).
-pub fn min_half_angle_sin_cos(min_half_angle_deg: f64) -> (f32, f32) {
-    let a = min_half_angle_deg.to_radians() as f32;
-    (a.sin(), a.cos())
-}
-
-/// The WGSL constants of `tile_cone.wgsl`, generated from the Rust ones above (and `π`, `π/2`
-/// as `f32`), so the two cannot drift apart.
+/// The WGSL constants of `tile_cone.wgsl`, generated from the CPU twin's
+/// (`crsh_cpu::hierarchy::tile_cone`: [`EXTEND_EPS`], [`PERP_EPS`], [`PERP_SWITCH`],
+/// [`GUARD_SCALE`], [`GUARD_ADD`]) and `π`, `π/2` as `f32`, so the two cannot drift apart.
 fn constants_wgsl() -> String {
-    let mut s = String::from("// Generated from crate::hierarchy::tile_cone.\n");
+    let mut s = String::from("// Generated from crsh_cpu::hierarchy::tile_cone.\n");
     s += &f32_const("PI", std::f32::consts::PI);
     s += &f32_const("FRAC_PI_2", std::f32::consts::FRAC_PI_2);
-    s += &f32_const("FULL_LENGTH", FULL_LENGTH);
-    s += &f32_const("PERP_REL", PERP_REL);
+    s += &f32_const("EXTEND_EPS", EXTEND_EPS);
+    s += &f32_const("PERP_EPS", PERP_EPS);
     s += &f32_const("PERP_SWITCH", PERP_SWITCH);
-    s += &f32_const("ANGLE_GUARD_REL", ANGLE_GUARD_REL);
-    s += &f32_const("ANGLE_GUARD_ABS", ANGLE_GUARD_ABS);
+    s += &f32_const("GUARD_SCALE", GUARD_SCALE);
+    s += &f32_const("GUARD_ADD", GUARD_ADD);
     s
 }
 
-/// The catalogue entry of the `tile_cone` builder.
-///
-/// Carried here until the CPU twin's (`crsh_cpu::hierarchy::tile_cone::info`) lands; then the
-/// wgpu variant registers under that one, as every other wgpu variant does.
-pub fn info() -> StageVariantInfo {
-    StageVariantInfo::new(
-        StageKind::Hierarchy,
-        "tile_cone",
-        "one enclosing cone per run of rays of one screen tile, built incrementally (seed 004 \
-         §4, with the apex sign and the >90° openings corrected)",
-    )
-    .param(tile_size_param())
-    .param(
-        ParamInfo::float(
-            "min_half_angle_deg",
-            DEFAULT_MIN_HALF_ANGLE_DEG,
-            "opening (degrees, above 0) a zero-angle cone gets before it is translated",
-        )
-        .range(0.0, MAX_MIN_HALF_ANGLE_DEG),
-    )
-}
-
-/// Registers the wgpu `tile_cone` ([`info`], [`TileConeBuilder::new`] with the stage
-/// context's frame).
+/// Registers the wgpu `tile_cone` under the CPU twin's entry
+/// ([`crsh_cpu::hierarchy::tile_cone::info`]), [`TileConeBuilder::new`] with the stage
+/// context's frame.
 pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
-    registry.add_hierarchy(info(), |ctx, spec| {
+    registry.add_hierarchy(crsh_cpu::hierarchy::tile_cone::info(), |ctx, spec| {
         Ok(Box::new(TileConeBuilder::new(ctx.frame, spec)?))
     })?;
     Ok(())
@@ -207,52 +150,29 @@ impl TileConeKernels {
 #[derive(Clone, Debug)]
 pub struct TileConeBuilder {
     grid: TileGrid,
-    min_half_angle_deg: f64,
-    sin_min: f32,
-    cos_min: f32,
+    params: TileConeParams,
 }
 
 impl TileConeBuilder {
-    /// The builder for `frame` with a resolved `spec` (`tile_size`, `min_half_angle_deg`).
+    /// The builder for `frame` with a resolved `spec` (`tile_size`, `min_half_angle_deg`),
+    /// read by the CPU twin ([`crsh_cpu::hierarchy::tile_cone::TileConeBuilder::new`]).
     ///
     /// # Errors
     /// [`CoreError::InvalidParam`] for a parameter out of range.
     pub fn new(frame: FrameSize, spec: &StageSpec) -> Result<TileConeBuilder> {
-        let tile_size = spec.u32_in("tile_size", 1..=MAX_TILE_SIZE)?;
-        let deg = spec.f64("min_half_angle_deg")?;
-        TileConeBuilder::with_params(frame, tile_size, deg).map_err(|e| match e {
-            CoreError::InvalidInput(reason) => CoreError::InvalidParam {
-                key: "hierarchy.min_half_angle_deg".into(),
-                reason,
-            },
-            e => e,
-        })
+        TileConeBuilder::with_params(frame, *CpuTileCone::new(frame, spec)?.params())
     }
 
-    /// The builder for `frame` with tiles of `tile_size` pixels and a minimum opening of
-    /// `min_half_angle_deg` degrees (in `(0, 10]`).
+    /// The builder for `frame` with `params` (checked by [`TileConeParams::new`]).
     ///
     /// # Errors
-    /// [`CoreError::InvalidInput`] for a parameter out of range.
-    pub fn with_params(
-        frame: FrameSize,
-        tile_size: u32,
-        min_half_angle_deg: f64,
-    ) -> Result<TileConeBuilder> {
-        let grid = TileGrid::new(frame, tile_size)?;
-        if !(min_half_angle_deg > 0.0 && min_half_angle_deg <= MAX_MIN_HALF_ANGLE_DEG) {
-            return Err(CoreError::InvalidInput(format!(
-                "min_half_angle_deg {min_half_angle_deg} is outside (0, \
-                 {MAX_MIN_HALF_ANGLE_DEG}]"
-            )));
-        }
-        let (sin_min, cos_min) = min_half_angle_sin_cos(min_half_angle_deg);
-        Ok(TileConeBuilder {
-            grid,
-            min_half_angle_deg,
-            sin_min,
-            cos_min,
-        })
+    /// [`CoreError::InvalidParam`] for a parameter out of range; [`CoreError::InvalidInput`]
+    /// for a frame of more than `u32::MAX` tiles.
+    pub fn with_params(frame: FrameSize, params: TileConeParams) -> Result<TileConeBuilder> {
+        let params = TileConeParams::new(params.tile_size, params.min_half_angle_deg)?;
+        let grid = TileGrid::new(frame, params.tile_size)?;
+        grid_u32(&grid)?;
+        Ok(TileConeBuilder { grid, params })
     }
 
     /// The tile grid the nodes follow.
@@ -260,26 +180,28 @@ impl TileConeBuilder {
         self.grid
     }
 
-    /// The minimum opening of a translated cone, in degrees.
-    pub fn min_half_angle_deg(&self) -> f64 {
-        self.min_half_angle_deg
+    /// The parameters.
+    pub fn params(&self) -> &TileConeParams {
+        &self.params
     }
 
-    fn params(&self, n: usize, nodes: usize) -> Params {
+    fn kernel_params(&self, n: usize, nodes: usize) -> Result<Params> {
         let g = self.grid;
-        Params {
+        let (tiles_x, tiles) = grid_u32(&g)?;
+        let (sin_min, cos_min) = self.params.sin_cos_min();
+        Ok(Params {
             n: n as u32,
             nodes: nodes as u32,
-            width: g.width,
-            height: g.height,
-            tile_size: g.tile_size,
-            tiles_x: g.tiles_x,
-            tiles: g.tiles,
+            width: g.frame().width,
+            height: g.frame().height,
+            tile_size: g.tile_size(),
+            tiles_x,
+            tiles,
             pad0: 0,
-            sin_min: self.sin_min,
-            cos_min: self.cos_min,
+            sin_min,
+            cos_min,
             pad1: [0.0; 2],
-        }
+        })
     }
 }
 
@@ -303,7 +225,7 @@ impl HierarchyBuilder<Wgpu> for TileConeBuilder {
                 order.len()
             )));
         }
-        let subdivision = self.grid.tile_size * self.grid.tile_size;
+        let subdivision = self.params.tile_size * self.params.tile_size;
         if n == 0 {
             return Ok(RayHierarchy {
                 order,
@@ -345,7 +267,12 @@ impl HierarchyBuilder<Wgpu> for TileConeBuilder {
             )
         };
         // Run starts, their scan into node indices, and the node count.
-        let bg = bind(&self.params(n, 0), &none_offsets, &none_nodes, &none_reach);
+        let bg = bind(
+            &self.kernel_params(n, 0)?,
+            &none_offsets,
+            &none_nodes,
+            &none_reach,
+        );
         let mut enc = encoder(ctx, "crsh tile-cone runs");
         {
             let mut pass = ctx.compute_pass(&mut enc, "crsh tile-cone runs");
@@ -364,8 +291,8 @@ impl HierarchyBuilder<Wgpu> for TileConeBuilder {
             }
             if c[2] & 2 != 0 {
                 what.push(format!(
-                    "a pixel is outside the {}x{} frame",
-                    self.grid.width, self.grid.height
+                    "a pixel is outside the {} frame",
+                    self.grid.frame()
                 ));
             }
             if c[2] & 4 != 0 {
@@ -385,7 +312,7 @@ impl HierarchyBuilder<Wgpu> for TileConeBuilder {
         let offsets = GpuBuffer::<u32>::zeroed(ctx, "crsh leaf offsets", nodes + 1)?;
         let level = GpuBuffer::<SphereCone>::zeroed(ctx, "crsh tile cones", nodes)?;
         let reach = GpuBuffer::<f32>::zeroed(ctx, "crsh tile-cone reach", nodes)?;
-        let bg = bind(&self.params(n, nodes), &offsets, &level, &reach);
+        let bg = bind(&self.kernel_params(n, nodes)?, &offsets, &level, &reach);
         let mut enc = encoder(ctx, "crsh tile-cone nodes");
         {
             let mut pass = ctx.compute_pass(&mut enc, "crsh tile-cone offsets");
@@ -412,18 +339,18 @@ impl HierarchyBuilder<Wgpu> for TileConeBuilder {
 mod tests {
     use super::*;
 
-    /// The generated constants read back as the Rust ones, bit for bit.
+    /// The generated constants read back as the CPU twin's, bit for bit.
     #[test]
-    fn tile_cone_constants_are_the_rust_ones() {
+    fn tile_cone_constants_are_the_cpu_ones() {
         let src = constants_wgsl();
         for (name, want) in [
             ("PI", std::f32::consts::PI),
             ("FRAC_PI_2", std::f32::consts::FRAC_PI_2),
-            ("FULL_LENGTH", FULL_LENGTH),
-            ("PERP_REL", PERP_REL),
+            ("EXTEND_EPS", EXTEND_EPS),
+            ("PERP_EPS", PERP_EPS),
             ("PERP_SWITCH", PERP_SWITCH),
-            ("ANGLE_GUARD_REL", ANGLE_GUARD_REL),
-            ("ANGLE_GUARD_ABS", ANGLE_GUARD_ABS),
+            ("GUARD_SCALE", GUARD_SCALE),
+            ("GUARD_ADD", GUARD_ADD),
         ] {
             let decl = format!("const {name}: f32 = ");
             let at = src.find(&decl).expect(name) + decl.len();
@@ -437,8 +364,17 @@ mod tests {
     #[test]
     fn parameters_are_checked() {
         let frame = FrameSize::new(100, 37).unwrap();
-        assert!(TileConeBuilder::with_params(frame, 16, 0.05).is_ok());
-        assert!(TileConeBuilder::with_params(frame, 16, 10.0).is_ok());
+        let with = |ts, deg| {
+            TileConeBuilder::with_params(
+                frame,
+                TileConeParams {
+                    tile_size: ts,
+                    min_half_angle_deg: deg,
+                },
+            )
+        };
+        assert!(with(16, 0.05).is_ok());
+        assert!(with(16, 10.0).is_ok());
         for (ts, deg) in [
             (0, 0.05),
             (4097, 0.05),
@@ -447,14 +383,14 @@ mod tests {
             (16, f64::NAN),
         ] {
             assert!(
-                TileConeBuilder::with_params(frame, ts, deg).is_err(),
+                matches!(with(ts, deg), Err(CoreError::InvalidParam { .. })),
                 "{ts} {deg}"
             );
         }
-        let mut spec = info().defaults();
+        let mut spec = crsh_cpu::hierarchy::tile_cone::info().defaults();
         let b = TileConeBuilder::new(frame, &spec).unwrap();
-        assert_eq!(b.grid().tile_size, 16);
-        assert_eq!(b.min_half_angle_deg(), 0.05);
+        assert_eq!(b.grid().tile_size(), 16);
+        assert_eq!(*b.params(), TileConeParams::default());
         spec.params.insert(
             "min_half_angle_deg".into(),
             crsh_core::ParamValue::Float(0.0),

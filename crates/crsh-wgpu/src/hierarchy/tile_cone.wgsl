@@ -1,21 +1,22 @@
-// `tile_cone` on the device: seed 004 §4's incremental enclosing cones of screen tiles (see
-// tile_cone.rs, and the spec's order of f32 operations, which this follows line by line).
-// Prepended: common.wgsl, glam.wgsl, kernels/reach.wgsl, the generated constants (PI,
-// FRAC_PI_2, FULL_LENGTH, PERP_REL, PERP_SWITCH, ANGLE_GUARD_REL, ANGLE_GUARD_ABS,
+// `tile_cone` on the device: seed 004 §4's incremental enclosing cones of screen tiles, the
+// twin of crsh_cpu::hierarchy::tile_cone::node_cone, whose f32 operations it follows line by
+// line and in the same order (see its module docs for the errata and choices).
+// Prepended: common.wgsl, glam.wgsl, kernels/reach.wgsl, the constants generated from the CPU
+// twin's (PI, FRAC_PI_2, EXTEND_EPS, PERP_EPS, PERP_SWITCH, GUARD_SCALE, GUARD_ADD,
 // RAY_KIND_SHADOW) and hash/tile_group.wgsl; trig.wgsl is appended.
 
 struct Params {
     // Rays (positions of the order) and nodes (after the scan).
     n: u32,
     nodes: u32,
-    // The tile grid (crate::hash::tile::TileGrid).
+    // The tile grid (crsh_cpu::hash::tile::TileGrid).
     width: u32,
     height: u32,
     tile_size: u32,
     tiles_x: u32,
     tiles: u32,
     _a: u32,
-    // sin and cos of min_half_angle_deg, computed once on the host in f32.
+    // sin and cos of min_half_angle_deg (crsh_cpu's TileConeParams::sin_cos_min).
     sin_min: f32,
     cos_min: f32,
     _b: f32,
@@ -109,26 +110,29 @@ fn run_offsets(@builtin(global_invocation_id) gid: vec3<u32>,
     }
 }
 
-// glam's Vec3::normalize: v times the reciprocal of its length.
-fn g_normalize(v: vec3<f32>) -> vec3<f32> {
-    return v * (1.0 / g_length(v));
+// The CPU twin's normalize: v divided by its length, component by component (not a
+// multiplication by the reciprocal).
+fn normalize_div(v: vec3<f32>) -> vec3<f32> {
+    let l = g_length(v);
+    return vec3<f32>(v.x / l, v.y / l, v.z / l);
 }
 
-// The spec's any_perpendicular(x).
+// The CPU twin's any_perpendicular(x) (erratum 4).
 fn any_perpendicular(x: vec3<f32>) -> vec3<f32> {
     if (abs(x.x) < PERP_SWITCH) {
-        return g_normalize(g_cross(x, vec3<f32>(1.0, 0.0, 0.0)));
+        return normalize_div(g_cross(x, vec3<f32>(1.0, 0.0, 0.0)));
     }
-    return g_normalize(g_cross(x, vec3<f32>(0.0, 1.0, 0.0)));
+    return normalize_div(g_cross(x, vec3<f32>(0.0, 1.0, 0.0)));
 }
 
-// The spec's perp_towards_axis(x, v, xv): the unit vector from v towards its projection on the
-// axis x (paper §4's q), or any perpendicular of x when v lies on the axis line.
+// The CPU twin's perp_towards_axis(x, v, xv): the unit vector from v towards its projection on
+// the axis x (paper §4's q), or any perpendicular of x when |w| <= PERP_EPS·|v| (v on the axis
+// line to within f32 rounding).
 fn perp_towards_axis(x: vec3<f32>, v: vec3<f32>, xv: f32) -> vec3<f32> {
     let w = x * xv - v;
     let l = g_length(w);
-    if (l > PERP_REL * max(1.0, g_length(v))) {
-        return w / l;
+    if (l > PERP_EPS * g_length(v)) {
+        return vec3<f32>(w.x / l, w.y / l, w.z / l);
     }
     return any_perpendicular(x);
 }
@@ -155,41 +159,55 @@ fn cones(@builtin(global_invocation_id) gid: vec3<u32>,
     let first = offsets[k];
     let end = offsets[k + 1u];
     let r0 = rays[order[first]];
-    var a = ray_origin(r0);
-    var x = g_normalize(ray_dir(r0));
+    let a0 = ray_origin(r0);
+    var a = a0;
+    var x = normalize_div(ray_dir(r0));
     var cos_phi = 1.0;
     var sin_phi = 0.0;
     var full = false;
     for (var i = first + 1u; i < end; i++) {
         let ray = rays[order[i]];
-        let r = g_normalize(ray_dir(ray));
+        let r = normalize_div(ray_dir(ray));
         // (a) Extend the solid angle to hold the direction r (paper §4, fig. 2).
         let xr = g_dot(x, r);
         if (xr < cos_phi) {
+            if (xr <= -cos_phi) {
+                // φ + angle(x, r) ≥ π: e + r would bisect the wrong arc (erratum 2).
+                full = true;
+                break;
+            }
             let q = perp_towards_axis(x, r, xr);
             let e = x * cos_phi + q * sin_phi;
             let s = e + r;
             let ls = g_length(s);
-            if (ls <= FULL_LENGTH) {
+            if (ls <= EXTEND_EPS) {
                 full = true;
                 break;
             }
-            x = s / ls;
+            x = vec3<f32>(s.x / ls, s.y / ls, s.z / ls);
             cos_phi = g_dot(x, r);
             if (cos_phi <= 0.0) {
                 full = true;
                 break;
             }
-            sin_phi = sqrt(max(0.0, 1.0 - cos_phi * cos_phi));
+            sin_phi = sqrt(max(1.0 - cos_phi * cos_phi, 0.0));
         }
         // (b) Translate to hold the origin (paper §4, fig. 3), the apex moving by +e·t.
-        let c = ray_origin(ray) - a;
+        let o = ray_origin(ray);
+        let c = o - a;
         let xc = g_dot(x, c);
-        if (xc < cos_phi * g_length(c)) {
+        let lc = g_length(c);
+        if (xc < cos_phi * lc) {
             if (sin_phi < p.sin_min) {
                 cos_phi = p.cos_min;
                 sin_phi = p.sin_min;
             }
+            if (-xc >= cos_phi * lc) {
+                // The origin lies in the backward cone: it becomes the apex.
+                a = o;
+                continue;
+            }
+            // crsh_cpu's translate_apex(a, x, cos φ, sin φ, o, Corrected).
             let q = perp_towards_axis(x, c, g_dot(x, c));
             let e = x * cos_phi + q * sin_phi;
             let nn = x * cos_phi - q * sin_phi;
@@ -203,6 +221,14 @@ fn cones(@builtin(global_invocation_id) gid: vec3<u32>,
             a = a + e * t;
         }
     }
+    if (!g_vec_finite(a) || !g_vec_finite(x)) {
+        // Safety net (the CPU twin's module docs, item 5): a full node at the first origin.
+        full = true;
+        a = a0;
+        if (!g_vec_finite(x)) {
+            x = vec3<f32>(0.0, 0.0, 1.0);
+        }
+    }
     // Final pass: the stored half-angle is measured against the stored apex and axis.
     var phi = 0.0;
     var far = 0.0;
@@ -212,8 +238,9 @@ fn cones(@builtin(global_invocation_id) gid: vec3<u32>,
         let o = ray_origin(ray);
         let d = ray_dir(ray);
         phi = max(phi, angle_of(x, d));
-        if (any(o != a)) {
-            phi = max(phi, angle_of(x, o - a));
+        let c = o - a;
+        if (any(c != vec3<f32>(0.0))) {
+            phi = max(phi, angle_of(x, c));
         }
         far = max(far, g_length(o - a));
         scale = max(scale, max_abs3(o));
@@ -225,8 +252,9 @@ fn cones(@builtin(global_invocation_id) gid: vec3<u32>,
             far = inf();
         }
     }
-    phi = phi * (1.0 + ANGLE_GUARD_REL) + ANGLE_GUARD_ABS;
-    if (full || phi >= FRAC_PI_2) {
+    phi = phi * GUARD_SCALE + GUARD_ADD;
+    // A NaN angle (a degenerate direction) goes to π too.
+    if (full || phi >= FRAC_PI_2 || phi != phi) {
         phi = PI;
     }
     out_nodes[k] = SphereCone(a, 0.0, x, phi);

@@ -264,7 +264,7 @@ impl BruteForce {
         if let (true, Some(o)) = (flags[4] & 4 != 0, offsets) {
             // The host check names the first violation.
             let host = o.to_vec(ctx)?;
-            crate::hierarchy::check_leaf_offsets(&host, n_nodes, order.len())?;
+            crsh_core::check_leaf_offsets(&host, n_nodes, order.len())?;
             return Err(CoreError::InvalidInput(
                 "hierarchy leaf offsets are not 0, non-decreasing, ..., the ray count".into(),
             ));

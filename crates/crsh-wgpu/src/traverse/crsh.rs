@@ -377,28 +377,19 @@ impl Traverser<Wgpu> for Crsh {
         let sub = h.subdivision;
         let level_lens: Vec<usize> = h.levels.iter().map(|l| l.len()).collect();
         let reach_lens: Vec<usize> = h.reach.iter().map(|r| r.len()).collect();
-        match &h.leaf_offsets {
-            None => crsh_cpu::traverse::crsh::check_shape(
-                n_rays,
-                sub,
-                h.order.len(),
-                &level_lens,
-                &reach_lens,
-            )?,
-            Some(offsets) => {
-                crate::hierarchy::check_offsets_shape(
-                    n_rays,
-                    sub,
-                    h.order.len(),
-                    offsets.len(),
-                    &level_lens,
-                    &reach_lens,
-                )?;
-                // The traversal never reads them (its pairs name lowest nodes), but a
-                // hierarchy whose offsets the intersector would refuse is refused here, once.
-                let host = offsets.to_vec(ctx)?;
-                crate::hierarchy::check_leaf_offsets(&host, level_lens[0], n_rays)?;
-            }
+        crsh_cpu::traverse::crsh::check_shape_with_offsets(
+            n_rays,
+            sub,
+            h.order.len(),
+            &level_lens,
+            &reach_lens,
+            h.leaf_offsets.as_ref().map(|o| o.len()),
+        )?;
+        if let Some(offsets) = &h.leaf_offsets {
+            // The traversal never reads them (its pairs name lowest nodes), but a hierarchy
+            // whose offsets the intersector would refuse is refused here, once.
+            let host = offsets.to_vec(ctx)?;
+            crsh_core::check_leaf_offsets(&host, level_lens[0], n_rays)?;
         }
         let has_reach = !h.reach.is_empty();
         let k = ctx.kernel(CrshKernels::new)?;
