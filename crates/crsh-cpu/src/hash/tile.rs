@@ -81,6 +81,22 @@ pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
     Ok(())
 }
 
+/// Checks a tile side against [`TILE_SIZE_RANGE`], naming the parameter `key` in the error
+/// ([`CoreError::InvalidParam`]).
+pub fn check_tile_size(key: &str, tile_size: u32) -> Result<()> {
+    if TILE_SIZE_RANGE.contains(&tile_size) {
+        return Ok(());
+    }
+    Err(CoreError::InvalidParam {
+        key: key.into(),
+        reason: format!(
+            "{tile_size} is outside {}..={}",
+            TILE_SIZE_RANGE.start(),
+            TILE_SIZE_RANGE.end()
+        ),
+    })
+}
+
 /// The tiles of a frame, and the group of a ray (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct TileGrid {
@@ -96,16 +112,7 @@ impl TileGrid {
     /// # Errors
     /// [`CoreError::InvalidParam`] for a `tile_size` outside [`TILE_SIZE_RANGE`].
     pub fn new(frame: FrameSize, tile_size: u32) -> Result<TileGrid> {
-        if !TILE_SIZE_RANGE.contains(&tile_size) {
-            return Err(CoreError::InvalidParam {
-                key: "tile_size".into(),
-                reason: format!(
-                    "{tile_size} is outside {}..={}",
-                    TILE_SIZE_RANGE.start(),
-                    TILE_SIZE_RANGE.end()
-                ),
-            });
-        }
+        check_tile_size("tile_size", tile_size)?;
         Ok(TileGrid {
             frame,
             tile_size,

@@ -204,16 +204,7 @@ impl TileConeParams {
     /// [`CoreError::InvalidParam`] for a tile size outside [`TILE_SIZE_RANGE`] or a minimum
     /// half-angle outside `(0, 10]` degrees.
     pub fn new(tile_size: u32, min_half_angle_deg: f64) -> Result<TileConeParams> {
-        if !TILE_SIZE_RANGE.contains(&tile_size) {
-            return Err(CoreError::InvalidParam {
-                key: "tile_cone.tile_size".into(),
-                reason: format!(
-                    "{tile_size} is outside {}..={}",
-                    TILE_SIZE_RANGE.start(),
-                    TILE_SIZE_RANGE.end()
-                ),
-            });
-        }
+        crate::hash::tile::check_tile_size("tile_cone.tile_size", tile_size)?;
         if !(min_half_angle_deg > 0.0 && min_half_angle_deg <= MAX_MIN_HALF_ANGLE_DEG) {
             return Err(CoreError::InvalidParam {
                 key: "tile_cone.min_half_angle_deg".into(),
