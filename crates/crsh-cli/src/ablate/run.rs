@@ -267,6 +267,9 @@ fn counters(s: &Stats) -> Stats {
     for k in c.per_kind.values_mut() {
         k.trace_ms = 0.0;
     }
+    for g in &mut c.generations {
+        g.trace_ms = 0.0;
+    }
     c
 }
 
@@ -742,6 +745,8 @@ mod tests {
         let mut b = a.clone();
         b.timings_ms.insert("total".into(), 3.0);
         b.per_kind.get_mut("shadow").unwrap().trace_ms = 9.0;
+        a.generation_mut(1, crsh_core::RayKind::Shadow).trace_ms = 1.0;
+        b.generation_mut(1, crsh_core::RayKind::Shadow).trace_ms = 2.0;
         assert_eq!(counters(&a), counters(&b));
         b.add_bounds(1);
         assert_ne!(counters(&a), counters(&b));
