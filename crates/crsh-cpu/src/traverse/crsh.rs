@@ -284,26 +284,14 @@ impl NodeBound {
     }
 }
 
-/// Checks a hierarchy's shape for a traversal of `n_rays` rays (shared by the backends): a
-/// non-zero `subdivision`, at least one level, `order_len == n_rays`, level `i` holding
-/// `⌈below / subdivision⌉` nodes, and reach bounds either absent or shaped like the levels.
-/// A hierarchy without [`RayHierarchy::leaf_offsets`]: see [`check_shape_with_offsets`].
+/// Checks a hierarchy's shape for a traversal of `n_rays` rays (shared by the backends): at
+/// least one level, `order_len == n_rays`, level `i` holding `⌈below / subdivision⌉` nodes
+/// with a non-zero `subdivision`, and reach bounds either absent or shaped like the levels.
+/// With [`RayHierarchy::leaf_offsets`] of `offsets_len` entries (`None`: no offsets),
+/// `levels[0]` must hold `offsets_len − 1` nodes (whatever `subdivision` says) and
+/// `subdivision` must be non-zero only when there are levels above it. The offsets' contents
+/// are checked apart ([`crsh_core::check_leaf_offsets`]).
 pub fn check_shape(
-    n_rays: usize,
-    subdivision: u32,
-    order_len: usize,
-    level_lens: &[usize],
-    reach_lens: &[usize],
-) -> Result<()> {
-    check_shape_with_offsets(n_rays, subdivision, order_len, level_lens, reach_lens, None)
-}
-
-/// [`check_shape`] for a hierarchy whose [`RayHierarchy::leaf_offsets`] has `offsets_len`
-/// entries (`None`: no offsets). With offsets, `levels[0]` must hold `offsets_len − 1` nodes
-/// (whatever `subdivision` says) and `subdivision` must be non-zero only when there are
-/// levels above it. The offsets' contents are checked apart
-/// ([`crsh_core::check_leaf_offsets`]).
-pub fn check_shape_with_offsets(
     n_rays: usize,
     subdivision: u32,
     order_len: usize,
@@ -439,7 +427,7 @@ impl Crsh {
     fn prepare(&self, n_rays: usize, h: &RayHierarchy<Cpu>) -> Result<Vec<Vec<NodeBound>>> {
         let level_lens: Vec<usize> = h.levels.iter().map(Vec::len).collect();
         let reach_lens: Vec<usize> = h.reach.iter().map(Vec::len).collect();
-        check_shape_with_offsets(
+        check_shape(
             n_rays,
             h.subdivision,
             h.order.len(),

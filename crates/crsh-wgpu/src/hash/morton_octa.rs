@@ -15,7 +15,7 @@ use crsh_cpu::hash::morton_octa::MortonOcta as CpuMorton;
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::error::GpuResult;
-use crate::kernel::{chunks, encoder, submit, uniform, Kernel, Slot};
+use crate::kernel::{Kernel, Slot};
 use crate::scene::GpuScene;
 
 const SHADER: &str = include_str!("morton_octa.wgsl");
@@ -108,38 +108,14 @@ impl Hasher<Wgpu> for MortonOcta {
         _stats: &mut Stats,
     ) -> Result<GpuBuffer<u64>> {
         let ctx = backend.context();
-        let n = rays.len();
-        let keys = GpuBuffer::<u64>::zeroed(ctx, "crsh ray keys", n)?;
-        if n == 0 {
-            return Ok(keys);
+        if rays.is_empty() {
+            return Ok(GpuBuffer::zeroed(ctx, "crsh ray keys", 0)?);
         }
         let k = ctx.kernel(MortonKernels::new)?;
-        let mut groups = Vec::new();
-        for range in chunks::<Ray>(ctx, n) {
-            let params = Params {
-                n: range.len() as u32,
-                ..self.params
-            };
-            let u = uniform(ctx, "crsh morton params", &params);
-            let bg = k.kernel.bind_group(
-                ctx,
-                &[
-                    u.as_entire_binding(),
-                    rays.slice_binding(range.clone()),
-                    keys.slice_binding(range.clone()),
-                ],
-            );
-            groups.push((bg, range.len() as u32));
-        }
-        let mut enc = encoder(ctx, "crsh morton hash");
-        {
-            let mut pass = ctx.compute_pass(&mut enc, "crsh morton hash");
-            for (bg, n) in &groups {
-                k.kernel.dispatch(ctx, &mut pass, "hash", bg, *n)?;
-            }
-        }
-        submit(ctx, "crsh morton hash", enc)?;
         let _ = &self.scene;
-        Ok(keys)
+        super::per_ray_keys(ctx, &k.kernel, "crsh morton hash", rays, |range| Params {
+            n: range.len() as u32,
+            ..self.params
+        })
     }
 }

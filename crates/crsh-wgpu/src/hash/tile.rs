@@ -33,7 +33,7 @@ use crsh_cpu::hash::tile::{TileGrid, TileHasher as CpuTile};
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::error::GpuResult;
-use crate::kernel::{chunks, encoder, submit, uniform, Kernel, Slot};
+use crate::kernel::{Kernel, Slot};
 use crate::scene::GpuScene;
 
 const SHADER: &str = include_str!("tile.wgsl");
@@ -162,10 +162,8 @@ impl Hasher<Wgpu> for Tile {
         _stats: &mut Stats,
     ) -> Result<GpuBuffer<u64>> {
         let ctx = backend.context();
-        let n = rays.len();
-        let keys = GpuBuffer::<u64>::zeroed(ctx, "crsh ray keys", n)?;
-        if n == 0 {
-            return Ok(keys);
+        if rays.is_empty() {
+            return Ok(GpuBuffer::zeroed(ctx, "crsh ray keys", 0)?);
         }
         let k = ctx.kernel(TileKernels::new)?;
         let none = if self.key_bits >= 64 {
@@ -175,39 +173,17 @@ impl Hasher<Wgpu> for Tile {
         };
         let g = self.grid;
         let (tiles_x, tiles) = grid_u32(&g)?;
-        let mut groups = Vec::new();
-        for range in chunks::<Ray>(ctx, n) {
-            let params = Params {
-                n: range.len() as u32,
-                width: g.frame().width,
-                height: g.frame().height,
-                tile_size: g.tile_size(),
-                tiles_x,
-                tiles,
-                lights: u32::try_from(self.lights).unwrap_or(u32::MAX),
-                none_lo: none as u32,
-                none_hi: (none >> 32) as u32,
-                pad: [0; 3],
-            };
-            let u = uniform(ctx, "crsh tile params", &params);
-            let bg = k.kernel.bind_group(
-                ctx,
-                &[
-                    u.as_entire_binding(),
-                    rays.slice_binding(range.clone()),
-                    keys.slice_binding(range.clone()),
-                ],
-            );
-            groups.push((bg, range.len() as u32));
-        }
-        let mut enc = encoder(ctx, "crsh tile hash");
-        {
-            let mut pass = ctx.compute_pass(&mut enc, "crsh tile hash");
-            for (bg, n) in &groups {
-                k.kernel.dispatch(ctx, &mut pass, "hash", bg, *n)?;
-            }
-        }
-        submit(ctx, "crsh tile hash", enc)?;
-        Ok(keys)
+        super::per_ray_keys(ctx, &k.kernel, "crsh tile hash", rays, |range| Params {
+            n: range.len() as u32,
+            width: g.frame().width,
+            height: g.frame().height,
+            tile_size: g.tile_size(),
+            tiles_x,
+            tiles,
+            lights: u32::try_from(self.lights).unwrap_or(u32::MAX),
+            none_lo: none as u32,
+            none_hi: (none >> 32) as u32,
+            pad: [0; 3],
+        })
     }
 }

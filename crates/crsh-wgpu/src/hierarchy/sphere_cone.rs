@@ -20,7 +20,7 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 use crsh_core::{
-    CoreError, HierarchyBuilder, Ray, RayHierarchy, Registry, Result, SphereCone, StageSpec, Stats,
+    HierarchyBuilder, Ray, RayHierarchy, Registry, Result, SphereCone, StageSpec, Stats,
 };
 use crsh_cpu::hierarchy::sphere_cone::level_sizes;
 
@@ -112,12 +112,7 @@ impl HierarchyBuilder<Wgpu> for SphereConeBuilder {
     ) -> Result<RayHierarchy<Wgpu>> {
         let ctx = backend.context();
         let n = rays.len();
-        if order.len() != n {
-            return Err(CoreError::InvalidInput(format!(
-                "sphere_cone: {} leaves for a batch of {n} rays (the order must be a permutation)",
-                order.len()
-            )));
-        }
+        super::check_order_len("sphere_cone", order.len(), n)?;
         let sizes = level_sizes(n, self.subdivision, self.depth);
         let mut levels: Vec<GpuBuffer<SphereCone>> = Vec::with_capacity(sizes.len());
         let mut reach: Vec<GpuBuffer<f32>> = Vec::with_capacity(sizes.len());

@@ -219,12 +219,7 @@ impl HierarchyBuilder<Wgpu> for TileConeBuilder {
     ) -> Result<RayHierarchy<Wgpu>> {
         let ctx = backend.context();
         let n = rays.len();
-        if order.len() != n {
-            return Err(CoreError::InvalidInput(format!(
-                "tile_cone: {} leaves for a batch of {n} rays (the order must be a permutation)",
-                order.len()
-            )));
-        }
+        super::check_order_len("tile_cone", order.len(), n)?;
         let subdivision = self.params.tile_size * self.params.tile_size;
         if n == 0 {
             return Ok(RayHierarchy {

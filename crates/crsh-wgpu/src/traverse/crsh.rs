@@ -377,7 +377,7 @@ impl Traverser<Wgpu> for Crsh {
         let sub = h.subdivision;
         let level_lens: Vec<usize> = h.levels.iter().map(|l| l.len()).collect();
         let reach_lens: Vec<usize> = h.reach.iter().map(|r| r.len()).collect();
-        crsh_cpu::traverse::crsh::check_shape_with_offsets(
+        crsh_cpu::traverse::crsh::check_shape(
             n_rays,
             sub,
             h.order.len(),
