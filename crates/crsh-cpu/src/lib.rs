@@ -47,6 +47,7 @@ pub mod grid_timing;
 pub mod hash;
 pub mod hierarchy;
 pub mod intersect;
+pub mod kdtree;
 pub mod primary;
 pub mod raygen;
 pub mod registry;
