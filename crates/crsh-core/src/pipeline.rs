@@ -324,7 +324,9 @@ pub fn render_frame<B: Backend>(
     let tests_before = driver.stats.tests;
     let t_primary = Instant::now();
     let mut surfaces = driver.timed("primary", |s| {
-        stages.primary.gbuffer(backend, size.width, size.height, s)
+        stages
+            .primary
+            .gbuffer_with(backend, size.width, size.height, &*stages.intersector, s)
     })?;
     let primary_ms = t_primary.elapsed().as_secs_f64() * 1e3;
     driver.stats.rays.add(RayKind::Primary, pixels as u64);

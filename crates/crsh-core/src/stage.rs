@@ -39,6 +39,21 @@ pub trait PrimaryVisibility<B: Backend>: Send + Sync {
         height: u32,
         stats: &mut Stats,
     ) -> Result<B::Buffer<Surface>>;
+    /// [`PrimaryVisibility::gbuffer`] in a pipeline whose intersector is `intersector`: what
+    /// the frame driver calls. A ray-casting variant may trace its camera rays with it (seed
+    /// 003's coherent traversals of camera rays are the intersector's); the default ignores
+    /// it.
+    fn gbuffer_with(
+        &self,
+        backend: &B,
+        width: u32,
+        height: u32,
+        intersector: &dyn Intersector<B>,
+        stats: &mut Stats,
+    ) -> Result<B::Buffer<Surface>> {
+        let _ = intersector;
+        self.gbuffer(backend, width, height, stats)
+    }
 }
 
 /// Secondary ray creation (seed 000 §3.2.3, eq. 3.1-3.7; seed 001's AO and diffuse rays).

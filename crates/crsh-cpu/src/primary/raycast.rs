@@ -2,7 +2,9 @@
 //!
 //! The alternative to rasterized primary visibility (seed 000 §3.1): the same [`Surface`]
 //! records, found by tracing closest hits with the `accel` intersector (`bvh`: the CWBVH of
-//! [`crate::intersect::bvh`] with the `medium` preset; `brute`: every triangle). Its test
+//! [`crate::intersect::bvh`] with the `medium` preset; `brute`: every triangle; `pipeline`:
+//! the pipeline's own intersector, so that the camera rays take the same traversal as the
+//! secondary rays, e.g. seed 003's packets and frusta of the `kdtree` intersector). Its test
 //! counts go to the stats like any other trace. Camera rays start at the eye with the open
 //! interval `(0, ∞)`; pixel `(x, y)` (`y = 0` the top row) looks through `(x + 0.5, y + 0.5)`
 //! ([`camera_ray`], shared with the rasterizer so both resolve identical surfaces).
@@ -48,6 +50,8 @@ pub(crate) fn check_view(camera: &Camera, width: u32, height: u32) -> Result<()>
 enum Accel {
     Bvh(CwBvh),
     Brute(BruteForce),
+    /// The pipeline's intersector, handed over by [`PrimaryVisibility::gbuffer_with`].
+    Pipeline,
 }
 
 /// The ray-cast primary visibility (variant `raycast`, parameter `accel`).
@@ -66,8 +70,9 @@ pub fn info() -> StageVariantInfo {
     .param(ParamInfo::choice(
         "accel",
         "bvh",
-        &["bvh", "brute"],
-        "what traces the camera rays: the obvhs CWBVH or every triangle",
+        &["bvh", "brute", "pipeline"],
+        "what traces the camera rays: the obvhs CWBVH, every triangle, or the pipeline's \
+         intersector (with its traversal)",
     ))
 }
 
@@ -80,15 +85,16 @@ pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
 }
 
 impl RayCast {
-    /// Prepares the `spec.accel` intersector (`bvh` | `brute`) for `scene`.
+    /// Prepares the `spec.accel` intersector (`bvh` | `brute` | `pipeline`) for `scene`.
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<RayCast, CoreError> {
         let accel = match spec.str("accel")? {
             "bvh" => Accel::Bvh(CwBvh::build(scene, BuildQuality::Medium)),
             "brute" => Accel::Brute(BruteForce::from_scene(scene)),
+            "pipeline" => Accel::Pipeline,
             other => {
                 return Err(CoreError::InvalidParam {
                     key: "raycast.accel".into(),
-                    reason: format!("`{other}` is not one of bvh, brute"),
+                    reason: format!("`{other}` is not one of bvh, brute, pipeline"),
                 })
             }
         };
@@ -103,6 +109,7 @@ impl RayCast {
         match &self.accel {
             Accel::Bvh(_) => "bvh",
             Accel::Brute(_) => "brute",
+            Accel::Pipeline => "pipeline",
         }
     }
 
@@ -146,13 +153,48 @@ impl PrimaryVisibility<Cpu> for RayCast {
         height: u32,
         stats: &mut Stats,
     ) -> Result<Vec<Surface>> {
-        check_view(&self.scene.camera, width, height)?;
-        let rays = self.camera_rays(width, height);
-        let mut hits = vec![Hit::MISS; rays.len()];
         let accel: &dyn Intersector<Cpu> = match &self.accel {
             Accel::Bvh(b) => b,
             Accel::Brute(b) => b,
+            Accel::Pipeline => {
+                return Err(CoreError::InvalidInput(
+                    "raycast with accel = pipeline traces with the pipeline's intersector: \
+                     render it through a pipeline"
+                        .into(),
+                ))
+            }
         };
+        self.cast(backend, width, height, accel, stats)
+    }
+
+    fn gbuffer_with(
+        &self,
+        backend: &Cpu,
+        width: u32,
+        height: u32,
+        intersector: &dyn Intersector<Cpu>,
+        stats: &mut Stats,
+    ) -> Result<Vec<Surface>> {
+        match self.accel {
+            Accel::Pipeline => self.cast(backend, width, height, intersector, stats),
+            _ => self.gbuffer(backend, width, height, stats),
+        }
+    }
+}
+
+impl RayCast {
+    /// The G-buffer from the camera rays' closest hits with `accel`.
+    fn cast(
+        &self,
+        backend: &Cpu,
+        width: u32,
+        height: u32,
+        accel: &dyn Intersector<Cpu>,
+        stats: &mut Stats,
+    ) -> Result<Vec<Surface>> {
+        check_view(&self.scene.camera, width, height)?;
+        let rays = self.camera_rays(width, height);
+        let mut hits = vec![Hit::MISS; rays.len()];
         accel.intersect(
             backend,
             &rays,
@@ -222,6 +264,33 @@ mod tests {
             // y = 0 is the top row: the top-left pixel's ray points up and left.
             assert!(g[0].incident.y > 0.0 && g[0].incident.x < 0.0);
         }
+    }
+
+    #[test]
+    fn accel_pipeline_traces_with_the_pipelines_intersector() {
+        let scene = quad_scene();
+        let by_bvh = RayCast::new(&scene, &spec("bvh")).unwrap();
+        let mut want_stats = Stats::default();
+        let want = by_bvh.gbuffer(&Cpu, 32, 24, &mut want_stats).unwrap();
+        let rc = RayCast::new(&scene, &spec("pipeline")).unwrap();
+        assert_eq!(rc.accel_name(), "pipeline");
+        // Without a pipeline there is nothing to trace with: an error, not a guess.
+        let err = rc.gbuffer(&Cpu, 32, 24, &mut Stats::default()).unwrap_err();
+        assert!(err.to_string().contains("accel = pipeline"), "{err}");
+        // Handed brute force, it finds the same surfaces as the CWBVH, counting brute
+        // force's tests (every ray against both triangles).
+        let brute = BruteForce::from_scene(&scene);
+        let mut stats = Stats::default();
+        let got = rc.gbuffer_with(&Cpu, 32, 24, &brute, &mut stats).unwrap();
+        assert_eq!(got, want);
+        assert_eq!(stats.tests.ray_triangle, 32 * 24 * 2);
+        // The other accelerators ignore the pipeline's intersector.
+        let mut s2 = Stats::default();
+        assert_eq!(
+            by_bvh.gbuffer_with(&Cpu, 32, 24, &brute, &mut s2).unwrap(),
+            want
+        );
+        assert_eq!(s2.tests, want_stats.tests);
     }
 
     #[test]
