@@ -204,6 +204,11 @@ pub struct StatsReport {
     pub levels: Vec<LevelStats>,
     /// Whole-mesh culling counters per ray kind (empty without mesh culling).
     pub mesh_culling: BTreeMap<String, crsh_core::CullStats>,
+    /// Seed 003's coherent kd-tree traversal counters per ray kind: packets, nodes and
+    /// packet-triangle tests (the paper's `N` and `I` per packet), culled packet-leaf tests
+    /// (empty unless a coherent traversal ran).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub packets: BTreeMap<String, crsh_core::PacketStats>,
     /// The most bytes the candidate arrays held at once (0 without a hierarchy).
     pub peak_candidate_bytes: u64,
     /// Per generation (bounce depth) and ray kind: rays, tests, tracing time and the
@@ -331,6 +336,7 @@ impl StatsReport {
             per_kind: stats.per_kind.clone(),
             levels: stats.levels.clone(),
             mesh_culling: stats.mesh_culling.clone(),
+            packets: stats.packets.clone(),
             peak_candidate_bytes: stats.peak_candidate_bytes,
             generations: stats.generations.clone(),
             timings_ms: stats.timings_ms.clone(),
@@ -415,6 +421,19 @@ impl StatsReport {
                 group(t.leaves),
                 t.inner_nodes_per_ray,
                 t.leaves_per_ray,
+            );
+        }
+        for (kind, p) in &self.packets {
+            let _ = writeln!(
+                s,
+                "packets   {kind}: {} packets | N {:.2} nodes / packet | I {:.2} tests / packet | \
+                 culled {:.1} % | {} groups | {} rays alone",
+                group(p.packets),
+                p.nodes_per_packet(),
+                p.tests_per_packet(),
+                p.culled_fraction() * 100.0,
+                group(p.groups),
+                group(p.single_rays),
             );
         }
         s.push_str(&generation_lines(&self.generations));

@@ -14,6 +14,19 @@ use serde::{Deserialize, Serialize};
 
 use super::plan::Plan;
 
+/// The `results.csv` columns of each ray kind's [`crsh_core::PacketStats`], after
+/// `packets_KIND_`: packets traced, the paper's `N` (nodes per packet) and `I` (packet-triangle
+/// tests per packet), the fraction of packet-leaf tests culled (table 4.2), coherent groups,
+/// rays traced alone.
+pub const PACKET_COLUMNS: [&str; 6] = [
+    "packets",
+    "n",
+    "i",
+    "culled_fraction",
+    "groups",
+    "single_rays",
+];
+
 /// Median, minimum and maximum of a set of timed runs, ms.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct TimeSummary {
@@ -186,6 +199,10 @@ pub struct Measures {
     pub levels: Vec<LevelStats>,
     /// Whole-mesh culling counters per ray kind (empty without mesh culling).
     pub mesh_culling: BTreeMap<String, crsh_core::CullStats>,
+    /// Seed 003's coherent kd-tree traversal counters per ray kind (`N`, `I`, culling; empty
+    /// unless a coherent traversal ran).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub packets: BTreeMap<String, crsh_core::PacketStats>,
     /// The most bytes the candidate arrays held at once.
     pub peak_candidate_bytes: u64,
     /// Whether every counter was identical in every timed run (they are deterministic).
@@ -631,6 +648,7 @@ impl Results {
         let mut levels: Vec<(usize, String, u32)> = level_keys.into_iter().collect();
         levels.sort_by(|a, b| a.0.cmp(&b.0).then(b.2.cmp(&a.2)));
         let mesh_kinds = self.kinds_in(&|m| m.mesh_culling.keys().collect());
+        let packet_kinds = self.kinds_in(&|m| m.packets.keys().collect());
         let traced_kinds = self.kinds_in(&|m| m.per_kind.keys().collect());
         let mut stages: Vec<String> = STAGE_TIMINGS
             .iter()
@@ -689,6 +707,11 @@ impl Results {
         for kind in &mesh_kinds {
             for what in ["tests", "hits"] {
                 header.push(format!("mesh_culling_{kind}_{what}"));
+            }
+        }
+        for kind in &packet_kinds {
+            for what in PACKET_COLUMNS {
+                header.push(format!("packets_{kind}_{what}"));
             }
         }
         for (_, kind, level) in &levels {
@@ -766,6 +789,19 @@ impl Results {
                 let c = m.and_then(|m| m.mesh_culling.get(kind));
                 row.push(c.map(|c| c.tests.to_string()).unwrap_or_default());
                 row.push(c.map(|c| c.hits.to_string()).unwrap_or_default());
+            }
+            for kind in &packet_kinds {
+                match m.and_then(|m| m.packets.get(kind)) {
+                    Some(p) => row.extend([
+                        p.packets.to_string(),
+                        format!("{:.4}", p.nodes_per_packet()),
+                        format!("{:.4}", p.tests_per_packet()),
+                        format!("{:.4}", p.culled_fraction()),
+                        p.groups.to_string(),
+                        p.single_rays.to_string(),
+                    ]),
+                    None => row.extend(PACKET_COLUMNS.iter().map(|_| String::new())),
+                }
             }
             for (_, kind, level) in &levels {
                 let l = m.and_then(|m| {

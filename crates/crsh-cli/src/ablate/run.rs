@@ -430,6 +430,7 @@ fn measures_of(
         per_kind: median.per_kind.clone(),
         levels: first.levels.clone(),
         mesh_culling: first.mesh_culling.clone(),
+        packets: first.packets.clone(),
         peak_candidate_bytes: first.peak_candidate_bytes,
         counters_equal_across_repeats: counters_equal,
         timings_ms,
@@ -506,6 +507,9 @@ fn add_stats(sum: &mut Stats, s: &Stats) {
         e.tests += c.tests;
         e.hits += c.hits;
         e.misses += c.misses;
+    }
+    for (kind, p) in &s.packets {
+        sum.packets.entry(kind.clone()).or_default().add(p);
     }
     for (k, v) in &s.timings_ms {
         *sum.timings_ms.entry(k.clone()).or_default() += v;
