@@ -750,3 +750,49 @@ pub(crate) mod tests {
         assert!(s.tests < m.tests, "SAH {s:?} middle {m:?}");
     }
 }
+
+/// Build times and tree sizes on the shared scenes (`cargo test --release -p crsh-cpu --lib
+/// kdtree::sah::bench -- --ignored --nocapture`); skipped when the scenes are absent.
+#[cfg(test)]
+mod bench {
+    use super::*;
+
+    #[test]
+    #[ignore = "a measurement: run in release with --ignored --nocapture"]
+    fn shared_scene_build_times() {
+        let dir = std::env::var_os("CRSH_SCENES")
+            .map(std::path::PathBuf::from)
+            .unwrap_or_else(|| {
+                std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes")
+            });
+        for rel in ["sponza/sponza.toml", "dining-room/dining-room.toml"] {
+            let path = dir.join(rel);
+            if !path.is_file() {
+                eprintln!("SKIP: {} not found (set CRSH_SCENES)", path.display());
+                continue;
+            }
+            let scene = crsh_scene::load_path(&path).unwrap();
+            let tris = tests::input(&scene);
+            for threads in [1, 2] {
+                let t0 = std::time::Instant::now();
+                let tree =
+                    crate::with_threads(threads, || build(&tris, &SahParams::default())).unwrap();
+                let ms = t0.elapsed().as_secs_f64() * 1e3;
+                let empty = tree.leaves.iter().filter(|l| l.count == 0).count();
+                eprintln!(
+                    "{rel}: {} triangles, {threads} thread(s): {ms:.0} ms; {} nodes, {} leaves \
+                     ({empty} empty), {} references ({:.2} per triangle), depth {} (limit {}), \
+                     {:.1} MiB",
+                    tris.len(),
+                    tree.nodes.len(),
+                    tree.leaves.len(),
+                    tree.leaf_tris.len(),
+                    tree.leaf_tris.len() as f64 / tris.len() as f64,
+                    tree.depth,
+                    auto_max_depth(tris.len()),
+                    tree.bytes() as f64 / (1 << 20) as f64
+                );
+            }
+        }
+    }
+}
