@@ -3,7 +3,7 @@
 //! The CPU backend of crsh ([`Cpu`]): every stage variant as a rayon implementation of the
 //! `crsh-core` stage traits, registered in the backend's [`crsh_core::Registry`]
 //! ([`Registry::<Cpu>::builtin`](crsh_core::Registry::builtin), see [`registry`]) with the
-//! presets `brute`, `bvh`, `grid`, `crsh`, `rah` and `tile_cone`.
+//! presets `brute`, `bvh`, `grid`, `kdtree`, `crsh`, `rah` and `tile_cone`.
 //!
 //! ```
 //! use std::sync::Arc;
@@ -30,7 +30,10 @@
 //!   [`intersect::brute64`]: the same in f64 (the accuracy reference);
 //!   [`intersect::bvh`]: the obvhs CWBVH (closest and any hit);
 //!   [`intersect::bvh2`]: obvhs's binary BVH with a stack traversal written here (seed 001's
-//!   visited inner nodes and leaves on a binary tree).
+//!   visited inner nodes and leaves on a binary tree);
+//!   [`intersect::grid`]: seed 002's uniform grid;
+//!   [`intersect::kdtree`]: seed 003's kd-tree ([`kdtree`]: its layout and single-ray
+//!   traversal, the SAH build with perfect splits [`kdtree::sah`], middle splits).
 //! - [`raygen::whitted`]: shadow, reflection and refraction rays (eq. 3.1-3.7).
 //! - [`shade::phong`]: barycentric normals and Phong with attenuation (eq. 3.17-3.19).
 //! - [`hash`], [`sort`], [`hierarchy`], [`traverse`]: the ray-space hierarchy stages

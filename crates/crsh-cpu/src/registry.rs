@@ -39,6 +39,7 @@ impl BuiltinVariants for Cpu {
         crate::intersect::bvh::register(registry)?;
         crate::intersect::bvh2::register(registry)?;
         crate::intersect::grid::register(registry)?;
+        crate::intersect::kdtree::register(registry)?;
         crate::shade::phong::register(registry)?;
         crate::shade::ao::register(registry)?;
         crate::shade::diffuse::register(registry)?;
@@ -46,7 +47,7 @@ impl BuiltinVariants for Cpu {
     }
 }
 
-/// The presets `brute`, `bvh`, `grid`, `crsh`, `rah` and `tile_cone` (raster primaries,
+/// The presets `brute`, `bvh`, `grid`, `kdtree`, `crsh`, `rah` and `tile_cone` (raster primaries,
 /// Whitted ray generation and Phong shading; they differ in how rays are traced), added to
 /// `registry`, whose variants they use. The wgpu backend registers the same ones.
 pub fn add_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<()> {
@@ -88,6 +89,11 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
             "seed 002's uniform grid (eq. 1 resolution, five-pass build, 3D-DDA): the spatial \
              subdivision rebuilt every frame, weak on a detailed object in a huge sparse scene",
             PipelineConfig::whitted("grid", "grid"),
+        ),
+        (
+            "kdtree",
+            "seed 003's SAH kd-tree (perfect splits, C_isect = 5 C_trav), rays traced one by one",
+            PipelineConfig::whitted("kdtree", "kdtree"),
         ),
         (
             "crsh",
@@ -154,12 +160,15 @@ mod tests {
     fn presets_resolve_against_the_registry() {
         let registry = Registry::<Cpu>::builtin();
         let names: Vec<&str> = registry.presets().iter().map(|p| p.name.as_str()).collect();
-        assert_eq!(names, ["brute", "bvh", "grid", "crsh", "rah", "tile_cone"]);
+        assert_eq!(
+            names,
+            ["brute", "bvh", "grid", "kdtree", "crsh", "rah", "tile_cone"]
+        );
         for p in registry.presets() {
             let cfg = &p.config;
             let name = p.name.as_str();
             assert_eq!(cfg.name, name);
-            let expect = if ["brute", "bvh", "grid"].contains(&name) {
+            let expect = if ["brute", "bvh", "grid", "kdtree"].contains(&name) {
                 name
             } else {
                 "brute"
@@ -174,7 +183,6 @@ mod tests {
             assert_eq!(cfg.raygen.str("shadow_origin").unwrap(), "light");
             assert_eq!(cfg.shade.f64("ambient").unwrap(), 0.05);
         }
-        assert!(registry.preset("kdtree").is_none());
     }
 
     #[test]
@@ -209,6 +217,27 @@ mod tests {
     }
 
     #[test]
+    fn the_kdtree_preset_is_the_whitted_pipeline_on_the_sah_kd_tree() {
+        let registry = Registry::<Cpu>::builtin();
+        let cfg = registry.preset("kdtree").unwrap();
+        let x = &cfg.intersect;
+        assert_eq!(x.kind, "kdtree");
+        assert_eq!(x.str("build").unwrap(), "sah");
+        assert_eq!(
+            (x.f64("c_trav").unwrap(), x.f64("c_isect").unwrap()),
+            (1.0, 5.0)
+        );
+        assert_eq!(x.i64("max_depth").unwrap(), 0);
+        assert_eq!(x.str("test").unwrap(), "mt");
+        assert!(cfg.hierarchy.is_none() && cfg.hash.is_none());
+        assert_eq!(cfg.raygen, registry.preset("bvh").unwrap().raygen);
+        // Whole-scene only: a hierarchy pipeline cannot use it.
+        let mut rah = registry.preset("rah").unwrap();
+        rah.intersect = StageSpec::new("kdtree");
+        assert!(registry.resolve(&mut rah).is_err());
+    }
+
+    #[test]
     fn thread_pools_have_the_size_asked_for() {
         assert_eq!(with_threads(3, rayon::current_num_threads).unwrap(), 3);
         assert_eq!(with_threads(1, rayon::current_num_threads).unwrap(), 1);
@@ -232,6 +261,8 @@ mod tests {
             ("bvh", true),
             ("bvh2", true),
             ("brute64", true),
+            ("grid", true),
+            ("kdtree", true),
         ] {
             let v = registry.variant(StageKind::Intersect, name).unwrap();
             assert_eq!(v.scene_only, scene_only, "{name}");

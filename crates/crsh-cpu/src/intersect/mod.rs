@@ -5,3 +5,4 @@ pub mod brute64;
 pub mod bvh;
 pub mod bvh2;
 pub mod grid;
+pub mod kdtree;

@@ -37,6 +37,7 @@
 //! triangle test, ties on `t` included (a tie on a cell boundary keeps the ray going).
 
 pub mod middle;
+pub mod sah;
 
 use bytemuck::{Pod, Zeroable};
 use crsh_core::glam::Vec3;
@@ -304,7 +305,13 @@ pub fn descend(
     d_max: f32,
 ) -> (Option<Interval>, Option<Interval>) {
     let hi = d_max + d_max.abs() * T_SLACK;
-    let lo = d_min - d_min.abs() * T_SLACK;
+    // A crossing at +∞ (never, `crossing`) stays +∞: `∞ − ∞·T_SLACK` is NaN, which `max`
+    // would ignore, opening the back child to the whole interval.
+    let lo = if d_min == f32::INFINITY {
+        d_min
+    } else {
+        d_min - d_min.abs() * T_SLACK
+    };
     let front_far = far.min(hi);
     let back_near = near.max(lo);
     (
