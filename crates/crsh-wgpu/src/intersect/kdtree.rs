@@ -26,9 +26,16 @@
 //!   ([`KdCounts::record`]): a bound test and an inner-node visit per inner node, a leaf visit
 //!   per leaf (empty ones included), a ray-triangle test per leaf triangle tested.
 //!
-//! Hits equal brute force's (`t`, `u`, `v` and triangle; any hit: hit or not) and counts the
-//! CPU twin's wherever WGSL's division rounds like the host's (lavapipe's does). Closest and
-//! any hit, whole-scene queries; only `test = "mt"` has a WGSL twin.
+//! - **Loop bound**: llvmpipe (Mesa's software rasterizer, the adapter of machines without a
+//!   GPU) silently ends every loop of an invocation once its loops have run 65535 iterations
+//!   in all. A probe loop at the end of each traversal detects that, and the query fails with
+//!   [`CoreError::Backend`] rather than return wrong hits; on such adapters a ray may visit
+//!   only some tens of thousands of nodes and triangles.
+//!
+//! Hits equal wgpu brute force's bit for bit (closest: triangle, `t`, `u`, `v`; any hit: hit
+//! or not), and so brute force's on the CPU wherever the device's Möller-Trumbore rounds like
+//! the host's; there the hits are also the CPU twin's bit for bit and so are the counts.
+//! Closest and any hit, whole-scene queries; only `test = "mt"` has a WGSL twin.
 
 use std::sync::Arc;
 
@@ -152,7 +159,7 @@ fn auto_depth(n: usize) -> u32 {
 /// The lead swaps this one call for `crsh_cpu::intersect::kdtree::build_tree(scene, spec,
 /// TestKind::MollerTrumbore)` (the SAH build) when the CPU `kdtree` intersector lands, and
 /// [`info`]'s parameters for its `build_params()`.
-fn build_tree_for(scene: &Scene, spec: &StageSpec) -> Result<KdTree> {
+pub fn build_tree_for(scene: &Scene, spec: &StageSpec) -> Result<KdTree> {
     let max_depth = spec.u32_in("max_depth", 0..=STACK)?;
     let leaf_size = spec.u32_in("leaf_size", 1..=1 << 16)? as usize;
     let keep = crsh_cpu::intersect::grid::hittable(scene, TestKind::MollerTrumbore);
