@@ -176,10 +176,15 @@ pub fn build_tree_for(scene: &Scene, spec: &StageSpec) -> Result<KdTree> {
     Ok(middle::build(&tris, max_depth, leaf_size))
 }
 
-/// The depth of `tree`'s deepest leaf (the root alone: 0), walked rather than trusted.
+/// The depth of `tree`'s deepest leaf (the root alone or no node: 0), walked rather than
+/// trusted; `tree` passed [`KdTree::validate`].
 fn walked_depth(tree: &KdTree) -> u32 {
     let mut deepest = 0;
-    let mut work = vec![(0usize, 0u32)];
+    let mut work = if tree.nodes.is_empty() {
+        Vec::new()
+    } else {
+        vec![(0usize, 0u32)]
+    };
     while let Some((n, depth)) = work.pop() {
         let node = tree.nodes[n];
         if node.is_leaf() {
@@ -190,6 +195,37 @@ fn walked_depth(tree: &KdTree) -> u32 {
         }
     }
     deepest
+}
+
+/// Whether the device can traverse `tree` over a scene of `n_tris` triangles: it passes
+/// [`KdTree::validate`] and names scene triangles only ([`CoreError::InvalidInput`]), and it is
+/// no deeper than [`STACK`] ([`CoreError::Unsupported`]).
+pub fn check_tree(tree: &KdTree, n_tris: usize) -> Result<()> {
+    tree.validate()
+        .map_err(|e| CoreError::InvalidInput(format!("kd-tree: {e}")))?;
+    if let Some(id) = tree.leaf_tris.iter().find(|&&id| id as usize >= n_tris) {
+        return Err(CoreError::InvalidInput(format!(
+            "kd-tree: triangle {id} is not in the scene ({n_tris} triangles)"
+        )));
+    }
+    if u32::try_from(tree.nodes.len()).is_err() {
+        return Err(CoreError::InvalidInput(format!(
+            "kd-tree: {} nodes exceed u32 indices",
+            tree.nodes.len()
+        )));
+    }
+    let depth = walked_depth(tree);
+    if depth > STACK {
+        return Err(CoreError::Unsupported {
+            stage: "intersect",
+            variant: "kdtree".into(),
+            what: format!(
+                "a kd-tree of depth {depth} on the wgpu backend (its traversal stack holds \
+                 {STACK} entries: build with max_depth <= {STACK})"
+            ),
+        });
+    }
+    Ok(())
 }
 
 /// A buffer holding `data`, or one zeroed element when it is empty (a binding is never empty).
@@ -221,37 +257,9 @@ impl KdIntersector {
     }
 
     /// Uploads `tree`, built on the host over `scene`'s triangle ids (the triangles
-    /// Möller-Trumbore can hit). Refuses a tree that fails [`KdTree::validate`] or names a
-    /// triangle the scene lacks ([`CoreError::InvalidInput`]), and one deeper than [`STACK`]
-    /// ([`CoreError::Unsupported`]).
+    /// Möller-Trumbore can hit), once [`check_tree`] accepts it.
     pub fn from_tree(scene: &Arc<GpuScene>, tree: KdTree) -> Result<KdIntersector> {
-        tree.validate()
-            .map_err(|e| CoreError::InvalidInput(format!("kd-tree: {e}")))?;
-        let n_tris = scene.scene.triangle_count();
-        if let Some(id) = tree.leaf_tris.iter().find(|&&id| id as usize >= n_tris) {
-            return Err(CoreError::InvalidInput(format!(
-                "kd-tree: triangle {id} is not in the scene ({n_tris} triangles)"
-            )));
-        }
-        if u32::try_from(tree.nodes.len()).is_err() {
-            return Err(CoreError::InvalidInput(format!(
-                "kd-tree: {} nodes exceed u32 indices",
-                tree.nodes.len()
-            )));
-        }
-        if !tree.nodes.is_empty() {
-            let depth = walked_depth(&tree);
-            if depth > STACK {
-                return Err(CoreError::Unsupported {
-                    stage: "intersect",
-                    variant: "kdtree".into(),
-                    what: format!(
-                        "a kd-tree of depth {depth} on the wgpu backend (its traversal stack \
-                         holds {STACK} entries: build with max_depth <= {STACK})"
-                    ),
-                });
-            }
-        }
+        check_tree(&tree, scene.scene.triangle_count())?;
         let ctx = scene.ctx();
         let set = TriangleSet::<MollerTrumbore>::new(&scene.scene);
         Ok(KdIntersector {
@@ -378,5 +386,172 @@ impl Intersector<Wgpu> for KdIntersector {
         }
         .record(stats);
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crsh_core::Aabb;
+    use crsh_cpu::kdtree::LEAF;
+
+    /// The generated constants read back as the CPU's, bit for bit.
+    #[test]
+    fn kernel_constants_are_the_cpu_ones() {
+        let src = source();
+        for (name, want) in [("T_SLACK", T_SLACK), ("CELL_MARGIN", CELL_MARGIN)] {
+            let decl = format!("const {name}: f32 = ");
+            let at = src.find(&decl).expect(name) + decl.len();
+            let lit = &src[at..at + src[at..].find("f;").expect(name)];
+            let got: f32 = lit.parse().expect(lit);
+            assert_eq!(got.to_bits(), want.to_bits(), "{name} = {lit}");
+        }
+        assert!(src.contains(&format!("const STACK: u32 = {STACK}u;")));
+        assert!(src.contains("fn mt_hit(") && src.contains("fn traverse("));
+    }
+
+    /// A chain of `depth` inner nodes halving x towards 0, empty leaves on the right.
+    fn chain(depth: u32) -> KdTree {
+        let mut tree = KdTree {
+            bounds: Aabb {
+                min: Vec3::ZERO,
+                max: Vec3::ONE,
+            },
+            depth,
+            ..KdTree::default()
+        };
+        let mut hi = 1.0f32;
+        tree.nodes.push(KdNode {
+            split: 0.5,
+            axis: 0,
+            index: 1,
+        });
+        for level in 1..=depth {
+            let split = hi * 0.5;
+            let mut push_leaf = |lo: f32, hi: f32| {
+                tree.leaves.push(KdLeaf {
+                    min: [lo, 0.0, 0.0],
+                    start: 0,
+                    max: [hi, 1.0, 1.0],
+                    count: 0,
+                });
+                KdNode {
+                    split: 0.0,
+                    axis: LEAF,
+                    index: tree.leaves.len() as u32 - 1,
+                }
+            };
+            let left = if level == depth {
+                push_leaf(0.0, split)
+            } else {
+                KdNode {
+                    split: split * 0.5,
+                    axis: 0,
+                    index: 0,
+                }
+            };
+            let right = push_leaf(split, hi);
+            let at = tree.nodes.len() as u32;
+            let left = KdNode {
+                index: if left.axis == LEAF {
+                    left.index
+                } else {
+                    at + 2
+                },
+                ..left
+            };
+            tree.nodes.extend([left, right]);
+            hi = split;
+        }
+        tree
+    }
+
+    #[test]
+    fn trees_deeper_than_the_stack_are_refused() {
+        check_tree(&KdTree::default(), 0).unwrap();
+        let ok = chain(STACK);
+        assert_eq!(walked_depth(&ok), STACK);
+        check_tree(&ok, 0).unwrap();
+        let deep = chain(STACK + 1);
+        deep.validate().unwrap();
+        match check_tree(&deep, 0) {
+            Err(CoreError::Unsupported { what, .. }) => {
+                assert!(what.contains(&format!("depth {}", STACK + 1)), "{what}")
+            }
+            other => panic!("{other:?}"),
+        }
+        // The depth is walked, not read from the tree.
+        let lying = KdTree { depth: 1, ..deep };
+        assert!(check_tree(&lying, 0).is_err());
+    }
+
+    #[test]
+    fn bad_trees_are_refused() {
+        let mut t = chain(2);
+        t.leaves[0].count = 1;
+        t.leaf_tris.push(5);
+        check_tree(&t, 6).unwrap();
+        let e = check_tree(&t, 5).unwrap_err();
+        assert!(
+            e.to_string().contains("triangle 5 is not in the scene"),
+            "{e}"
+        );
+        let mut t = chain(2);
+        t.nodes[0].split = 2.0;
+        assert!(matches!(check_tree(&t, 0), Err(CoreError::InvalidInput(_))));
+    }
+
+    fn spec(max_depth: i64, leaf_size: i64) -> StageSpec {
+        let mut s = StageSpec::new("kdtree");
+        for p in &info().params {
+            s.params.insert(p.name.into(), p.default.clone());
+        }
+        s.params
+            .insert("max_depth".into(), crsh_core::ParamValue::Int(max_depth));
+        s.params
+            .insert("leaf_size".into(), crsh_core::ParamValue::Int(leaf_size));
+        s
+    }
+
+    /// The host build honours `max_depth` (0: Havran's rule) and `leaf_size`, over the
+    /// hittable triangles only.
+    #[test]
+    fn build_honours_its_parameters() {
+        let scene = crsh_scene::builtin::build("cornell-mirrors").unwrap();
+        let n = scene.triangle_count();
+        for depth in [1, 4, 9] {
+            let t = build_tree_for(&scene, &spec(depth, 1)).unwrap();
+            t.validate().unwrap();
+            assert_eq!(i64::from(t.depth), depth);
+            assert_eq!(walked_depth(&t), t.depth);
+        }
+        let auto = build_tree_for(&scene, &spec(0, 1)).unwrap();
+        assert_eq!(auto.depth, auto_depth(n));
+        assert_eq!(auto_depth(n), 19, "{n} triangles");
+        let one = build_tree_for(&scene, &spec(0, 1 << 16)).unwrap();
+        assert_eq!((one.nodes.len(), one.leaves[0].count as usize), (1, n));
+        for leaf_size in [2, 8] {
+            // Only leaves at the depth limit hold more than `leaf_size` triangles.
+            let t = build_tree_for(&scene, &spec(12, leaf_size)).unwrap();
+            let mut work = vec![(0usize, 0u32)];
+            let mut full = 0;
+            while let Some((n, depth)) = work.pop() {
+                let node = t.nodes[n];
+                if node.is_leaf() {
+                    let count = t.leaves[node.index as usize].count as i64;
+                    assert!(
+                        count <= leaf_size || depth == 12,
+                        "{count} at depth {depth}"
+                    );
+                    full += usize::from(count == leaf_size);
+                } else {
+                    work.push((node.index as usize, depth + 1));
+                    work.push((node.index as usize + 1, depth + 1));
+                }
+            }
+            assert!(full > 0);
+        }
+        assert!(build_tree_for(&scene, &spec(i64::from(STACK) + 1, 1)).is_err());
+        assert!(build_tree_for(&scene, &spec(4, 0)).is_err());
     }
 }
