@@ -25,7 +25,6 @@
 //! - **Counts** are [`KdCounts`]'s, recorded as the CPU records them
 //!   ([`KdCounts::record`]): a bound test and an inner-node visit per inner node, a leaf visit
 //!   per leaf (empty ones included), a ray-triangle test per leaf triangle tested.
-//!
 //! - **Loop bound**: llvmpipe (Mesa's software rasterizer, the adapter of machines without a
 //!   GPU) silently ends every loop of an invocation once its loops have run 65535 iterations
 //!   in all. A probe loop at the end of each traversal detects that, and the query fails with
