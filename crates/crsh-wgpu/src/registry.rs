@@ -50,6 +50,7 @@ impl BuiltinVariants for Wgpu {
         crate::intersect::brute::register(registry)?;
         crate::intersect::bvh::register(registry)?;
         crate::intersect::grid::register(registry)?;
+        crate::intersect::kdtree::register(registry)?;
         crate::shade::phong::register(registry)?;
         crate::shade::ao::register(registry)?;
         crate::shade::diffuse::register(registry)?;
@@ -130,9 +131,8 @@ mod tests {
 
     /// Variants whose CPU twins are being written on another branch: they carry their own
     /// catalogue entries until the twins land, and are checked against them as soon as the CPU
-    /// registry has them. Empty: every GPU variant has its twin (seed 004's `tile` and
-    /// `tile_cone` landed and are registered under the CPU's entries).
-    const PENDING_CPU_TWINS: &[(StageKind, &str)] = &[];
+    /// registry has them: seed 003's `kdtree` (the CPU intersector is written alongside).
+    const PENDING_CPU_TWINS: &[(StageKind, &str)] = &[(StageKind::Intersect, "kdtree")];
 
     #[test]
     fn every_gpu_variant_has_its_cpu_twins_entry() {

@@ -1,9 +1,10 @@
 //! Exact ray-triangle intersection on the device: brute force (whole-scene and candidate
-//! queries) and the object-BVH baseline.
+//! queries), the object-BVH baseline, the uniform grid and RTTest's kd-tree.
 
 pub mod brute;
 pub mod bvh;
 pub mod grid;
+pub mod kdtree;
 
 /// Shared WGSL of the triangle tests (`kernels/mt.wgsl`).
 pub(crate) const MT_WGSL: &str = include_str!("../kernels/mt.wgsl");
