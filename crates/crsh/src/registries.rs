@@ -237,7 +237,7 @@ mod tests {
         assert!(e.to_string().contains("watertight"), "{e}");
         // Unknown everywhere stays unknown; slot mismatches stay what they are.
         let e = r
-            .resolve(&cfg("bvh", &["intersect.kind=kdtree"]), BackendKind::Wgpu)
+            .resolve(&cfg("bvh", &["intersect.kind=octree"]), BackendKind::Wgpu)
             .unwrap_err();
         assert!(matches!(e, CoreError::UnknownVariant { .. }), "{e}");
         let e = r
