@@ -570,7 +570,7 @@ fn bad_pipelines_are_errors_not_panics() {
     let run = |cfg: &PipelineConfig, reference: Option<&StageSpec>| {
         render(&scene, cfg, &o, reference, &mut |_| {}).map(|_| ())
     };
-    let unknown = config("bvh", &["intersect.kind=kdtree"]);
+    let unknown = config("bvh", &["intersect.kind=octree"]);
     assert!(matches!(
         run(&unknown, None),
         Err(CoreError::UnknownVariant { .. })

@@ -440,7 +440,7 @@ fn bad_input_gives_clear_errors() {
         (&["render", "--set", "intersect"], 2, "--set intersect"),
         (&["render", "--set", "nonsense"], 2, "expected key=value"),
         (&["render", "--set", "warp.speed=9"], 2, "unknown stage"),
-        (&["render", "--set", "intersect.kind=kdtree"], 2, "kdtree"),
+        (&["render", "--set", "intersect.kind=octree"], 2, "octree"),
         (&["render", "--set", "shade.ambiant=0.1"], 2, "ambiant"),
         (
             &["render", "--set", "shade.ambient=nan"],
@@ -457,7 +457,7 @@ fn bad_input_gives_clear_errors() {
             2,
             "primary.accel",
         ),
-        (&["render", "--pipeline", "kdtree"], 2, "unknown pipeline"),
+        (&["render", "--pipeline", "octree"], 2, "unknown pipeline"),
         (&["render", "--pipeline", "bad.toml"], 1, "bad.toml"),
         (&["render", "--pipeline", "absent.toml"], 1, "absent.toml"),
         (&["render", "--reference", "oracle"], 2, "oracle"),

@@ -214,8 +214,8 @@ fn bad_command_lines_exit_2() {
     let dir = scratch("bad");
     for (args, needle) in [
         (
-            &["stress", "--pipelines", "kdtree"][..],
-            "unknown pipeline `kdtree`",
+            &["stress", "--pipelines", "octree"][..],
+            "unknown pipeline `octree`",
         ),
         (&["stress", "--cases", "no-such-case"], "no case matches"),
         (&["stress", "--tests", "bogus"], "--tests"),

@@ -64,7 +64,7 @@ fn nothing_panics_and_only_expected_errors() {
 
 #[test]
 fn exact_pipelines_agree_with_brute_force() {
-    // Same intersect.test and offset: bvh, crsh and rah find exactly the hits brute does, so
+    // Same intersect.test and offset: bvh, kdtree, crsh and rah find exactly the hits brute does, so
     // every count column is equal.
     let mut brute = BTreeMap::new();
     for r in table().iter().filter(|r| r.variant.pipeline == "brute") {
@@ -90,7 +90,13 @@ fn exact_pipelines_agree_with_brute_force() {
         // triangle's box (rounding noise of a ray leaving the surface with a tiny `t_min`, or
         // the projected test's cancelling `t` far from the origin) can be culled: bvh may report
         // fewer self-intersections than brute force, and must agree on everything else.
-        if r.variant.pipeline == "bvh" && x.self_intersections != y.self_intersections {
+        // kdtree likewise, for another reason: an any-hit (shadow) ray's triangle is
+        // unspecified; the kd-tree visits leaves front to back and stops at the first hit, so
+        // a shadow ray from the light can report a real occluder where brute force reports the
+        // receiving triangle itself, grazed near `t_max` (stadium/teapot, `fixed`: 0 against 1).
+        if ["bvh", "kdtree"].contains(&r.variant.pipeline.as_str())
+            && x.self_intersections != y.self_intersections
+        {
             eprintln!(
                 "known: {}: {} self-intersections, brute force {}",
                 label(r),

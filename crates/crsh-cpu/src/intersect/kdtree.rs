@@ -742,3 +742,74 @@ mod tests {
         }
     }
 }
+
+/// Camera rays on the shared scenes against the BVH (`cargo test --release -p crsh-cpu --lib
+/// intersect::kdtree::bench -- --ignored --nocapture`); skipped when the scenes are absent.
+#[cfg(test)]
+mod bench {
+    use super::*;
+    use crate::intersect::bvh::{BuildQuality, CwBvh};
+
+    #[test]
+    #[ignore = "a measurement: run in release with --ignored --nocapture"]
+    fn camera_rays_against_the_bvh() {
+        let dir = std::env::var_os("CRSH_SCENES")
+            .map(std::path::PathBuf::from)
+            .unwrap_or_else(|| {
+                std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes")
+            });
+        for rel in ["sponza/sponza.toml", "dining-room/dining-room.toml"] {
+            let path = dir.join(rel);
+            if !path.is_file() {
+                eprintln!("SKIP: {} not found (set CRSH_SCENES)", path.display());
+                continue;
+            }
+            let scene = Arc::new(crsh_scene::load_path(&path).unwrap());
+            let (w, h) = (512u32, 512u32);
+            let rays: Vec<Ray> = (0..w * h)
+                .map(|p| {
+                    let (o, d) =
+                        crate::primary::raycast::camera_ray(&scene.camera, p % w, p / w, w, h);
+                    crate::intersect::brute::tests::test_ray(o, d, 0.0, f32::INFINITY, p as usize)
+                })
+                .collect();
+            let kd = KdIntersector::build(
+                &scene,
+                Build::Sah,
+                &SahParams::default(),
+                TestKind::MollerTrumbore,
+            );
+            let t0 = Instant::now();
+            let bvh = CwBvh::build(&scene, BuildQuality::Medium);
+            let bvh_build = t0.elapsed();
+            for (name, x, build) in [
+                ("kdtree", &kd as &dyn Intersector<Cpu>, kd.build_time()),
+                ("bvh", &bvh, bvh_build),
+            ] {
+                for mode in [HitMode::Closest, HitMode::Any] {
+                    let mut hits = vec![Hit::MISS; rays.len()];
+                    let mut stats = Stats::default();
+                    let t0 = Instant::now();
+                    x.intersect(&Cpu, &rays, Query::Scene, mode, &mut hits, &mut stats)
+                        .unwrap();
+                    let ms = t0.elapsed().as_secs_f64() * 1e3;
+                    let n = rays.len() as f64;
+                    let t = &stats.tests;
+                    eprintln!(
+                        "{rel} {name} {mode:?} (build {:.0} ms): {:.2} triangle tests, {:.2} \
+                         inner nodes, {:.2} leaves, {:.2} bounds per ray; {:.0} ms for {} rays; \
+                         {} hits",
+                        build.as_secs_f64() * 1e3,
+                        t.ray_triangle as f64 / n,
+                        t.inner_nodes as f64 / n,
+                        t.leaves as f64 / n,
+                        t.bounds as f64 / n,
+                        ms,
+                        rays.len(),
+                        hits.iter().filter(|h| h.is_hit()).count()
+                    );
+                }
+            }
+        }
+    }
+}
