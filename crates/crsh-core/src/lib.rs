@@ -66,8 +66,8 @@ pub use stage::{
     Intersector, PrimaryVisibility, Query, RayGen, RayHierarchy, Shader, Sorter, Traverser,
 };
 pub use stats::{
-    AccuracyCounts, CullStats, GenerationStats, KindStats, LevelStats, RayCounts, Stats,
-    TestCounts, HALF_ANGLE_BIN_EDGES_DEG, STAGE_TIMINGS,
+    AccuracyCounts, CullStats, GenerationStats, KindStats, LevelStats, PacketStats, RayCounts,
+    Stats, TestCounts, HALF_ANGLE_BIN_EDGES_DEG, STAGE_TIMINGS,
 };
 
 pub use glam;

@@ -151,6 +151,70 @@ pub struct KindStats {
     pub offset_ended: u64,
 }
 
+/// Coherent kd-tree traversal counters of one ray kind (seed 003 tables 4.1-4.5): the work of
+/// the traversal units (single rays, 2×2 packets, frusta, groups of four frusta, cones) over
+/// the rays they carry.
+///
+/// `N = nodes / packets` is the paper's "traversed nodes per packet", `I = packet_tests /
+/// packets` its "intersection tests per packet", and `culled_tests / (culled_tests +
+/// packet_tests)` table 4.2's "culled intersections".
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PacketStats {
+    /// 2×2 ray packets traced (a ray traced on its own counts as one packet).
+    pub packets: u64,
+    /// Kd-tree nodes (inner and leaf) entered by the traversal units: a ray, a packet, a
+    /// frustum or cone, or a group of four frusta (each node once per unit, however many of
+    /// its rays are active there).
+    pub nodes: u64,
+    /// Packet-triangle tests: one per packet and triangle tested, however many of its rays
+    /// take part.
+    pub packet_tests: u64,
+    /// Packet-triangle tests that packet/leaf culling avoided (packets whose rays all miss a
+    /// visited leaf's cell).
+    pub culled_tests: u64,
+    /// Ray groups (shared origin and screen tile) traced coherently.
+    pub groups: u64,
+    /// Rays traced on their own (no other ray of the batch shares their origin and tile,
+    /// or the traversal is `single`).
+    pub single_rays: u64,
+}
+
+impl PacketStats {
+    /// Adds `o` to these counters.
+    pub fn add(&mut self, o: &PacketStats) {
+        self.packets += o.packets;
+        self.nodes += o.nodes;
+        self.packet_tests += o.packet_tests;
+        self.culled_tests += o.culled_tests;
+        self.groups += o.groups;
+        self.single_rays += o.single_rays;
+    }
+
+    /// The paper's `N`: nodes traversed per packet (0 without packets).
+    pub fn nodes_per_packet(&self) -> f64 {
+        ratio(self.nodes, self.packets)
+    }
+
+    /// The paper's `I`: packet-triangle tests per packet (0 without packets).
+    pub fn tests_per_packet(&self) -> f64 {
+        ratio(self.packet_tests, self.packets)
+    }
+
+    /// Table 4.2's culled intersections: the fraction of packet-leaf tests that culling
+    /// avoided, `culled / (culled + done)` (0 when nothing was tested or culled).
+    pub fn culled_fraction(&self) -> f64 {
+        ratio(self.culled_tests, self.culled_tests + self.packet_tests)
+    }
+}
+
+fn ratio(a: u64, b: u64) -> f64 {
+    if b == 0 {
+        0.0
+    } else {
+        a as f64 / b as f64
+    }
+}
+
 /// Upper bin edges, in degrees, of [`GenerationStats::half_angle_histogram`]: bin `i < 10`
 /// counts the node cones whose half-angle is below `HALF_ANGLE_BIN_EDGES_DEG[i]` and not below
 /// the previous edge; the last bin (index 10) counts those of 90° and more, which bound no
@@ -324,6 +388,11 @@ pub struct Stats {
     /// hierarchy's cone widths ([`GenerationStats`]).
     #[serde(default)]
     pub generations: Vec<GenerationStats>,
+    /// Coherent kd-tree traversal counters per ray kind ([`RayKind::name`]; seed 003's `N`,
+    /// `I` and culling, [`PacketStats`]); empty unless a coherent traversal ran. Added to
+    /// with [`Stats::add_packets`].
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub packets: BTreeMap<String, PacketStats>,
 }
 
 impl Stats {
@@ -355,6 +424,14 @@ impl Stats {
                 .or_default()
                 .offset_ended += n;
         }
+    }
+
+    /// Adds coherent-traversal counters of `kind` rays ([`Stats::packets`]).
+    pub fn add_packets(&mut self, kind: RayKind, counts: &PacketStats) {
+        self.packets
+            .entry(kind.name().to_string())
+            .or_default()
+            .add(counts);
     }
 
     /// Adds `d` to the stage timer `key`.
@@ -439,6 +516,35 @@ mod tests {
         assert_eq!(s.levels[0].misses, 10);
         s.rays.add(RayKind::Reflection, 5);
         assert_eq!(s.rays.total(), 5);
+    }
+
+    #[test]
+    fn packet_counters_add_per_kind_and_stay_out_of_old_json() {
+        let mut s = Stats::default();
+        let json = serde_json::to_string(&s).unwrap();
+        assert!(!json.contains("packets"), "{json}");
+        let back: Stats = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, s);
+        let p = PacketStats {
+            packets: 4,
+            nodes: 10,
+            packet_tests: 6,
+            culled_tests: 2,
+            groups: 1,
+            single_rays: 0,
+        };
+        s.add_packets(RayKind::Primary, &p);
+        s.add_packets(RayKind::Primary, &p);
+        s.add_packets(RayKind::Shadow, &p);
+        let q = &s.packets["primary"];
+        assert_eq!(q.packets, 8);
+        assert_eq!(q.nodes_per_packet(), 2.5);
+        assert_eq!(q.tests_per_packet(), 1.5);
+        assert_eq!(q.culled_fraction(), 0.25);
+        assert_eq!(s.packets.len(), 2);
+        let back: Stats = serde_json::from_str(&serde_json::to_string(&s).unwrap()).unwrap();
+        assert_eq!(back, s);
+        assert_eq!(PacketStats::default().nodes_per_packet(), 0.0);
     }
 
     #[test]
