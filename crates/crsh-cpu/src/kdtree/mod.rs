@@ -36,7 +36,15 @@
 //! point is listed there. So hits (triangle, `t`, `u`, `v`) are brute force's with the same
 //! triangle test, ties on `t` included (a tie on a cell boundary keeps the ray going).
 
+pub mod coherent;
+pub mod cone;
+pub mod frustum;
+pub mod group;
+pub mod mft;
 pub mod middle;
+pub mod omni;
+pub mod packet;
+pub mod simd;
 
 use bytemuck::{Pod, Zeroable};
 use crsh_core::glam::Vec3;
