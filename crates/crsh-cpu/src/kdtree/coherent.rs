@@ -987,4 +987,19 @@ mod tests {
             }
         }
     }
+
+    /// A ray that never crosses a plane (crossing `+∞`) gets no interval in the back child
+    /// (`∞ − ∞·T_SLACK` was NaN and `max(near, NaN)` gave it the whole interval, so a single
+    /// ray visited nearly the whole tree).
+    #[test]
+    fn descend_gives_a_never_crossed_back_child_nothing() {
+        let inf = f32::INFINITY;
+        assert_eq!(
+            crate::kdtree::descend(0.5, 5.0, inf, inf),
+            (Some((0.5, 5.0)), None)
+        );
+        let (f, b) = crate::kdtree::descend(0.5, 5.0, 2.0, inf);
+        assert_eq!(f, Some((0.5, 5.0)));
+        assert!(b.unwrap().0 < 2.0);
+    }
 }

@@ -311,8 +311,18 @@ pub fn descend(
     d_min: f32,
     d_max: f32,
 ) -> (Option<Interval>, Option<Interval>) {
-    let hi = d_max + d_max.abs() * T_SLACK;
-    let lo = d_min - d_min.abs() * T_SLACK;
+    // An infinite crossing stays infinite (`∞ − ∞·T_SLACK` would be NaN, and `max(near, NaN)`
+    // would hand the back child the whole interval of a ray that never reaches it).
+    let hi = if d_max.is_finite() {
+        d_max + d_max.abs() * T_SLACK
+    } else {
+        d_max
+    };
+    let lo = if d_min.is_finite() {
+        d_min - d_min.abs() * T_SLACK
+    } else {
+        d_min
+    };
     let front_far = far.min(hi);
     let back_near = near.max(lo);
     (
