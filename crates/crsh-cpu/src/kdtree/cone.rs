@@ -74,11 +74,11 @@ impl Cone {
             .map(|d| d.as_dvec3().normalize_or_zero())
             .collect();
         let axis = units.iter().copied().sum::<DVec3>().normalize_or_zero();
-        if axis == DVec3::ZERO || units.iter().any(|u| *u == DVec3::ZERO) {
+        if axis == DVec3::ZERO || units.contains(&DVec3::ZERO) {
             return None;
         }
         let cos = units.iter().map(|u| u.dot(axis)).fold(1.0f64, f64::min);
-        if !(cos >= MIN_COS) {
+        if cos.is_nan() || cos < MIN_COS {
             return None;
         }
         let cos = cos.min(1.0);

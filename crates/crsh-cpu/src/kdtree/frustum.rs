@@ -102,6 +102,19 @@ impl Proxy {
         (past(dist * m[0]), past(dist * m[1]))
     }
 
+    /// For an origin on a split plane on `axis`: whether some direction of the proxy does not
+    /// move strictly up the axis (so the left child, `≤ split`, is needed) and whether some
+    /// does not move strictly down (the right child). Read off the sentinels: `m[axis][0][1]`
+    /// is [`NEVER_POS`] exactly when some direction does not point up, `m[axis][1][1]` is
+    /// [`NEVER_NEG`] exactly when some does not point down.
+    #[inline(always)]
+    pub fn on_plane(&self, axis: usize) -> (bool, bool) {
+        (
+            self.m[axis][0][1] == NEVER_POS,
+            self.m[axis][1][1] == NEVER_NEG,
+        )
+    }
+
     /// The pyramid (frustum) proxy of rays with directions `dirs` from one origin (module
     /// doc): per axis the extremes of the crossing inverses, 4 rays at a time. `None` without
     /// rays.
@@ -215,12 +228,20 @@ pub fn trace_proxy<T: TriangleTest>(
             let a = n.axis as usize;
             let (front, back, dist) = front_back(n, o[a]);
             if dist == 0.0 {
-                stack.push(Entry {
-                    node: back as u32,
-                    near,
-                    far,
-                });
-                node = front as u32;
+                let left = n.index;
+                match proxy.on_plane(a) {
+                    (true, true) => {
+                        stack.push(Entry {
+                            node: left + 1,
+                            near,
+                            far,
+                        });
+                        node = left;
+                    }
+                    (true, false) => node = left,
+                    (false, true) => node = left + 1,
+                    (false, false) => break,
+                }
                 continue;
             }
             let (d_min, d_max) = proxy.crossings(a, dist);

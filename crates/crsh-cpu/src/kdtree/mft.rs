@@ -23,7 +23,7 @@
 //! lane keeps its own units (`t` for a pyramid, `h` for a cone), which never mix.
 
 use super::cone::Cone;
-use super::frustum::{live_dirs, root_span, Proxy};
+use super::frustum::{live_dirs, root_span, Proxy, NEVER_NEG, NEVER_POS};
 use super::group::GroupState;
 use super::simd::F4;
 use super::{front_back, T_SLACK};
@@ -79,10 +79,10 @@ pub fn trace_group<T: TriangleTest>(
         };
         (near[q], far[q]) = (n, f);
         mask |= 1 << q;
-        for (a, ma) in m.iter_mut().enumerate() {
-            for s in 0..2 {
-                for b in 0..2 {
-                    ma[s][b][q] = proxy.m[a][s][b];
+        for (ma, pa) in m.iter_mut().zip(&proxy.m) {
+            for (ms, ps) in ma.iter_mut().zip(pa) {
+                for (mb, pb) in ms.iter_mut().zip(ps) {
+                    mb[q] = *pb;
                 }
             }
         }
@@ -90,6 +90,12 @@ pub fn trace_group<T: TriangleTest>(
     if mask == 0 {
         return;
     }
+    // Lanes needing the left / right child when the origin is on a split plane
+    // (`Proxy::on_plane`).
+    let lane_bits =
+        |f: &dyn Fn(usize) -> bool| (0..4).filter(|&q| f(q)).fold(0u32, |b, q| b | 1 << q);
+    let on_left: [u32; 3] = std::array::from_fn(|a| lane_bits(&|q| m[a][0][1][q] == NEVER_POS));
+    let on_right: [u32; 3] = std::array::from_fn(|a| lane_bits(&|q| m[a][1][1][q] == NEVER_NEG));
     let m = m.map(|ma| ma.map(|ms| ms.map(F4::new)));
     let tree = st.tree;
     let o = st.origin;
@@ -132,21 +138,30 @@ pub fn trace_group<T: TriangleTest>(
             let a = n.axis as usize;
             let (front, back, dist) = front_back(n, o[a]);
             if dist == 0.0 {
-                stack.push(MftEntry {
-                    node: back as u32,
-                    near,
-                    far,
-                    mask,
-                });
-                node = front as u32;
+                let left = n.index;
+                let (lb, rb) = (mask & on_left[a], mask & on_right[a]);
+                match (lb != 0, rb != 0) {
+                    (true, true) => {
+                        stack.push(MftEntry {
+                            node: left + 1,
+                            near,
+                            far,
+                            mask: rb,
+                        });
+                        (node, mask) = (left, lb);
+                    }
+                    (true, false) => (node, mask) = (left, lb),
+                    (false, true) => (node, mask) = (left + 1, rb),
+                    (false, false) => break,
+                }
                 continue;
             }
             // Step 3: the four crossing ranges, negative ones +∞.
             let ms = &m[a][usize::from(dist < 0.0)];
             let d = F4::splat(dist);
             let past = |x: F4| F4::select(x.ge(zero), x, inf);
-            let lo = past(d.mul(ms[0])).mul(lo_f);
-            let hi = past(d.mul(ms[1])).mul(hi_f);
+            let lo = past(d * ms[0]) * lo_f;
+            let hi = past(d * ms[1]) * hi_f;
             let front_far = far.min(hi);
             let back_near = near.max(lo);
             let fm = near.le(front_far).bits() & mask;

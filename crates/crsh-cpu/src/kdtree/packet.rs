@@ -78,6 +78,15 @@ pub fn trace_lanes<T: TriangleTest>(
         }
     }
     let inv = inv.map(F4::new);
+    // Lanes moving strictly up / down each axis (a zero component moves neither way).
+    let ninf = F4::splat(f32::NEG_INFINITY);
+    let up = inv.map(|i| {
+        F4::splat(0.0)
+            .lt(i)
+            .and(i.lt(F4::splat(f32::INFINITY)))
+            .bits()
+    });
+    let down = inv.map(|i| i.lt(F4::splat(0.0)).and(ninf.lt(i)).bits());
     let (lo_f, hi_f) = (F4::splat(1.0 - T_SLACK), F4::splat(1.0 + T_SLACK));
     let inf = F4::splat(f32::INFINITY);
     let zero = F4::splat(0.0);
@@ -121,26 +130,39 @@ pub fn trace_lanes<T: TriangleTest>(
                 Order::Omni => front_back(n, o[a]),
             };
             if dist == 0.0 {
-                // Origin on the plane: both children, whole intervals.
-                stack.push(PacketEntry {
-                    node: second as u32,
-                    near,
-                    far,
-                });
-                node = first as u32;
+                // Origin on the plane: a lane moving up the axis is in the right child for
+                // every t > 0, one moving down in the left child, one with a zero component
+                // in both; each with its whole interval.
+                let left = n.index;
+                let lb = active.bits() & !up[a];
+                let rb = active.bits() & !down[a];
+                let only = |bits: u32| F4::select(M4::from_bits(bits), near, inf);
+                match (lb != 0, rb != 0) {
+                    (true, true) => {
+                        stack.push(PacketEntry {
+                            node: left + 1,
+                            near: only(rb),
+                            far,
+                        });
+                        (node, near) = (left, only(lb));
+                    }
+                    (true, false) => (node, near) = (left, only(lb)),
+                    (false, true) => (node, near) = (left + 1, only(rb)),
+                    (false, false) => break,
+                }
                 continue;
             }
-            let d = F4::splat(dist).mul(inv[a]);
+            let d = F4::splat(dist) * inv[a];
             let (lo, hi) = match order {
                 Order::Signs(_) => {
                     // A crossing behind the origin is negative: the far child only.
-                    let (x, y) = (d.mul(lo_f), d.mul(hi_f));
+                    let (x, y) = (d * lo_f, d * hi_f);
                     (x.min(y), x.max(y))
                 }
                 Order::Omni => {
                     // Modification 1: negative distances count as +∞.
                     let d = F4::select(d.ge(zero), d, inf);
-                    (d.mul(lo_f), d.mul(hi_f))
+                    (d * lo_f, d * hi_f)
                 }
             };
             let first_far = far.min(hi);

@@ -66,11 +66,6 @@ mod imp {
         pub fn max(self, b: F4) -> F4 {
             F4(unsafe { _mm_max_ps(self.0, b.0) })
         }
-        /// Lane-wise product.
-        #[inline(always)]
-        pub fn mul(self, b: F4) -> F4 {
-            F4(unsafe { _mm_mul_ps(self.0, b.0) })
-        }
         /// Lane-wise `a < b`.
         #[inline(always)]
         pub fn lt(self, b: F4) -> M4 {
@@ -90,6 +85,15 @@ mod imp {
         #[inline(always)]
         pub fn select(m: M4, a: F4, b: F4) -> F4 {
             F4(unsafe { _mm_or_ps(_mm_and_ps(m.0, a.0), _mm_andnot_ps(m.0, b.0)) })
+        }
+    }
+
+    impl std::ops::Mul for F4 {
+        type Output = F4;
+        /// Lane-wise product.
+        #[inline(always)]
+        fn mul(self, b: F4) -> F4 {
+            F4(unsafe { _mm_mul_ps(self.0, b.0) })
         }
     }
 
@@ -160,11 +164,6 @@ mod imp {
                 }
             }))
         }
-        /// Lane-wise product.
-        #[inline(always)]
-        pub fn mul(self, b: F4) -> F4 {
-            F4(std::array::from_fn(|l| self.0[l] * b.0[l]))
-        }
         /// Lane-wise `a < b`.
         #[inline(always)]
         pub fn lt(self, b: F4) -> M4 {
@@ -186,6 +185,15 @@ mod imp {
             F4(std::array::from_fn(
                 |l| if m.0[l] { a.0[l] } else { b.0[l] },
             ))
+        }
+    }
+
+    impl std::ops::Mul for F4 {
+        type Output = F4;
+        /// Lane-wise product.
+        #[inline(always)]
+        fn mul(self, b: F4) -> F4 {
+            F4(std::array::from_fn(|l| self.0[l] * b.0[l]))
         }
     }
 
@@ -264,7 +272,7 @@ mod tests {
         assert_eq!(F4::new([3.0, -2.0, 8.0, 1.0]).hmin(), -2.0);
         assert_eq!(F4::new([3.0, -2.0, 8.0, 1.0]).hmax(), 8.0);
         assert_eq!(
-            F4::splat(2.0).mul(F4::new([1.0, 2.0, 3.0, 4.0])).lane(3),
+            (F4::splat(2.0) * F4::new([1.0, 2.0, 3.0, 4.0])).lane(3),
             8.0
         );
         let m = M4::from_bits(0b0011).and(M4::from_bits(0b0110));
