@@ -976,12 +976,17 @@ mod tests {
             rows.push((Traversal::Packet, 2, false, Shape::Pyramid));
             rows.push((Traversal::Omni, 2, false, Shape::Pyramid));
             for tile in TILES {
-                for t in [Traversal::Frustum, Traversal::Mft, Traversal::Cone] {
-                    for cull in [false, true] {
+                // Without culling only at 8×8 (table 4.2) and 16×16 (the MFT criterion):
+                // larger tiles without culling test every packet at every leaf.
+                for cull in [false, true] {
+                    if !cull && tile != 8 && tile != 16 {
+                        continue;
+                    }
+                    for t in [Traversal::Frustum, Traversal::Mft, Traversal::Cone] {
                         rows.push((t, tile, cull, Shape::Pyramid));
                     }
+                    rows.push((Traversal::Mft, tile, cull, Shape::Cone));
                 }
-                rows.push((Traversal::Mft, tile, true, Shape::Cone));
             }
             for (t, tile, cull, shape) in rows {
                 let o = CoherentOptions {

@@ -249,7 +249,12 @@ impl<'t, T: TriangleTest> GroupState<'t, T> {
     /// for bit the scalar test), merging hits as brute force does ([`Hit::closer_than`]).
     /// With `cull`, the packet is skipped (and its avoided tests counted) when none of those
     /// rays' intervals meets the leaf's cell (packet/leaf culling, §4.1.4; the widened slab
-    /// test of [`clip`], so a ray through the cell is never culled). Afterwards an any-hit
+    /// test of [`clip`], so a ray through the cell is never culled). Being per ray, this
+    /// culling keeps a packet at a leaf exactly when (up to rounding margins) one of its
+    /// unfinished rays passes through the cell: the leaves where 2×2 packet traversal tests
+    /// it, so a culled tile traversal has the packets' `I` for closest-hit rays (the paper's
+    /// culled frusta have 2-6× its packets' `I`, table 4.1: its culling is coarser, or keeps
+    /// testing packets whose rays have hit). Afterwards an any-hit
     /// ray with a hit, or a closest-hit ray whose best hit the leaf
     /// [`holds_final`](super::KdLeaf::holds_final), is finished.
     pub fn test_packet(&mut self, leaf: usize, p: usize, lanes: u32, cull: bool) {

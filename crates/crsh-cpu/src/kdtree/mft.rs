@@ -15,9 +15,11 @@
 //!
 //! Each lane uses exactly the arithmetic of the single frustum ([`super::frustum::Proxy`],
 //! [`super::frustum::widen_lo`] / [`super::frustum::widen_hi`], SSE's min/max rule), and a
-//! quadrant's crossing range lies inside its tile's, so MFT never visits a node or tests a
-//! packet at a leaf that the single frustum over the whole tile would not (§4.1.5: "MFT never
-//! performs more traversal or intersection operations").
+//! quadrant's crossing range lies inside its tile's, so for closest-hit rays MFT never visits
+//! a node or tests a packet at a leaf that the single frustum over the whole tile would not
+//! (§4.1.5: "MFT never performs more traversal or intersection operations"; a closest-hit ray
+//! finishes at the same leaf in both). Any-hit rays finish at their first hit, which the
+//! single frustum, testing more packets, may find earlier, so there the bound can fail.
 //!
 //! The lanes may be cones instead of pyramids ([`Shape::Cone`], table 4.5's "MFT cone"): each
 //! lane keeps its own units (`t` for a pyramid, `h` for a cone), which never mix.
