@@ -855,7 +855,7 @@ mod tests {
                 // Omni never splits a quad.
                 assert!(omni.nodes <= pk.nodes, "{name}: {omni:?} {pk:?}");
                 assert_eq!(pk.packets, omni.packets);
-                for tile in TILES {
+                for tile in [4, 8, 16] {
                     for t in [Traversal::Frustum, Traversal::Mft, Traversal::Cone] {
                         let off = counts(&fx, rays, want, o(t, tile, false), Shape::Pyramid);
                         let on = counts(&fx, rays, want, o(t, tile, true), Shape::Pyramid);

@@ -387,13 +387,21 @@ pub fn walk_leaves(
             let a = n.axis as usize;
             let (front, back, dist) = front_back(n, origin[a]);
             if dist == 0.0 {
-                // On the plane: the ray may go either way; keep both sides whole.
-                stack.push(Entry {
-                    node: back as u32,
-                    near,
-                    far,
-                });
-                node = front as u32;
+                // On the plane: for t > 0 the ray lies strictly on the side its direction
+                // points to (`front` is the left child here); with a zero component it stays
+                // on the plane, in both cells. Whole interval either way.
+                if dir[a] > 0.0 {
+                    node = back as u32;
+                } else if dir[a] < 0.0 {
+                    node = front as u32;
+                } else {
+                    stack.push(Entry {
+                        node: back as u32,
+                        near,
+                        far,
+                    });
+                    node = front as u32;
+                }
                 continue;
             }
             let d = crossing(dist, inv[a]);
