@@ -129,21 +129,14 @@ mod tests {
     use super::*;
     use crsh_core::StageKind;
 
-    /// Variants whose CPU twins are being written on another branch: they carry their own
-    /// catalogue entries until the twins land, and are checked against them as soon as the CPU
-    /// registry has them: seed 003's `kdtree` (the CPU intersector is written alongside).
-    const PENDING_CPU_TWINS: &[(StageKind, &str)] = &[(StageKind::Intersect, "kdtree")];
-
     #[test]
     fn every_gpu_variant_has_its_cpu_twins_entry() {
         let cpu = Registry::<Cpu>::builtin();
         let gpu = Registry::<Wgpu>::builtin();
         for v in gpu.variants() {
-            let pending = PENDING_CPU_TWINS.contains(&(v.stage, v.name));
-            let Some(twin) = cpu.variant(v.stage, v.name) else {
-                assert!(pending, "{} {} has no CPU twin", v.stage, v.name);
-                continue;
-            };
+            let twin = cpu
+                .variant(v.stage, v.name)
+                .unwrap_or_else(|| panic!("{} {} has no CPU twin", v.stage, v.name));
             assert_eq!(v.doc, twin.doc);
             assert_eq!(v.scene_only, twin.scene_only);
             let names = |i: &StageVariantInfo| i.params.iter().map(|p| p.name).collect::<Vec<_>>();

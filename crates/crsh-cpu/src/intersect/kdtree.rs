@@ -51,8 +51,8 @@ use std::time::{Duration, Instant};
 
 use crsh_core::glam::Vec3;
 use crsh_core::{
-    CoreError, Hit, HitMode, Intersector, ParamInfo, Query, Ray, Registry, Result, StageKind,
-    StageSpec, StageVariantInfo, Stats,
+    CoreError, Hit, HitMode, Intersector, ParamInfo, Query, Ray, RayKind, Registry, Result,
+    StageKind, StageSpec, StageVariantInfo, Stats,
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
@@ -60,6 +60,7 @@ use rayon::prelude::*;
 use crate::backend::Cpu;
 use crate::intersect::brute::{check_batch, test_kind};
 use crate::intersect::bvh::{test_param, CHUNK};
+use crate::kdtree::coherent::{trace_batch, CoherentOptions, Traversal};
 use crate::kdtree::sah::{self, SahParams, MAX_DEPTH_LIMIT};
 use crate::kdtree::{middle, trace_single, KdCounts, KdTree};
 use crate::triangle::{
@@ -157,15 +158,51 @@ pub fn info() -> StageVariantInfo {
     );
     build_params()
         .into_iter()
+        .chain(traversal_params())
         .fold(info, StageVariantInfo::param)
         .param(test_param())
         .scene_only()
 }
 
+/// The traversal parameters (`traversal`, `tile_size`, `leaf_culling`): seed 003's coherent
+/// traversals of rays sharing an origin ([`crate::kdtree::coherent`]).
+pub fn traversal_params() -> Vec<ParamInfo> {
+    vec![
+        ParamInfo::choice(
+            "traversal",
+            "single",
+            &TRAVERSAL_NAMES,
+            "`single`: each ray alone (listing 2.2); `packet`: 2×2 packets, sign-coherent \
+             (listing 2.4); `omni`: omni-directional 2×2 packets (listing 4.1); `frustum`: one \
+             interval frustum per tile (listing 4.2); `mft`: four quadrant frusta per tile \
+             (§4.1.5); `cone`: one cone per tile (eq. 4.8). Camera and point-light shadow rays \
+             sharing an origin are grouped; other rays go alone",
+        ),
+        ParamInfo::int(
+            "tile_size",
+            8,
+            i64::from(CoherentOptions::MIN_TILE),
+            i64::from(CoherentOptions::MAX_TILE),
+            "tile side in pixels of frustum, mft and cone (even; the paper's 4 to 32)",
+        ),
+        ParamInfo::bool(
+            "leaf_culling",
+            true,
+            "packet/leaf culling (§4.1.4): a tile traversal skips a packet whose rays all miss \
+             a leaf's cell",
+        ),
+    ]
+}
+
+/// The names `traversal` accepts, in [`Traversal::ALL`] order.
+pub const TRAVERSAL_NAMES: [&str; 6] = ["single", "packet", "omni", "frustum", "mft", "cone"];
+
 /// Registers `kdtree` ([`info`], [`KdIntersector::new`]).
 pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
     registry.add_intersector(info(), |ctx, spec| {
-        Ok(Box::new(KdIntersector::new(ctx.scene, spec)?))
+        Ok(Box::new(
+            KdIntersector::new(ctx.scene, spec)?.with_traversal(spec, ctx.frame.width)?,
+        ))
     })?;
     Ok(())
 }
@@ -262,6 +299,7 @@ pub fn build_tree(scene: &Scene, spec: &StageSpec, test: TestKind) -> Result<KdT
 
 /// The `kdtree` intersector: the tree and every scene triangle prepared for the test.
 pub struct KdIntersector {
+    coherent: CoherentOptions,
     tree: KdTree,
     tris: AnyTriangleSet,
     build: Build,
@@ -302,12 +340,51 @@ impl KdIntersector {
         let tree = build_with(&hittable_triangles(scene, test), build, params);
         let build_time = t0.elapsed();
         KdIntersector {
+            coherent: CoherentOptions::new(Traversal::Single, 1),
             tree,
             tris: AnyTriangleSet::new(scene, test),
             build,
             params: *params,
             build_time,
         }
+    }
+
+    /// This intersector tracing with the traversal parameters of `spec`
+    /// ([`traversal_params`]; a spec without them keeps `single`) on an image `width` pixels
+    /// wide (the pixels of [`Ray::pixel`], which place rays in tiles).
+    ///
+    /// # Errors
+    /// An unknown `traversal`, an odd or out-of-range `tile_size`, a zero width.
+    pub fn with_traversal(mut self, spec: &StageSpec, width: u32) -> Result<KdIntersector> {
+        let bad = |key: &str, reason: String| CoreError::InvalidParam {
+            key: format!("kdtree.{key}"),
+            reason,
+        };
+        let name = spec.str("traversal").unwrap_or("single");
+        let traversal = Traversal::from_name(name).ok_or_else(|| {
+            bad(
+                "traversal",
+                format!("`{name}` is not one of {}", TRAVERSAL_NAMES.join(", ")),
+            )
+        })?;
+        let opts = CoherentOptions {
+            traversal,
+            tile_size: spec
+                .i64("tile_size")
+                .ok()
+                .map_or(Ok(8), u32::try_from)
+                .map_err(|_| bad("tile_size", "is negative or too large".into()))?,
+            leaf_culling: spec.bool("leaf_culling").unwrap_or(true),
+            width,
+        };
+        opts.validate().map_err(|e| bad("tile_size", e))?;
+        self.coherent = opts;
+        Ok(self)
+    }
+
+    /// The traversal options.
+    pub fn coherent(&self) -> &CoherentOptions {
+        &self.coherent
     }
 
     /// The tree.
@@ -396,17 +473,21 @@ impl Intersector<Cpu> for KdIntersector {
             HitMode::Closest | HitMode::Any => {}
         }
         check_batch(rays, hits)?;
-        let counts = match &self.tris {
+        let o = &self.coherent;
+        let (counts, packets) = match &self.tris {
             AnyTriangleSet::MollerTrumbore(s) => {
-                trace_rays::<MollerTrumbore>(&self.tree, s.triangles(), rays, mode, hits)
+                trace_batch::<MollerTrumbore>(&self.tree, s.triangles(), rays, mode, hits, o)
             }
             AnyTriangleSet::Watertight(s) => {
-                trace_rays::<Watertight>(&self.tree, s.triangles(), rays, mode, hits)
+                trace_batch::<Watertight>(&self.tree, s.triangles(), rays, mode, hits, o)
             }
             AnyTriangleSet::Projected(s) => {
-                trace_rays::<Projected>(&self.tree, s.triangles(), rays, mode, hits)
+                trace_batch::<Projected>(&self.tree, s.triangles(), rays, mode, hits, o)
             }
         };
+        if let Some(kind) = rays.first().and_then(|r| RayKind::from_u32(r.kind)) {
+            packets.record(kind, stats);
+        }
         counts.record(stats);
         Ok(())
     }

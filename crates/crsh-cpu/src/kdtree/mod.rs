@@ -36,8 +36,16 @@
 //! point is listed there. So hits (triangle, `t`, `u`, `v`) are brute force's with the same
 //! triangle test, ties on `t` included (a tie on a cell boundary keeps the ray going).
 
+pub mod coherent;
+pub mod cone;
+pub mod frustum;
+pub mod group;
+pub mod mft;
 pub mod middle;
+pub mod omni;
+pub mod packet;
 pub mod sah;
+pub mod simd;
 
 use bytemuck::{Pod, Zeroable};
 use crsh_core::glam::Vec3;
@@ -249,14 +257,14 @@ pub fn clip(bounds: &Aabb, origin: Vec3, dir: Vec3, t_min: f32, t_max: f32) -> O
         let inv = 1.0 / dir[a];
         let t0 = (bounds.min[a] - origin[a]) * inv;
         let t1 = (bounds.max[a] - origin[a]) * inv;
-        let (lo, hi) = if t0 <= t1 { (t0, t1) } else { (t1, t0) };
-        if lo.is_nan() || hi.is_nan() {
-            // dir[a] == 0 and the origin on a face: inside the slab for every t.
+        if dir[a] == 0.0 {
+            // Parallel to the slab: inside it for every t, or never.
             if origin[a] < bounds.min[a] || origin[a] > bounds.max[a] {
                 return None;
             }
             continue;
         }
+        let (lo, hi) = if t0 <= t1 { (t0, t1) } else { (t1, t0) };
         near = near.max(lo - lo.abs() * T_SLACK);
         far = far.min(hi + hi.abs() * T_SLACK);
     }
@@ -304,13 +312,17 @@ pub fn descend(
     d_min: f32,
     d_max: f32,
 ) -> (Option<Interval>, Option<Interval>) {
-    let hi = d_max + d_max.abs() * T_SLACK;
-    // A crossing at +∞ (never, `crossing`) stays +∞: `∞ − ∞·T_SLACK` is NaN, which `max`
-    // would ignore, opening the back child to the whole interval.
-    let lo = if d_min == f32::INFINITY {
-        d_min
+    // An infinite crossing stays infinite (`∞ − ∞·T_SLACK` would be NaN, and `max(near, NaN)`
+    // would hand the back child the whole interval of a ray that never reaches it).
+    let hi = if d_max.is_finite() {
+        d_max + d_max.abs() * T_SLACK
     } else {
+        d_max
+    };
+    let lo = if d_min.is_finite() {
         d_min - d_min.abs() * T_SLACK
+    } else {
+        d_min
     };
     let front_far = far.min(hi);
     let back_near = near.max(lo);
@@ -348,6 +360,27 @@ pub fn walk_leaves(
     stack: &mut Vec<Entry>,
     mut leaf: impl FnMut(usize, f32, f32) -> bool,
 ) -> u64 {
+    let go_on = |l, near, far| leaf(l, near, far).then_some(f32::INFINITY);
+    walk_leaves_until(tree, origin, dir, t_min, t_max, f32::INFINITY, stack, go_on)
+}
+
+/// [`walk_leaves`] whose `leaf` returns how far the ray still needs to go: `None` stops,
+/// `Some(limit)` goes on and skips every stacked subtree whose interval starts beyond
+/// `limit` (for a closest-hit ray: its best `t`; the intervals are widened, so a subtree
+/// that could hold a hit at `t ≤ limit` is never skipped). `limit` is the one in force
+/// before the first leaf.
+#[inline]
+#[allow(clippy::too_many_arguments)]
+pub fn walk_leaves_until(
+    tree: &KdTree,
+    origin: Vec3,
+    dir: Vec3,
+    t_min: f32,
+    t_max: f32,
+    mut limit: f32,
+    stack: &mut Vec<Entry>,
+    mut leaf: impl FnMut(usize, f32, f32) -> Option<f32>,
+) -> u64 {
     let mut inner = 0;
     stack.clear();
     let Some((near, far)) = (!tree.nodes.is_empty())
@@ -364,11 +397,15 @@ pub fn walk_leaves(
         mut far,
     }) = stack.pop()
     {
+        if near > limit {
+            continue;
+        }
         loop {
             let n = &tree.nodes[node as usize];
             if n.is_leaf() {
-                if !leaf(n.index as usize, near, far) {
-                    return inner;
+                match leaf(n.index as usize, near, far) {
+                    Some(l) => limit = l,
+                    None => return inner,
                 }
                 break;
             }
@@ -376,13 +413,21 @@ pub fn walk_leaves(
             let a = n.axis as usize;
             let (front, back, dist) = front_back(n, origin[a]);
             if dist == 0.0 {
-                // On the plane: the ray may go either way; keep both sides whole.
-                stack.push(Entry {
-                    node: back as u32,
-                    near,
-                    far,
-                });
-                node = front as u32;
+                // On the plane: for t > 0 the ray lies strictly on the side its direction
+                // points to (`front` is the left child here); with a zero component it stays
+                // on the plane, in both cells. Whole interval either way.
+                if dir[a] > 0.0 {
+                    node = back as u32;
+                } else if dir[a] < 0.0 {
+                    node = front as u32;
+                } else {
+                    stack.push(Entry {
+                        node: back as u32,
+                        near,
+                        far,
+                    });
+                    node = front as u32;
+                }
                 continue;
             }
             let d = crossing(dist, inv[a]);
@@ -433,7 +478,8 @@ pub fn test_leaf<T: TriangleTest>(
 
 /// Listing 2.2, fixed: traces one ray front to back through `tree` with test `T`, merging into
 /// `best` (any hit: skipped when `best` already is a hit, stops at the first hit). Closest
-/// hits stop at the first leaf that [`KdLeaf::holds_final`] the best hit (module doc).
+/// hits stop at the first leaf that [`KdLeaf::holds_final`] the best hit (module doc), and
+/// skip the stacked subtrees that start beyond it ([`walk_leaves_until`]).
 pub fn trace_single<T: TriangleTest>(
     tree: &KdTree,
     tris: &[T::Tri],
@@ -449,21 +495,29 @@ pub fn trace_single<T: TriangleTest>(
         return n;
     }
     let r = T::ray_of(ray);
-    n.inner = walk_leaves(
+    let limit = match mode {
+        HitMode::Any => f32::INFINITY,
+        _ => best.t,
+    };
+    n.inner = walk_leaves_until(
         tree,
         ray.origin,
         ray.dir,
         ray.t_min,
         ray.t_max,
+        limit,
         stack,
         |l, _, _| {
             n.leaves += 1;
             let leaf = &tree.leaves[l];
             n.tests += test_leaf::<T>(tree, tris, leaf, ray, &r, mode, best);
-            match mode {
-                HitMode::Any => !best.is_hit(),
-                _ => !(best.is_hit() && leaf.holds_final(ray.at(best.t))),
-            }
+            let finished = match mode {
+                HitMode::Any => best.is_hit(),
+                _ => best.is_hit() && leaf.holds_final(ray.at(best.t)),
+            };
+            // A hit on a split plane is never final in either cell: the subtrees whose
+            // intervals start past it are skipped instead.
+            (!finished).then_some(best.t)
         },
     );
     n

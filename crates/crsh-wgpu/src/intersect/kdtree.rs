@@ -46,7 +46,7 @@ use crsh_core::{
 };
 #[cfg(doc)]
 use crsh_cpu::kdtree::trace_single;
-use crsh_cpu::kdtree::{middle, KdCounts, KdLeaf, KdNode, KdTree, CELL_MARGIN, T_SLACK};
+use crsh_cpu::kdtree::{KdCounts, KdLeaf, KdNode, KdTree, CELL_MARGIN, T_SLACK};
 use crsh_cpu::triangle::{MollerTrumbore, PreparedTriangle, TestKind, TriangleSet};
 use crsh_scene::Scene;
 
@@ -101,41 +101,23 @@ impl KdKernels {
     }
 }
 
-/// The catalogue entry of the wgpu `kdtree`: the parameters the host build honours now.
-///
-/// The lead replaces this with `mt_only(crsh_cpu::intersect::kdtree::info())` (the CPU twin's
-/// entry, its parameters `build_params()`) when the CPU `kdtree` intersector lands, together
-/// with [`build_tree_for`].
+/// The catalogue entry of the wgpu `kdtree`: the CPU twin's
+/// ([`crsh_cpu::intersect::kdtree::info`]: the same tree build parameters) with the triangle
+/// test narrowed to Möller-Trumbore ([`crate::registry::mt_only`]) and the traversal to
+/// single rays.
 pub fn info() -> StageVariantInfo {
-    StageVariantInfo::new(
-        StageKind::Intersect,
-        "kdtree",
-        "RTTest's kd-tree (seed 003: 12-byte nodes, leaves with their cells), single rays \
-         front to back (listing 2.2 with its errata fixed), closest and any hit, inner nodes, \
-         leaves and triangle tests counted; whole-scene queries only",
-    )
-    .param(ParamInfo::int(
-        "max_depth",
-        0,
-        0,
-        i64::from(STACK),
-        "deepest leaf (0: 8 + 1.3·log2 of the triangle count, Havran's rule)",
-    ))
-    .param(ParamInfo::int(
-        "leaf_size",
-        4,
-        1,
-        1 << 16,
-        "cells with at most this many triangles become leaves",
-    ))
-    .param(ParamInfo::choice(
-        "test",
-        "mt",
-        crate::registry::GPU_TRIANGLE_TESTS,
-        "ray-triangle test: `mt` Möller-Trumbore (f32), the only one with a WGSL twin",
-    ))
-    .scene_only()
+    let mut info = crate::registry::mt_only(crsh_cpu::intersect::kdtree::info());
+    for p in &mut info.params {
+        if p.name == "traversal" {
+            p.choices = GPU_TRAVERSALS;
+        }
+    }
+    info
 }
+
+/// The `traversal` values the wgpu kd-tree implements: single rays (seed 003's coherent
+/// packets, frusta and cones are CPU traversals, `crsh_cpu::kdtree::coherent`).
+pub const GPU_TRAVERSALS: &[&str] = &["single"];
 
 /// Registers the wgpu `kdtree` ([`info`], [`KdIntersector::new`]).
 pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
@@ -145,34 +127,23 @@ pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
     Ok(())
 }
 
-/// `max_depth = 0`: Havran's 8 + 1.3·log2 N for `n` triangles, at most [`STACK`].
-fn auto_depth(n: usize) -> u32 {
-    let d = 8.0 + 1.3 * (n.max(1) as f64).log2();
-    (d.round() as u32).min(STACK)
-}
-
-/// The host build of the tree `spec` asks for, over the triangles of `scene` that
-/// Möller-Trumbore can hit: for now the middle-split build
-/// ([`crsh_cpu::kdtree::middle::build`]) with `max_depth` and `leaf_size`.
-///
-/// The lead swaps this one call for `crsh_cpu::intersect::kdtree::build_tree(scene, spec,
-/// TestKind::MollerTrumbore)` (the SAH build) when the CPU `kdtree` intersector lands, and
-/// [`info`]'s parameters for its `build_params()`.
+/// The host build of the tree `spec` asks for: the CPU twin's
+/// ([`crsh_cpu::intersect::kdtree::build_tree`], SAH or middle splits) over the triangles
+/// Möller-Trumbore can hit. A `traversal` other than `single` is refused here.
 pub fn build_tree_for(scene: &Scene, spec: &StageSpec) -> Result<KdTree> {
-    let max_depth = spec.u32_in("max_depth", 0..=STACK)?;
-    let leaf_size = spec.u32_in("leaf_size", 1..=1 << 16)? as usize;
-    let keep = crsh_cpu::intersect::grid::hittable(scene, TestKind::MollerTrumbore);
-    let tris: Vec<(u32, [Vec3; 3])> = keep
-        .iter()
-        .enumerate()
-        .filter(|(_, &k)| k)
-        .map(|(i, _)| (i as u32, scene.triangle(i)))
-        .collect();
-    let max_depth = match max_depth {
-        0 => auto_depth(tris.len()),
-        d => d,
-    };
-    Ok(middle::build(&tris, max_depth, leaf_size))
+    if let Ok(t) = spec.str("traversal") {
+        if !GPU_TRAVERSALS.contains(&t) {
+            return Err(CoreError::Unsupported {
+                stage: "intersect",
+                variant: "kdtree".into(),
+                what: format!(
+                    "traversal `{t}` on the wgpu backend (it traverses single rays; seed 003's \
+                     coherent traversals run on the CPU)"
+                ),
+            });
+        }
+    }
+    crsh_cpu::intersect::kdtree::build_tree(scene, spec, TestKind::MollerTrumbore)
 }
 
 /// The depth of `tree`'s deepest leaf (the root alone or no node: 0), walked rather than
@@ -512,45 +483,24 @@ mod tests {
         s
     }
 
-    /// The host build honours `max_depth` (0: Havran's rule) and `leaf_size`, over the
-    /// hittable triangles only.
+    /// The host build is the CPU twin's, over the triangles Möller-Trumbore can hit, with its
+    /// parameters; depths past the stack are refused.
     #[test]
-    fn build_honours_its_parameters() {
+    fn build_is_the_cpu_twins() {
         let scene = crsh_scene::builtin::build("cornell-mirrors").unwrap();
-        let n = scene.triangle_count();
-        for depth in [1, 4, 9] {
-            let t = build_tree_for(&scene, &spec(depth, 1)).unwrap();
+        for (depth, leaf_size) in [(0, 1), (4, 1), (12, 8)] {
+            let s = spec(depth, leaf_size);
+            let t = build_tree_for(&scene, &s).unwrap();
+            let cpu = crsh_cpu::intersect::kdtree::build_tree(&scene, &s, TestKind::MollerTrumbore)
+                .unwrap();
+            assert_eq!(t, cpu);
             t.validate().unwrap();
-            assert_eq!(i64::from(t.depth), depth);
+            if depth > 0 {
+                assert!(i64::from(t.depth) <= depth);
+            }
             assert_eq!(walked_depth(&t), t.depth);
         }
-        let auto = build_tree_for(&scene, &spec(0, 1)).unwrap();
-        assert_eq!(auto.depth, auto_depth(n));
-        assert_eq!(auto_depth(n), 19, "{n} triangles");
-        let one = build_tree_for(&scene, &spec(0, 1 << 16)).unwrap();
-        assert_eq!((one.nodes.len(), one.leaves[0].count as usize), (1, n));
-        for leaf_size in [2, 8] {
-            // Only leaves at the depth limit hold more than `leaf_size` triangles.
-            let t = build_tree_for(&scene, &spec(12, leaf_size)).unwrap();
-            let mut work = vec![(0usize, 0u32)];
-            let mut full = 0;
-            while let Some((n, depth)) = work.pop() {
-                let node = t.nodes[n];
-                if node.is_leaf() {
-                    let count = t.leaves[node.index as usize].count as i64;
-                    assert!(
-                        count <= leaf_size || depth == 12,
-                        "{count} at depth {depth}"
-                    );
-                    full += usize::from(count == leaf_size);
-                } else {
-                    work.push((node.index as usize, depth + 1));
-                    work.push((node.index as usize + 1, depth + 1));
-                }
-            }
-            assert!(full > 0);
-        }
         assert!(build_tree_for(&scene, &spec(i64::from(STACK) + 1, 1)).is_err());
-        assert!(build_tree_for(&scene, &spec(4, 0)).is_err());
+        assert!(build_tree_for(&scene, &spec(4, -1)).is_err());
     }
 }

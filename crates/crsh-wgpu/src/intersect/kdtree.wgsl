@@ -76,11 +76,11 @@ fn rounded(x: f32) -> f32 {
     return bitcast<f32>(bitcast<u32>(x) ^ p.zero);
 }
 
-// Rust's `a.max(x - x.abs() * T_SLACK)` for `a` not NaN: an infinite `x` leaves `a` (+∞ − ∞
-// is NaN, which f32::max ignores; −∞ never wins).
+// Rust's `a.max(x - x.abs() * T_SLACK)` for `a` not NaN, an infinite `x` left unwidened
+// (crsh_cpu::kdtree::descend): +∞ wins, −∞ never does.
 fn widen_max(a: f32, x: f32) -> f32 {
     if (!f32_finite(x)) {
-        return a;
+        return select(a, x, x > 0.0);
     }
     let w = x - rounded(abs(x) * T_SLACK);
     return select(a, w, w > a);
@@ -104,13 +104,17 @@ fn inverse(d: f32) -> f32 {
 }
 
 // crsh_cpu::kdtree::clip against the root cell: `(near, far, 1)` or `(_, _, 0)` when the ray
-// misses it. A zero direction component gives infinite slab distances (or NaN ones for an
-// origin on a face), which change neither end on the CPU: the axis is skipped.
+// misses it. A zero direction component skips its axis when the origin is inside the slab
+// and misses otherwise, as on the CPU.
 fn clip(o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32) -> vec3<f32> {
     var near = select(t_min, 0.0, 0.0 > t_min);
     var far = t_max;
     for (var a = 0u; a < 3u; a++) {
         if (d[a] == 0.0) {
+            // Parallel to the slab: inside it for every t, or never.
+            if (o[a] < p.lo[a] || o[a] > p.hi[a]) {
+                return vec3<f32>(0.0, 0.0, 0.0);
+            }
             continue;
         }
         let inv = 1.0 / d[a];
@@ -181,6 +185,11 @@ fn traverse(@builtin(global_invocation_id) gid: vec3<u32>,
                     var node = stack[sp].node;
                     var near = stack[sp].near;
                     var far = stack[sp].far;
+                    // crsh_cpu::kdtree::walk_leaves_until: a closest-hit ray skips the
+                    // subtrees that start beyond its best hit.
+                    if (p.any_hit == 0u && near > best.t) {
+                        continue;
+                    }
                     loop {
                         let n = nodes[node];
                         if (n.axis == LEAF) {
