@@ -36,6 +36,7 @@
 //! point is listed there. So hits (triangle, `t`, `u`, `v`) are brute force's with the same
 //! triangle test, ties on `t` included (a tie on a cell boundary keeps the ray going).
 
+pub mod edge_width;
 pub mod middle;
 
 use bytemuck::{Pod, Zeroable};
