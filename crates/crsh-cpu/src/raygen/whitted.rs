@@ -802,8 +802,8 @@ impl Whitted {
         trim(&slots, &flags)
     }
 
-    /// Ray creation before trimming (§3.2.3): one slot per surface (per light and surface,
-    /// light-major, for shadow rays) and its head flag, 1 where the slot holds a ray and 0
+    /// Ray creation before trimming (§3.2.3): one slot per surface (per light, sample and
+    /// surface, light-major then sample-major, for shadow rays) and its head flag, 1 where the slot holds a ray and 0
     /// where the surface spawns none (background, culled light, absorbed bounce); empty
     /// slots hold a zeroed ray.
     pub fn slots(&self, surfaces: &[Surface], kind: RayKind) -> Result<(Vec<Ray>, Vec<u32>)> {
