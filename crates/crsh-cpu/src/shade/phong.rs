@@ -526,6 +526,52 @@ mod tests {
     }
 
     #[test]
+    fn visibility_is_the_mean_over_a_light_s_shadow_rays() {
+        let mat = Material {
+            diffuse: Vec3::new(1.0, 0.5, 0.25),
+            ..Material::default()
+        };
+        let scene = quad_scene(vec![mat], vec![light(Vec3::new(0.0, 0.0, 1.0))]);
+        let sh = Phong::new(&scene, &spec(0.0, 0.0)).unwrap();
+        let s = [surface(Vec3::ZERO, 0, 0)];
+        // Sampled soft shadows: 3 of 4 any-hit rays unoccluded.
+        let rays = [shadow(0, 0); 4];
+        let mut img = vec![[0.0f32; 4]; 1];
+        sh.shade(
+            &s,
+            &rays,
+            &[Hit::MISS, OCCLUDED, Hit::MISS, Hit::MISS],
+            &mut img,
+        )
+        .unwrap();
+        assert_eq!(img[0], [0.75, 0.375, 0.1875, 1.0]);
+        // Edge width (seed 003 eq. 5.1): occlusion u = 0.25 leaves 3/4 of the light; a miss
+        // all of it; a full occlusion none.
+        let partial = Hit {
+            u: 0.25,
+            v: 0.1,
+            ..OCCLUDED
+        };
+        for (hit, want) in [
+            (partial, 0.75),
+            (Hit::MISS, 1.0),
+            (Hit { u: 1.0, ..OCCLUDED }, 0.0),
+        ] {
+            let mut img = vec![[0.0f32; 4]; 1];
+            sh.shade_mode(&s, &rays[..1], &[hit], HitMode::EdgeWidth, &mut img)
+                .unwrap();
+            assert_eq!(img[0], [want, 0.5 * want, 0.25 * want, 1.0], "{hit:?}");
+        }
+        // Any-hit shading reads an edge-width hit as a full occlusion; nearest hits are refused.
+        let mut img = vec![[0.0f32; 4]; 1];
+        sh.shade(&s, &rays[..1], &[partial], &mut img).unwrap();
+        assert_eq!(img[0], [0.0, 0.0, 0.0, 1.0]);
+        assert!(sh
+            .shade_mode(&s, &rays[..1], &[partial], HitMode::Closest, &mut img)
+            .is_err());
+    }
+
+    #[test]
     fn ambient_background_and_local_weight() {
         let mat = Material {
             diffuse: Vec3::new(0.8, 0.4, 0.2),
