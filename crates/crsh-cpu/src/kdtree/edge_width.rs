@@ -124,6 +124,49 @@ pub fn trace_edge_width<T: TriangleTest>(
     n
 }
 
+/// [`trace_edge_width`] for a batch, in parallel (each ray independently, so hits and counts
+/// do not depend on the thread count): ray `i`'s answer goes to `hits[i]` (replaced), with `R`
+/// the radius `radii[ray.light]` of its light. What the `kdtree` intersector runs for
+/// [`crsh_core::HitMode::EdgeWidth`].
+///
+/// # Errors
+/// [`crsh_core::CoreError::InvalidInput`] when the lengths differ or a ray names a light
+/// outside `radii`.
+pub fn trace_batch_edge_width<T: TriangleTest>(
+    tree: &KdTree,
+    tris: &[T::Tri],
+    rays: &[Ray],
+    radii: &[f32],
+    hits: &mut [Hit],
+) -> crsh_core::Result<KdCounts> {
+    use rayon::prelude::*;
+    if rays.len() != hits.len() {
+        return Err(crsh_core::CoreError::InvalidInput(format!(
+            "{} rays but {} hits",
+            rays.len(),
+            hits.len()
+        )));
+    }
+    crate::intersect::brute::check_lights(rays, radii)?;
+    Ok(rays
+        .par_chunks(256)
+        .zip(hits.par_chunks_mut(256))
+        .map(|(rs, hs)| {
+            let mut stack = Vec::new();
+            rs.iter().zip(hs).fold(KdCounts::default(), |n, (r, h)| {
+                n.plus(trace_edge_width::<T>(
+                    tree,
+                    tris,
+                    r,
+                    radii[r.light as usize],
+                    h,
+                    &mut stack,
+                ))
+            })
+        })
+        .reduce(KdCounts::default, KdCounts::plus))
+}
+
 /// Feeds the pending crossings before `bound` to `scan` in sorted order and drops them;
 /// returns whether the scan is done (fully occluded: the traversal may stop).
 fn feed(scan: &mut EdgeWidthScan, pending: &mut Vec<Crossing>, bound: f32) -> bool {
@@ -217,6 +260,45 @@ mod tests {
             }
         }
         partial
+    }
+
+    #[test]
+    fn batches_are_the_single_rays_and_check_their_lights() {
+        let scene = slabs();
+        let (tree, set) = kd::<MollerTrumbore>(&scene, 4);
+        let rays: Vec<Ray> = [10.0, 2.75, 2.25, 1.5, 0.5].map(x_ray).to_vec();
+        let mut hits = vec![Hit::MISS; rays.len()];
+        let radii = [4.0];
+        let n = trace_batch_edge_width::<MollerTrumbore>(
+            &tree,
+            set.triangles(),
+            &rays,
+            &radii,
+            &mut hits,
+        )
+        .unwrap();
+        assert!(n.tests > 0 && n.leaves > 0);
+        for (r, h) in rays.iter().zip(&hits) {
+            assert_eq!(*h, brute(&set, r, 4.0));
+        }
+        let mut bad = rays.clone();
+        bad[1].light = 1;
+        assert!(trace_batch_edge_width::<MollerTrumbore>(
+            &tree,
+            set.triangles(),
+            &bad,
+            &radii,
+            &mut hits
+        )
+        .is_err());
+        assert!(trace_batch_edge_width::<MollerTrumbore>(
+            &tree,
+            set.triangles(),
+            &rays,
+            &radii,
+            &mut hits[1..]
+        )
+        .is_err());
     }
 
     #[test]
