@@ -240,6 +240,7 @@ fn diffuse_direct_light_is_lambertian() {
         color: Vec3::ONE,
         intensity: 3.0,
         attenuation: [1.0, 0.0, 0.0],
+        radius: 0.0,
     };
     let scene = quad(&[light], false);
     let f = render(&scene, &config("bvh", "diffuse", &[]), 0, None);

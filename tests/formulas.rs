@@ -49,6 +49,7 @@ fn point_light(position: Vec3, attenuation: [f32; 3]) -> Light {
         color: Vec3::ONE,
         intensity: 1.0,
         attenuation,
+        radius: 0.0,
     }
 }
 

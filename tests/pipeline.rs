@@ -347,6 +347,7 @@ fn glass_scene() -> Arc<Scene> {
         color: Vec3::ONE,
         intensity: 1.0,
         attenuation: [1.0, 0.0, 0.0],
+        radius: 0.0,
     });
     b.camera(Camera {
         eye: Vec3::new(0.3, 0.2, 3.0),
@@ -471,6 +472,7 @@ fn lit_quad_has_the_radiance_of_eq_3_19() {
         color: Vec3::new(1.0, 0.9, 0.8),
         intensity: 2.0,
         attenuation: [1.0, 0.5, 0.25],
+        radius: 0.0,
     };
     let mut b = SceneBuilder::new("lit-quad");
     let m = b.material(Material {

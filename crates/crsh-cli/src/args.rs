@@ -121,6 +121,12 @@ pub struct RenderArgs {
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=MAX_THREADS as u64))]
     pub threads: Option<u64>,
 
+    /// Set every light's radius (scene units) after loading, for soft shadows (seed 003 §5:
+    /// `--set raygen.shadow=samples` or `edge_width`); the scene's own radii otherwise
+    /// (manifest `radius`, default 0: point lights).
+    #[arg(long, value_name = "R")]
+    pub light_radius: Option<f32>,
+
     /// Render frames 0..N-1 of an animated scene (a manifest with moving `[[instances]]`, or
     /// `cornell-mirrors-animated`): numbered PNGs (`OUT-0000.png`, ...), the scene update and
     /// the pipeline rebuild timed per frame, and a stats JSON with one row per frame.

@@ -20,6 +20,7 @@ use crate::output;
 /// Runs `crsh render`.
 pub fn run(args: &RenderArgs, registries: &Registries) -> CliResult<()> {
     output::check_png_path(&args.out)?;
+    check_light_radius(args.light_radius, "--light-radius")?;
     if let Some(stats) = &args.stats {
         output::check_writable(stats, "--stats")?;
     }
@@ -53,6 +54,12 @@ pub fn run(args: &RenderArgs, registries: &Registries) -> CliResult<()> {
             "... and {} more scene warnings",
             load_report.warnings.len() - MAX_WARNINGS
         ));
+    }
+    let mut scene = scene;
+    if let Some(r) = args.light_radius {
+        scene
+            .set_light_radius(r)
+            .map_err(|e| CliError::usage(format!("--light-radius {r}: {e}")))?;
     }
     let scene = Arc::new(scene);
     let renderer = match &gpu {
@@ -98,6 +105,16 @@ pub fn run(args: &RenderArgs, registries: &Registries) -> CliResult<()> {
     output::print_stdout(&(report.summary() + &wrote))
 }
 
+/// Checks a light-radius override (`what` names it in the error): a finite distance `≥ 0`.
+pub fn check_light_radius(radius: Option<f32>, what: &str) -> CliResult<()> {
+    match radius {
+        Some(r) if !(r.is_finite() && r >= 0.0) => Err(CliError::usage(format!(
+            "{what} {r}: the light radius must be a finite distance >= 0 (0: point lights)"
+        ))),
+        _ => Ok(()),
+    }
+}
+
 /// `OUT.png` → `OUT-0007.png` for frame 7.
 pub fn frame_path(out: &Path, frame: u32) -> std::path::PathBuf {
     let stem = out
@@ -120,8 +137,12 @@ fn run_frames(
     frames: u32,
 ) -> CliResult<()> {
     let t_load = Instant::now();
-    let (anim, load_report) = crsh_scene::load_animated(&args.scene)
+    let (mut anim, load_report) = crsh_scene::load_animated(&args.scene)
         .map_err(|e| CliError::runtime(format!("cannot load scene `{}`: {e}", args.scene)))?;
+    if let Some(r) = args.light_radius {
+        anim.set_light_radius(r)
+            .map_err(|e| CliError::usage(format!("--light-radius {r}: {e}")))?;
+    }
     let scene_load_ms = t_load.elapsed().as_secs_f64() * 1e3;
     for w in load_report.warnings.iter().take(20) {
         eprintln_warning(w);

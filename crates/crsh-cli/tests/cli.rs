@@ -823,3 +823,42 @@ fn bad_frame_requests_exit_2() {
         assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
     }
 }
+
+/// `--light-radius` sets every light's radius for soft shadows: with `shadow = edge_width` the
+/// image differs from the point-light one, at radius 0 it is the hard image, and a negative or
+/// non-finite radius is a usage error; wgpu-only soft shadows are refused clearly elsewhere.
+#[test]
+fn light_radius_softens_shadows_and_is_checked() {
+    let dir = scratch("light-radius");
+    let png = |extra: &[&str]| {
+        let mut args = vec!["--width", "32", "--depth", "1"];
+        args.extend_from_slice(extra);
+        render(&dir, &args);
+        std::fs::read(dir.join("img.png")).unwrap()
+    };
+    let hard = png(&[]);
+    let edge = ["--set", "raygen.shadow=edge_width"];
+    assert_eq!(png(&[&edge[..], &["--light-radius", "0"]].concat()), hard);
+    let (v, _) = render(
+        &dir,
+        &[
+            "--width",
+            "32",
+            "--depth",
+            "1",
+            "--light-radius",
+            "0.2",
+            "--set",
+            "raygen.shadow=edge_width",
+            "--reference",
+            "brute",
+        ],
+    );
+    assert_eq!(f(&v, "/accuracy/hit_agreement"), 1.0, "{v:#}");
+    assert_ne!(std::fs::read(dir.join("img.png")).unwrap(), hard);
+    std::fs::remove_file(dir.join("img.png")).unwrap();
+    for bad in ["-1", "NaN", "inf"] {
+        let arg = format!("--light-radius={bad}");
+        expect_error(&dir, &["render", &arg], 2, "--light-radius");
+    }
+}

@@ -41,6 +41,7 @@
 pub mod backend;
 pub mod bounds;
 pub mod config;
+pub mod edge_width;
 pub mod error;
 pub mod metrics;
 pub mod pipeline;

@@ -354,6 +354,18 @@ pub fn render_frame<B: Backend>(
     }
 
     let visibility = stages.raygen.visibility_kind();
+    let visibility_mode = stages.raygen.visibility_mode();
+    if visibility_mode == HitMode::Closest {
+        return Err(CoreError::Incompatible {
+            slots: "raygen".into(),
+            reason: format!(
+                "raygen `{}` asks for nearest hits of its {} rays; direct light needs an \
+                 any-hit or edge-width query",
+                stages.raygen.name(),
+                visibility.name()
+            ),
+        });
+    }
     if visibility.hit_mode() != HitMode::Any {
         return Err(CoreError::Incompatible {
             slots: "raygen".into(),
@@ -373,11 +385,18 @@ pub fn render_frame<B: Backend>(
         let shadow = driver.timed("ray_creation", |s| {
             stages.raygen.generate(backend, &surfaces, visibility, s)
         })?;
-        let shadow_hits = driver.trace(visibility, depth + 1, &shadow, &surfaces)?;
+        let shadow_hits =
+            driver.trace(visibility, visibility_mode, depth + 1, &shadow, &surfaces)?;
         driver.timed("shading", |s| {
-            stages
-                .shader
-                .shade_direct(backend, &surfaces, &shadow, &shadow_hits, &mut image, s)
+            stages.shader.shade_direct(
+                backend,
+                &surfaces,
+                &shadow,
+                &shadow_hits,
+                visibility_mode,
+                &mut image,
+                s,
+            )
         })?;
         if depth == opts.max_depth {
             break;
@@ -397,7 +416,7 @@ pub fn render_frame<B: Backend>(
             if backend.len(&rays) == 0 {
                 continue;
             }
-            let hits = driver.trace(kind, depth + 1, &rays, &surfaces)?;
+            let hits = driver.trace(kind, kind.hit_mode(), depth + 1, &rays, &surfaces)?;
             next.push(driver.timed("shading", |s| {
                 stages.shader.resolve(backend, &rays, &hits, s)
             })?);
@@ -451,25 +470,27 @@ impl<B: Backend> Driver<'_, B> {
         timed(self.backend, &mut self.stats, key, f)
     }
 
-    /// Traces one batch of `kind` rays of bounce depth `generation` through the optional
-    /// hierarchy stages and the intersector. `surfaces` are the records the rays were spawned
-    /// from (their [`Ray::source`]), for the self-hit count of the accuracy pass.
+    /// Traces one batch of `kind` rays of bounce depth `generation` with hit query `mode`
+    /// through the optional hierarchy stages and the intersector. `surfaces` are the records
+    /// the rays were spawned from (their [`Ray::source`]), for the self-hit count of the
+    /// accuracy pass.
     fn trace(
         &mut self,
         kind: RayKind,
+        mode: HitMode,
         generation: u32,
         rays: &B::Buffer<Ray>,
         surfaces: &B::Buffer<Surface>,
     ) -> Result<B::Buffer<Hit>> {
         let backend = self.backend;
         let n = backend.len(rays);
-        let mode = kind.hit_mode();
         let tests_before = self.stats.tests;
         let t0 = Instant::now();
         let (hits, histogram_ms) = trace_batch_in(
             backend,
             self.stages,
             kind,
+            mode,
             Some(generation),
             rays,
             &mut self.stats,
@@ -537,23 +558,24 @@ pub fn trace_batch<B: Backend>(
     rays: &B::Buffer<Ray>,
     stats: &mut Stats,
 ) -> Result<B::Buffer<Hit>> {
-    trace_batch_in(backend, stages, kind, None, rays, stats).map(|(hits, _)| hits)
+    trace_batch_in(backend, stages, kind, kind.hit_mode(), None, rays, stats).map(|(hits, _)| hits)
 }
 
-/// [`trace_batch`]; with `generation`, also adds the cone half-angles of the hierarchy's
-/// lowest nodes to that generation's [`crate::GenerationStats`] (a download of `levels[0]`,
-/// outside every stage timer). Returns the hits and the ms that took.
+/// [`trace_batch`] with the hit query `mode`; with `generation`, also adds the cone
+/// half-angles of the hierarchy's lowest nodes to that generation's
+/// [`crate::GenerationStats`] (a download of `levels[0]`, outside every stage timer). Returns
+/// the hits and the ms that took.
 fn trace_batch_in<B: Backend>(
     backend: &B,
     stages: &Stages<B>,
     kind: RayKind,
+    mode: HitMode,
     generation: Option<u32>,
     rays: &B::Buffer<Ray>,
     stats: &mut Stats,
 ) -> Result<(B::Buffer<Hit>, f64)> {
     stages.check()?;
     let n = backend.len(rays);
-    let mode = kind.hit_mode();
     let mut hits = backend.filled(n, Hit::MISS)?;
     let mut histogram_ms = 0.0;
     if n == 0 {
@@ -675,14 +697,18 @@ pub fn count_self_hits(rays: &[Ray], hits: &[Hit], surfaces: &[Surface]) -> u64 
         .count() as u64
 }
 
-/// Adds the agreement of `got` with `want` (same rays) to `acc`: hit/miss must agree, and for
-/// closest-hit queries the triangle must match unless both `t` agree within 1e-6 relative.
+/// Adds the agreement of `got` with `want` (same rays) to `acc`: hit/miss must agree, for
+/// closest-hit queries the triangle must match unless both `t` agree within 1e-6 relative,
+/// and for edge-width queries the occlusion (`u`) must be the same bit for bit (a different
+/// one counts in [`AccuracyCounts::nearest_mismatches`]).
 pub fn compare_hits(got: &[Hit], want: &[Hit], mode: HitMode, acc: &mut AccuracyCounts) {
     for (a, b) in got.iter().zip(want) {
         acc.rays += 1;
         if a.is_hit() != b.is_hit() {
             acc.hit_miss_mismatches += 1;
-        } else if mode == HitMode::Closest && a.is_hit() && a.nearest_differs(b) {
+        } else if (mode == HitMode::Closest && a.is_hit() && a.nearest_differs(b))
+            || (mode == HitMode::EdgeWidth && a.is_hit() && a.u.to_bits() != b.u.to_bits())
+        {
             acc.nearest_mismatches += 1;
         } else {
             acc.agreeing += 1;

@@ -84,6 +84,49 @@ pub enum HitMode {
     Closest,
     /// Any hit in `(t_min, t_max)` (occlusion); which triangle is unspecified.
     Any,
+    /// Edge-width occlusion of the shadow segment `(t_min, t_max)` (seed 003 §5, eq. 5.1 and
+    /// listing 5.1 with its errata fixed) by the scene, for the light [`Ray::light`] of radius
+    /// `R` (the scene light's radius). Every crossing of a triangle in the open interval is
+    /// gathered once, sorted by `t` (ties by triangle id) and paired entry/exit (1st-2nd,
+    /// 3rd-4th, ...); a pair's edge width is `exit t − entry t` (world units: ray directions
+    /// are unit). The scan ([`crate::edge_width::EdgeWidthScan`]) stops at the first pair of
+    /// width `≥ R`; an unpaired entry at the end (odd count) occludes fully; otherwise the
+    /// occlusion is `clamp(max width / R, 0, 1)` (eq. 5.1). With `R = 0` any crossing occludes
+    /// fully (hard shadows).
+    ///
+    /// The [`Hit`] encodes the answer: a miss ([`NO_HIT`]) when the occlusion is 0 (no
+    /// crossing, or only zero-width pairs); otherwise `tri` and `t` are the entry crossing of
+    /// the widest pair scanned (of the stopping pair, of the unpaired entry, or with `R = 0`
+    /// the first crossing), `u` the occlusion in `(0, 1]` and `v` the widest width scanned
+    /// (`f32::INFINITY` for an unpaired entry and for `R = 0`). Intersectors that do not
+    /// implement it return [`crate::CoreError::Unsupported`]; those that do replace the stored
+    /// hit (the query is not merged across calls).
+    EdgeWidth,
+}
+
+impl HitMode {
+    /// Lower-case name for messages (`closest`, `any`, `edge_width`).
+    pub fn name(self) -> &'static str {
+        match self {
+            HitMode::Closest => "closest",
+            HitMode::Any => "any",
+            HitMode::EdgeWidth => "edge_width",
+        }
+    }
+
+    /// The error of an intersector (stage `intersect`, variant `variant`) that does not answer
+    /// this mode (edge-width queries on the backends and traversals that lack them).
+    pub fn unsupported(self, variant: &str) -> crate::CoreError {
+        crate::CoreError::Unsupported {
+            stage: "intersect",
+            variant: variant.into(),
+            what: format!(
+                "{} hit queries (edge-width soft shadows are implemented by the CPU `brute`, \
+                 `bvh` and `kdtree` intersectors on whole-scene queries)",
+                self.name()
+            ),
+        }
+    }
 }
 
 /// A ray with its payload (64 bytes).

@@ -70,6 +70,13 @@ pub trait RayGen<B: Backend>: Send + Sync {
     fn visibility_kind(&self) -> RayKind {
         RayKind::Shadow
     }
+    /// The hit query the driver traces the [`RayGen::visibility_kind`] batch with:
+    /// [`HitMode::Any`] (the default: binary visibility), or [`HitMode::EdgeWidth`] for
+    /// edge-width soft shadows (seed 003 §5; the `whitted` generator with `shadow =
+    /// edge_width`). Never [`HitMode::Closest`].
+    fn visibility_mode(&self) -> HitMode {
+        HitMode::Any
+    }
     /// The nearest-hit kinds that continue paths, in batch order: reflection and refraction
     /// (the default, Whitted), diffuse bounces, or none (paths end at the first vertex).
     fn bounce_kinds(&self) -> &[RayKind] {
@@ -334,13 +341,18 @@ pub trait Shader<B: Backend>: Send + Sync {
     }
     /// Adds the direct light at `surfaces` (and the background where a surface is a miss) to
     /// `image`, with each light's visibility taken from the shadow rays and their hits
-    /// (`shadow_rays[i].source` indexes `surfaces`).
+    /// (`shadow_rays[i].source` indexes `surfaces`), traced with `mode` (the ray generator's
+    /// [`RayGen::visibility_mode`]: [`HitMode::Any`] hits are binary, [`HitMode::EdgeWidth`]
+    /// hits carry an occlusion). A shader that cannot use `mode` returns
+    /// [`crate::CoreError::Unsupported`].
+    #[allow(clippy::too_many_arguments)]
     fn shade_direct(
         &self,
         backend: &B,
         surfaces: &B::Buffer<Surface>,
         shadow_rays: &B::Buffer<Ray>,
         shadow_hits: &B::Buffer<Hit>,
+        mode: HitMode,
         image: &mut B::Buffer<[f32; 4]>,
         stats: &mut Stats,
     ) -> Result<()>;

@@ -294,7 +294,8 @@ pub struct AccuracyCounts {
     pub agreeing: u64,
     /// Rays whose hit/miss differs.
     pub hit_miss_mismatches: u64,
-    /// Closest-hit rays that hit different triangles at different `t`.
+    /// Closest-hit rays that hit different triangles at different `t`, and edge-width rays
+    /// (seed 003 §5) that both hit with a different occlusion.
     pub nearest_mismatches: u64,
     /// Agreeing closest-hit rays where both hit: the rays [`AccuracyCounts::t_abs_error_sum`]
     /// sums over.

@@ -92,7 +92,7 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
         ),
         (
             "kdtree",
-            "seed 003's SAH kd-tree (perfect splits, C_isect = 5 C_trav), rays traced one by one",
+            "seed 003's SAH kd-tree (perfect splits, C_isect = 5 C_trav), rays traced one by one (`intersect.traversal` picks seed 003's packets, frusta, MFT or cones)",
             PipelineConfig::whitted("kdtree", "kdtree"),
         ),
         (

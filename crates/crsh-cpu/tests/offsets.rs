@@ -54,6 +54,7 @@ fn lit_plane(elevation_deg: f32, translation: f32) -> Arc<Scene> {
         color: Vec3::ONE,
         intensity: 1.0,
         attenuation: [1.0, 0.0, 0.0],
+        radius: 0.0,
     });
     b.camera(Camera {
         eye: centre + n * 12.0,
@@ -216,6 +217,7 @@ fn light_on_a_wall(translation: f32, light_x: f32) -> Arc<Scene> {
         color: Vec3::ONE,
         intensity: 1.0,
         attenuation: [1.0, 0.0, 0.0],
+        radius: 0.0,
     });
     b.camera(Camera {
         eye: at(Vec3::new(0.0, 12.0, 6.0)),

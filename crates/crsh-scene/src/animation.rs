@@ -569,6 +569,15 @@ impl AnimatedScene {
         &self.scene
     }
 
+    /// Sets every light's radius ([`Scene::set_light_radius`]); frames made from
+    /// [`AnimatedScene::scene`] carry it.
+    ///
+    /// # Errors
+    /// As [`Scene::set_light_radius`].
+    pub fn set_light_radius(&mut self, radius: f32) -> Result<(), SceneError> {
+        self.scene.set_light_radius(radius)
+    }
+
     /// The scene at frame 0, owned.
     pub fn into_scene(self) -> Scene {
         self.scene

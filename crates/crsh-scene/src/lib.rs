@@ -37,6 +37,7 @@
 //!     color: Vec3::ONE,
 //!     intensity: 1.0,
 //!     attenuation: [1.0, 0.0, 0.0],
+//!     radius: 0.0,
 //! });
 //! b.camera(Camera {
 //!     eye: Vec3::new(0.0, 1.0, 3.0),

@@ -17,6 +17,7 @@
 //! color = [1.0, 1.0, 1.0]    # optional, default white
 //! intensity = 1.0            # optional, default 1
 //! attenuation = [1.0, 0.0, 0.0]   # optional, default [1, 0, 0] (eq. 3.19c)
+//! radius = 0.0               # optional, default 0 (a point light); soft shadows (seed 003 §5)
 //!
 //! [materials.leftSphere]     # overrides of MTL values, by material name
 //! reflectivity = 0.95        # also diffuse, specular, shininess, transparency, ior, emission
@@ -260,6 +261,9 @@ pub struct LightSpec {
     /// Constant, linear, quadratic attenuation (seed 000 eq. 3.19c; default `[1, 0, 0]`).
     #[serde(default = "default_attenuation")]
     pub attenuation: [f32; 3],
+    /// Radius for soft shadows (seed 003 §5; default 0, a point light): finite and `≥ 0`.
+    #[serde(default)]
+    pub radius: f32,
 }
 
 /// A `[materials.NAME]` table: every field present replaces the MTL's value.
@@ -469,12 +473,22 @@ fn add_manifest(
             aspect: c.aspect,
         });
     }
-    for l in &manifest.lights {
+    for (i, l) in manifest.lights.iter().enumerate() {
+        if !l.radius.is_finite() || l.radius < 0.0 {
+            return Err(SceneError::invalid(
+                format!("{here}: [[lights]] #{i}"),
+                format!(
+                    "radius {} must be a finite distance >= 0 (0: a point light)",
+                    l.radius
+                ),
+            ));
+        }
         builder.light(Light {
             position: Vec3::from_array(l.position),
             color: Vec3::from_array(l.color),
             intensity: l.intensity,
             attenuation: l.attenuation,
+            radius: l.radius,
         });
     }
     if manifest.mesh.is_none() && manifest.extends.is_none() && manifest.instances.is_empty() {

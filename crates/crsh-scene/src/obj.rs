@@ -528,6 +528,7 @@ pub fn load(path: &Path) -> Result<(crate::Scene, Vec<String>), SceneError> {
         color: Vec3::ONE,
         intensity: 1.0,
         attenuation: [1.0, 0.0, 0.0],
+        radius: 0.0,
     });
     builder.camera(camera);
     builder.build_with_warnings(&path.display().to_string())

@@ -111,6 +111,7 @@ pub fn triangle_soup(count: usize, seed: u64) -> Result<Scene, SceneError> {
         color: Vec3::ONE,
         intensity: 1.0,
         attenuation: [1.0, 0.0, 0.0],
+        radius: 0.0,
     });
     b.camera(Camera {
         eye: Vec3::new(0.0, 0.0, 3.6 * BOX_HALF),

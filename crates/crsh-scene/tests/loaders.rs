@@ -236,6 +236,27 @@ fn unknown_manifest_keys_are_rejected_with_the_line() {
 }
 
 #[test]
+fn light_radius_defaults_to_zero_and_is_validated() {
+    let d = TempDir::new("radius");
+    d.write("q.obj", QUAD_OBJ);
+    d.write("m.mtl", MTL);
+    let m = d.write("s.toml", MANIFEST);
+    assert_eq!(load_path(&m).unwrap().lights[0].radius, 0.0);
+    let text = MANIFEST.replace("intensity = 1.0", "intensity = 1.0\nradius = 0.25");
+    let m = d.write("r.toml", &text);
+    assert_eq!(load_path(&m).unwrap().lights[0].radius, 0.25);
+    for bad in ["-0.5", "nan", "inf"] {
+        let text = MANIFEST.replace(
+            "intensity = 1.0",
+            &format!("intensity = 1.0\nradius = {bad}"),
+        );
+        let m = d.write("bad.toml", &text);
+        let e = err_text(load_path(&m));
+        assert!(e.contains("bad.toml") && e.contains("radius"), "{bad}: {e}");
+    }
+}
+
+#[test]
 fn missing_files_are_named() {
     let d = TempDir::new("missing");
     let e = err_text(load_path(&d.0.join("nope.obj")));

@@ -505,6 +505,7 @@ fn ao_shader_matches_the_cpu_bit_for_bit() {
                 &b.upload(&surfaces).unwrap(),
                 &b.upload(&rays).unwrap(),
                 &b.upload(&hits).unwrap(),
+                crsh_core::HitMode::Any,
                 &mut image,
                 &mut Stats::default(),
             )
@@ -521,6 +522,7 @@ fn ao_shader_matches_the_cpu_bit_for_bit() {
                 &b.upload(&surfaces).unwrap(),
                 &b.upload(&bad).unwrap(),
                 &b.upload(&hits).unwrap(),
+                crsh_core::HitMode::Any,
                 &mut image,
                 &mut Stats::default(),
             )
@@ -591,6 +593,7 @@ fn diffuse_shader_matches_the_cpu() {
             &surfaces,
             &shadow,
             &shadow_hits,
+            crsh_core::HitMode::Any,
             &mut want,
             &mut Stats::default(),
         )
@@ -601,6 +604,7 @@ fn diffuse_shader_matches_the_cpu() {
             &b.upload(&surfaces).unwrap(),
             &b.upload(&shadow).unwrap(),
             &b.upload(&shadow_hits).unwrap(),
+            crsh_core::HitMode::Any,
             &mut image,
             &mut Stats::default(),
         )

@@ -206,6 +206,7 @@ fn phong_matches_the_cpu_shader() {
                 &b.upload(&surfaces).unwrap(),
                 &b.upload(&shadow).unwrap(),
                 &b.upload(&shadow_hits).unwrap(),
+                crsh_core::HitMode::Any,
                 &mut image,
                 &mut Stats::default(),
             )
@@ -286,6 +287,7 @@ fn phong_accumulation_is_deterministic_and_rejects_bad_records() {
                 &surfaces,
                 &shadow,
                 &hits,
+                crsh_core::HitMode::Any,
                 &mut image,
                 &mut Stats::default(),
             )
@@ -305,6 +307,7 @@ fn phong_accumulation_is_deterministic_and_rejects_bad_records() {
             &b.upload(&bad).unwrap(),
             &no_rays,
             &no_hits,
+            crsh_core::HitMode::Any,
             &mut image,
             &mut Stats::default(),
         )

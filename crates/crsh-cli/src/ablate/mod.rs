@@ -427,6 +427,9 @@ fn dry_run_text(plan: &Plan, source: &str, cells: &[Cell]) -> String {
         cells.len(),
         plan.repeat
     );
+    if let Some(r) = plan.light_radius {
+        let _ = writeln!(out, "light radius {r} (every light of every scene)");
+    }
     let mut scenes: Vec<&str> = Vec::new();
     let mut labels: Vec<&str> = Vec::new();
     for c in cells {

@@ -166,6 +166,11 @@ pub struct Plan {
     /// Worker threads (default: rayon's choice).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threads: Option<usize>,
+    /// Every light's radius (scene units), set after each scene loads, for soft shadows (seed
+    /// 003 §5: `raygen.shadow = samples | edge_width`); absent: the scenes' own radii (manifest
+    /// `radius`, default 0). The shared scenes' manifests give none, so plans set it here.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub light_radius: Option<f32>,
     /// Frames of an animated scene per cell (`1..=`[`crsh::frames::MAX_FRAMES`]); absent: one
     /// static frame per run (see the module documentation).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -336,6 +341,7 @@ impl QuickPlan {
                 self.backends
             },
             threads: self.threads,
+            light_radius: None,
             baseline: BTreeMap::new(),
             grid,
             pipelines: pipelines
@@ -650,6 +656,7 @@ pub fn expand(
     if plan.threads == Some(0) {
         return Err(CliError::usage("threads = 0: give at least 1"));
     }
+    crate::render::check_light_radius(plan.light_radius, "light_radius =")?;
     check_frames(plan)?;
     let side = crsh_core::pipeline::MAX_IMAGE_SIDE;
     let widths = plan.width.to_vec();

@@ -76,9 +76,9 @@ pub fn run_cells(
         if state.as_ref().is_none_or(|s| s.spec != cell.scene_spec) {
             drop(state.take()); // before the next scene loads: one scene in memory at a time
             let (scene, anim) = if plan.frames.is_some() {
-                load_animated(cell)
+                load_animated(cell, plan.light_radius)
             } else {
-                (load_scene(cell), None)
+                (load_scene(cell, plan.light_radius), None)
             };
             state = Some(SceneState {
                 spec: cell.scene_spec.clone(),
@@ -104,9 +104,17 @@ pub fn run_cells(
     out
 }
 
-fn load_scene(cell: &Cell) -> LoadedScene {
+/// Loads the cell's scene, with every light's radius set to `light_radius` when the plan
+/// gives one.
+fn load_scene(cell: &Cell, light_radius: Option<f32>) -> LoadedScene {
     let path = cell.scene.clone()?;
-    match catch_unwind(|| crsh_scene::load(&path)) {
+    match catch_unwind(|| {
+        let mut s = crsh_scene::load(&path)?;
+        if let Some(r) = light_radius {
+            s.set_light_radius(r)?;
+        }
+        Ok::<_, crsh_scene::SceneError>(s)
+    }) {
         Ok(Ok(s)) => Ok(Arc::new(s)),
         Ok(Err(e)) => Err(format!("cannot load scene {}: {e}", cell.scene_spec)),
         Err(p) => Err(format!(
@@ -117,13 +125,23 @@ fn load_scene(cell: &Cell) -> LoadedScene {
     }
 }
 
-/// Loads the cell's scene as an animated scene: its frame 0 as the scene, and the animation.
-fn load_animated(cell: &Cell) -> (LoadedScene, Option<Arc<AnimatedScene>>) {
+/// Loads the cell's scene as an animated scene: its frame 0 as the scene, and the animation
+/// (lights of radius `light_radius` when the plan gives one).
+fn load_animated(
+    cell: &Cell,
+    light_radius: Option<f32>,
+) -> (LoadedScene, Option<Arc<AnimatedScene>>) {
     let path = match &cell.scene {
         Ok(p) => p.clone(),
         Err(e) => return (Err(e.clone()), None),
     };
-    match catch_unwind(|| crsh_scene::load_animated(&path)) {
+    match catch_unwind(|| {
+        let (mut anim, report) = crsh_scene::load_animated(&path)?;
+        if let Some(r) = light_radius {
+            anim.set_light_radius(r)?;
+        }
+        Ok::<_, crsh_scene::SceneError>((anim, report))
+    }) {
         Ok(Ok((anim, _))) => (Ok(Arc::new(anim.scene().clone())), Some(Arc::new(anim))),
         Ok(Err(e)) => (
             Err(format!("cannot load scene {}: {e}", cell.scene_spec)),

@@ -34,6 +34,7 @@ pub(crate) mod test_util {
                 color: Vec3::ONE,
                 intensity: 1.0,
                 attenuation: [1.0, 0.0, 0.0],
+                radius: 0.0,
             });
         }
         b.camera(Camera {

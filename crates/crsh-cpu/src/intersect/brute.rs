@@ -21,6 +21,13 @@
 //!   the count is the tests actually computed: all lanes of every block swept, i.e.
 //!   `min(LANES·blocks_swept, triangles)` (padding lanes of the last block are not counted).
 //!
+//! - [`HitMode::EdgeWidth`] (seed 003 §5, eq. 5.1): the reference of the edge-width
+//!   occlusion. Every triangle is tested; all crossings of the segment are gathered, sorted
+//!   and paired ([`crsh_core::edge_width`]), with `R` the radius of the scene light
+//!   [`Ray::light`]. The stored hit is replaced. Counts `triangles` tests per ray. Candidate
+//!   queries do not answer it ([`CoreError::Unsupported`]): a ray's crossings would arrive
+//!   split over batches.
+//!
 //! # Candidate queries
 //!
 //! [`Query::Candidates`] tests only the listed (node, triangle) pairs: node `n` of
@@ -61,6 +68,7 @@
 
 use std::sync::{Arc, Mutex};
 
+use crsh_core::edge_width::{edge_width_hit, Crossing};
 use crsh_core::{
     check_leaf_offsets, lowest_node_leaves, Candidate, CoreError, Hit, HitMode, Intersector,
     ParamInfo, Query, Ray, RayHierarchy, RayKind, Registry, Result, StageKind, StageSpec,
@@ -82,6 +90,8 @@ pub const PACKET: usize = 16;
 #[derive(Debug)]
 pub struct BruteForce {
     tris: AnyTriangleSet,
+    /// The scene lights' radii: the `R` of edge-width queries.
+    radii: Vec<f32>,
     /// What the candidate queries last validated.
     validated: Mutex<Validated>,
 }
@@ -91,6 +101,7 @@ impl Clone for BruteForce {
     fn clone(&self) -> BruteForce {
         BruteForce {
             tris: self.tris.clone(),
+            radii: self.radii.clone(),
             validated: Mutex::default(),
         }
     }
@@ -161,6 +172,7 @@ impl BruteForce {
     pub fn with_test(scene: &Scene, kind: TestKind) -> BruteForce {
         BruteForce {
             tris: AnyTriangleSet::new(scene, kind),
+            radii: scene.lights.iter().map(|l| l.radius).collect(),
             validated: Mutex::default(),
         }
     }
@@ -186,6 +198,51 @@ pub(crate) fn test_kind(spec: &StageSpec, variant: &str) -> Result<TestKind> {
             crate::triangle::TEST_NAMES.join(", ")
         ),
     })
+}
+
+/// Edge-width answers ([`HitMode::EdgeWidth`]) for one packet of rays with test `T`: every
+/// crossing of each segment, sorted and paired by [`edge_width_hit`] with the radius of the
+/// ray's light. Returns the tests performed (every triangle, per ray).
+fn edge_width_packet<T: TriangleTest>(
+    set: &TriangleSet<T>,
+    rays: &[Ray],
+    hits: &mut [Hit],
+    radii: &[f32],
+) -> u64 {
+    let mut crossings = Vec::new();
+    for (ray, hit) in rays.iter().zip(hits.iter_mut()) {
+        crossings.clear();
+        let pre = T::ray_of(ray);
+        for (k, block) in set.blocks().iter().enumerate() {
+            let bh = T::test_block(block, &pre, ray.t_min, ray.t_max);
+            for l in 0..LANES {
+                if bh.t[l] < f32::INFINITY {
+                    crossings.push(Crossing {
+                        t: bh.t[l],
+                        tri: (k * LANES + l) as u32,
+                    });
+                }
+            }
+        }
+        *hit = edge_width_hit(&mut crossings, radii[ray.light as usize]);
+    }
+    (set.len() * rays.len()) as u64
+}
+
+/// Checks that every ray of an edge-width query names a light of the scene (its radius is
+/// the query's `R`).
+pub(crate) fn check_lights(rays: &[Ray], radii: &[f32]) -> Result<()> {
+    match rays
+        .par_iter()
+        .position_first(|r| r.light as usize >= radii.len())
+    {
+        Some(i) => Err(CoreError::InvalidInput(format!(
+            "edge-width ray {i} names light {} but the scene has {} lights",
+            rays[i].light,
+            radii.len()
+        ))),
+        None => Ok(()),
+    }
 }
 
 /// Scene query for one packet (`rays.len() <= PACKET`) with test `T`; returns the tests
@@ -231,7 +288,8 @@ fn scene_packet<T: TriangleTest>(
             }
             tests = (n * count) as u64;
         }
-        HitMode::Any => {
+        // Edge-width queries are answered by `edge_width_packet`, never here.
+        HitMode::Any | HitMode::EdgeWidth => {
             let mut remaining = active[..count].iter().filter(|&&a| a).count();
             for (k, block) in blocks.iter().enumerate() {
                 if remaining == 0 {
@@ -493,7 +551,8 @@ fn node_packet<T: TriangleTest>(
                 v: bh.v[l],
             };
             match mode {
-                HitMode::Any => {
+                // Edge-width queries never reach candidate tests (refused in `intersect`).
+                HitMode::Any | HitMode::EdgeWidth => {
                     best[l] = h;
                     active &= !(1 << l);
                 }
@@ -606,6 +665,37 @@ impl Intersector<Cpu> for BruteForce {
         stats: &mut Stats,
     ) -> Result<()> {
         check_lengths(rays, hits)?;
+        if mode == HitMode::EdgeWidth {
+            if let Query::Candidates { .. } = query {
+                return Err(CoreError::Unsupported {
+                    stage: "intersect",
+                    variant: "brute".into(),
+                    what: "edge-width queries on candidate pairs (a ray's crossings would be \
+                           split over batches); use a whole-scene query"
+                        .into(),
+                });
+            }
+            check_rays(rays)?;
+            check_lights(rays, &self.radii)?;
+            fn sweep_edges<T: TriangleTest>(
+                set: &TriangleSet<T>,
+                rays: &[Ray],
+                hits: &mut [Hit],
+                radii: &[f32],
+            ) -> u64 {
+                rays.par_chunks(PACKET)
+                    .zip(hits.par_chunks_mut(PACKET))
+                    .map(|(r, h)| edge_width_packet(set, r, h, radii))
+                    .sum()
+            }
+            let tests = match &self.tris {
+                AnyTriangleSet::MollerTrumbore(s) => sweep_edges(s, rays, hits, &self.radii),
+                AnyTriangleSet::Watertight(s) => sweep_edges(s, rays, hits, &self.radii),
+                AnyTriangleSet::Projected(s) => sweep_edges(s, rays, hits, &self.radii),
+            };
+            stats.add_ray_triangle(tests);
+            return Ok(());
+        }
         let tests = match query {
             Query::Scene => {
                 check_rays(rays)?;
@@ -938,7 +1028,7 @@ pub(crate) mod tests {
                         (rays.len() * b.triangles().len()) as u64
                     );
                 }
-                HitMode::Any => {
+                HitMode::Any | HitMode::EdgeWidth => {
                     for (g, w) in hits.iter().zip(&want) {
                         assert_eq!(g.is_hit(), w.is_hit());
                     }

@@ -158,7 +158,7 @@ impl BruteForce64 {
             v: v as f32,
         };
         let keep_new = match mode {
-            HitMode::Any => true,
+            HitMode::Any | HitMode::EdgeWidth => true,
             HitMode::Closest => hit.closer_than(&stored),
         };
         (if keep_new { hit } else { stored }, tests)
@@ -183,6 +183,9 @@ impl Intersector<Cpu> for BruteForce64 {
         hits: &mut Vec<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
+        if mode == HitMode::EdgeWidth {
+            return Err(mode.unsupported("brute64"));
+        }
         if let Query::Candidates { .. } = query {
             return Err(CoreError::Unsupported {
                 stage: "intersect",

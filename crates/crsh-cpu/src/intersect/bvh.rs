@@ -70,6 +70,16 @@
 //! and so are rays with an empty interval (`t_min ≥ t_max`: seed 001's rays whose origin
 //! offset passed their end "terminate in the root node"; here they do not even visit it).
 //!
+//! # Edge-width queries
+//!
+//! [`HitMode::EdgeWidth`] (seed 003 §5, eq. 5.1; seed 003's "future work": edge width on a
+//! BVH): a BVH visits leaves in no order along the ray, so the segment's crossings are
+//! gathered by a traversal without best-`t` culling (every box the segment `(t_min, t_max)`
+//! overlaps), then sorted and paired by [`crsh_core::edge_width`] with the radius of the
+//! ray's light. Each triangle is in one leaf (no spatial splits), so every crossing is found
+//! once and the answer is brute force's bit for bit. `bvh2` does not answer it
+//! ([`CoreError::Unsupported`]).
+//!
 //! Rays are traced in parallel with rayon, each independently, so results and counts do not
 //! depend on the thread count. [`Query::Candidates`] is not supported (a BVH tests the whole
 //! scene): it returns [`CoreError::Unsupported`].
@@ -77,6 +87,7 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use crsh_core::edge_width::{edge_width_hit, Crossing};
 use crsh_core::glam::{UVec2, Vec3, Vec3A};
 use crsh_core::{
     CoreError, Hit, HitMode, Intersector, ParamInfo, Query, Ray, Registry, Result, StageContext,
@@ -93,7 +104,7 @@ use obvhs::BvhBuildParams;
 use rayon::prelude::*;
 
 use crate::backend::Cpu;
-use crate::intersect::brute::{check_batch, test_kind};
+use crate::intersect::brute::{check_batch, check_lights, test_kind};
 use crate::triangle::{MollerTrumbore, Projected, TestKind, TriangleSet, TriangleTest, Watertight};
 
 /// Rays per rayon task.
@@ -179,6 +190,8 @@ pub(crate) enum LeafTriangles {
 pub(crate) struct Leaves {
     pub tris: LeafTriangles,
     pub ids: Vec<u32>,
+    /// The scene lights' radii: the `R` of edge-width queries.
+    pub radii: Vec<f32>,
 }
 
 impl Leaves {
@@ -196,7 +209,11 @@ impl Leaves {
             TestKind::Watertight => LeafTriangles::Watertight(prepare::<Watertight>(scene, &ids)),
             TestKind::Projected => LeafTriangles::Projected(prepare::<Projected>(scene, &ids)),
         };
-        Leaves { tris, ids }
+        Leaves {
+            tris,
+            ids,
+            radii: scene.lights.iter().map(|l| l.radius).collect(),
+        }
     }
 
     /// The ray-triangle test the triangles are prepared for.
@@ -493,6 +510,52 @@ impl CwBvh {
 
 impl LeafTracer for CwBvh {
     type Scratch = ();
+    const EDGE_WIDTH: bool = true;
+
+    fn gather<T: TriangleTest>(
+        &self,
+        leaf_tris: &[T::Tri],
+        ray: &Ray,
+        out: &mut Vec<Crossing>,
+        _: &mut (),
+    ) -> Counts {
+        let mut n = Counts::default();
+        if self.bvh.nodes.is_empty()
+            || ray.t_min.partial_cmp(&ray.t_max) != Some(std::cmp::Ordering::Less)
+        {
+            return n;
+        }
+        let r = T::ray_of(ray);
+        let nr = NodeRay::new(ray.origin, ray.dir);
+        let t_lo = entry_bound(ray.t_min);
+        let t_hi = cull_distance(ray.t_max);
+        let mut leaf_tops = 0u32;
+        let bvh = &self.bvh;
+        let mut state = bvh.new_traversal(Vec3A::from(ray.dir));
+        let mut node: &CwBvhNode;
+        obvhs::traverse!(
+            bvh,
+            node,
+            state,
+            {
+                n.inner += 1;
+                n.bounds += node.child_meta.iter().filter(|&&m| m != 0).count() as u64;
+                leaf_tops = leaf_top_bits(node);
+                child_hits(node, &nr, state.oct_inv4, t_lo, t_hi)
+            },
+            {
+                let slot = state.primitive_id as usize;
+                n.prims += 1;
+                n.leaves +=
+                    u64::from((leaf_tops >> (state.primitive_id - state.primitive_group.x)) & 1);
+                let id = self.leaves.ids[slot];
+                if let Some(h) = T::hit(&leaf_tris[slot], &r, ray.t_min, ray.t_max, id) {
+                    out.push(Crossing { t: h.t, tri: id });
+                }
+            }
+        );
+        n
+    }
 
     fn leaves(&self) -> &Leaves {
         &self.leaves
@@ -600,6 +663,23 @@ pub(crate) trait LeafTracer: Sync {
     /// Per-task scratch space (a traversal stack), reused by the rays of a rayon task.
     type Scratch: Default;
 
+    /// Whether [`LeafTracer::gather`] is implemented (edge-width queries are answered).
+    const EDGE_WIDTH: bool = false;
+
+    /// Appends to `out` every crossing of `ray`'s segment `(t_min, t_max)` with test `T`
+    /// (each once, any order), for [`HitMode::EdgeWidth`]; returns its counts. Only called
+    /// when [`LeafTracer::EDGE_WIDTH`] is set.
+    fn gather<T: TriangleTest>(
+        &self,
+        leaf_tris: &[T::Tri],
+        ray: &Ray,
+        out: &mut Vec<Crossing>,
+        scratch: &mut Self::Scratch,
+    ) -> Counts {
+        let _ = (leaf_tris, ray, out, scratch);
+        Counts::default()
+    }
+
     /// The tree's primitives.
     fn leaves(&self) -> &Leaves;
 
@@ -636,6 +716,42 @@ pub(crate) fn intersect_scene<X: LeafTracer>(
         });
     }
     check_batch(rays, hits)?;
+    if mode == HitMode::EdgeWidth {
+        if !X::EDGE_WIDTH {
+            return Err(mode.unsupported(variant));
+        }
+        check_lights(rays, &x.leaves().radii)?;
+        fn edges<T: TriangleTest, X: LeafTracer>(
+            x: &X,
+            leaf_tris: &[T::Tri],
+            rays: &[Ray],
+            hits: &mut [Hit],
+        ) -> Counts {
+            let radii = &x.leaves().radii;
+            rays.par_chunks(CHUNK)
+                .zip(hits.par_chunks_mut(CHUNK))
+                .map(|(rs, hs)| {
+                    let mut scratch = X::Scratch::default();
+                    let mut crossings = Vec::new();
+                    rs.iter()
+                        .zip(hs.iter_mut())
+                        .fold(Counts::default(), |n, (ray, h)| {
+                            crossings.clear();
+                            let c = x.gather::<T>(leaf_tris, ray, &mut crossings, &mut scratch);
+                            *h = edge_width_hit(&mut crossings, radii[ray.light as usize]);
+                            n.add(c)
+                        })
+                })
+                .reduce(Counts::default, Counts::add)
+        }
+        let counts = match &x.leaves().tris {
+            LeafTriangles::MollerTrumbore(t) => edges::<MollerTrumbore, X>(x, t, rays, hits),
+            LeafTriangles::Watertight(t) => edges::<Watertight, X>(x, t, rays, hits),
+            LeafTriangles::Projected(t) => edges::<Projected, X>(x, t, rays, hits),
+        };
+        counts.record(stats);
+        return Ok(());
+    }
     fn all<T: TriangleTest, X: LeafTracer>(
         x: &X,
         leaf_tris: &[T::Tri],
@@ -861,7 +977,7 @@ pub(crate) mod tests {
     ) {
         for (i, (g, w)) in got.iter().zip(want).enumerate() {
             match mode {
-                HitMode::Closest => assert_eq!(
+                HitMode::Closest | HitMode::EdgeWidth => assert_eq!(
                     (g.tri, g.t.to_bits(), g.u.to_bits(), g.v.to_bits()),
                     (w.tri, w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
                     "{what} ray {i}: {:?}: got {g:?} brute {w:?}",

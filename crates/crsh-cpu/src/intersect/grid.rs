@@ -924,6 +924,9 @@ impl Intersector<Cpu> for UniformGrid {
         hits: &mut Vec<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
+        if mode == HitMode::EdgeWidth {
+            return Err(mode.unsupported("grid"));
+        }
         if let Query::Candidates { .. } = query {
             return Err(CoreError::Unsupported {
                 stage: "intersect",
@@ -1476,7 +1479,7 @@ mod tests {
                                 HitMode::Closest => {
                                     assert_eq!(bits(g), bits(w), "{} {test:?} ray {i}", case.name)
                                 }
-                                HitMode::Any => assert_eq!(
+                                HitMode::Any | HitMode::EdgeWidth => assert_eq!(
                                     g.is_hit(),
                                     w.is_hit(),
                                     "{} {test:?} ray {i}",
@@ -1745,7 +1748,7 @@ mod tests {
             for (i, (g, w)) in a.iter().zip(&b).enumerate() {
                 match mode {
                     HitMode::Closest => assert_eq!(bits(g), bits(w), "ray {i}"),
-                    HitMode::Any => {
+                    HitMode::Any | HitMode::EdgeWidth => {
                         assert_eq!(g.is_hit(), w.is_hit(), "ray {i}");
                         if start[i].is_hit() {
                             assert_eq!(g, &start[i]);

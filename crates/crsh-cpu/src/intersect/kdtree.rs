@@ -1,6 +1,9 @@
 //! `kdtree`: RTTest's kd-tree (seed 003 §2.2.1, §3.2.1) over the scene's triangles, rays
-//! traced one by one front to back (listing 2.2 with its errata fixed,
-//! [`crate::kdtree::trace_single`]).
+//! traced front to back one by one (listing 2.2 with its errata fixed,
+//! [`crate::kdtree::trace_single`]) or together (parameter `traversal`: seed 003's 2×2 packets,
+//! omni-directional packets, frusta, MFT and cones over rays that share an origin,
+//! [`crate::kdtree::coherent`], their `N` and `I` in [`crsh_core::Stats::packets`]), and
+//! edge-width soft-shadow queries ([`HitMode::EdgeWidth`], [`crate::kdtree::edge_width`]).
 //!
 //! # Build
 //!
@@ -61,6 +64,7 @@ use crate::backend::Cpu;
 use crate::intersect::brute::{check_batch, test_kind};
 use crate::intersect::bvh::{test_param, CHUNK};
 use crate::kdtree::coherent::{trace_batch, CoherentOptions, Traversal};
+use crate::kdtree::edge_width::trace_batch_edge_width;
 use crate::kdtree::sah::{self, SahParams, MAX_DEPTH_LIMIT};
 use crate::kdtree::{middle, trace_single, KdCounts, KdTree};
 use crate::triangle::{
@@ -152,9 +156,10 @@ pub fn info() -> StageVariantInfo {
         StageKind::Intersect,
         "kdtree",
         "RTTest's kd-tree (seed 003: SAH with perfect splits, eq. 2.1, or middle splits; \
-         12-byte nodes, leaves with their cells), single rays front to back (listing 2.2 with \
-         its errata fixed), closest and any hit, inner nodes, leaves and triangle tests \
-         counted; whole-scene queries only",
+         12-byte nodes, leaves with their cells), rays front to back alone (listing 2.2 with \
+         its errata fixed) or in packets, frusta, MFT groups or cones (§2.3, §4.1), closest \
+         hit, any hit and edge width (§5), inner nodes, leaves and triangle tests counted; \
+         whole-scene queries only",
     );
     build_params()
         .into_iter()
@@ -300,6 +305,8 @@ pub fn build_tree(scene: &Scene, spec: &StageSpec, test: TestKind) -> Result<KdT
 /// The `kdtree` intersector: the tree and every scene triangle prepared for the test.
 pub struct KdIntersector {
     coherent: CoherentOptions,
+    /// The scene lights' radii: the `R` of edge-width queries.
+    radii: Vec<f32>,
     tree: KdTree,
     tris: AnyTriangleSet,
     build: Build,
@@ -341,6 +348,7 @@ impl KdIntersector {
         let build_time = t0.elapsed();
         KdIntersector {
             coherent: CoherentOptions::new(Traversal::Single, 1),
+            radii: scene.lights.iter().map(|l| l.radius).collect(),
             tree,
             tris: AnyTriangleSet::new(scene, test),
             build,
@@ -471,6 +479,35 @@ impl Intersector<Cpu> for KdIntersector {
         // Every mode is named: a new one must say how the tree answers it.
         match mode {
             HitMode::Closest | HitMode::Any => {}
+            HitMode::EdgeWidth => {
+                // Seed 003 §5: front to back through the tree, one ray at a time.
+                let r = &self.radii;
+                let counts = match &self.tris {
+                    AnyTriangleSet::MollerTrumbore(s) => trace_batch_edge_width::<MollerTrumbore>(
+                        &self.tree,
+                        s.triangles(),
+                        rays,
+                        r,
+                        hits,
+                    ),
+                    AnyTriangleSet::Watertight(s) => trace_batch_edge_width::<Watertight>(
+                        &self.tree,
+                        s.triangles(),
+                        rays,
+                        r,
+                        hits,
+                    ),
+                    AnyTriangleSet::Projected(s) => trace_batch_edge_width::<Projected>(
+                        &self.tree,
+                        s.triangles(),
+                        rays,
+                        r,
+                        hits,
+                    ),
+                }?;
+                counts.record(stats);
+                return Ok(());
+            }
         }
         check_batch(rays, hits)?;
         let o = &self.coherent;

@@ -38,6 +38,7 @@
 
 pub mod coherent;
 pub mod cone;
+pub mod edge_width;
 pub mod frustum;
 pub mod group;
 pub mod mft;

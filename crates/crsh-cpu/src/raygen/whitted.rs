@@ -20,6 +20,21 @@
 //!   the plane of the surface's geometric normal: the shader gives such a light no contribution
 //!   whatever the ray finds (see [`crate::shade::phong`]), so culling changes no pixel.
 //!   [`Ray::light`] holds the light index.
+//!
+//!   Soft shadows (seed 003 §5, param `shadow`, the light's radius `R` from the scene:
+//!   `Light::radius`): `hard` (the default) makes the one ray to the light's centre above;
+//!   `samples` makes `shadow_samples` rays per (surface, light) to stratified points of the
+//!   light's disc of radius `R` facing the surface point (the disc through the centre, normal
+//!   to the centre-to-surface direction: what a sphere light shows the point): `√N × √N`
+//!   strata when `N` is a square, else `1 × N`, each point `c + R·√u1·(cos 2πu2·t + sin 2πu2·b)`
+//!   jittered inside its stratum by the counter-based generator ([`crsh_core::rng`]) keyed by
+//!   (pixel, sample, surface depth, light), so the rays do not depend on the thread count;
+//!   slots are light-major, then sample-major, then in surface order. With `R = 0` every
+//!   sample is the centre and the image is the hard one. `edge_width` makes the hard ray and
+//!   asks the driver to trace it with [`HitMode::EdgeWidth`] ([`RayGen::visibility_mode`]):
+//!   eq. 5.1's occlusion from one ray. Back-face culling and the throughput are decided with
+//!   the light's centre for every variant. Generators that reuse these shadow rays without
+//!   declaring the params (`diffuse`) get `hard`.
 //! - **Reflection** (eq. 3.3-3.4): `d = i − 2 n (n · i)` with the incident direction `i` and the
 //!   interpolated shading normal `n`, for materials with reflectivity > 0; throughput is the
 //!   surface's throughput × reflectivity.
@@ -91,8 +106,9 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use crsh_core::glam::Vec3;
+use crsh_core::rng::{basis, unit, RngKey};
 use crsh_core::{
-    CoreError, ParamInfo, Ray, RayGen, RayKind, Registry, Result, StageKind, StageSpec,
+    CoreError, HitMode, ParamInfo, Ray, RayGen, RayKind, Registry, Result, StageKind, StageSpec,
     StageVariantInfo, Stats, Surface,
 };
 use crsh_scene::Scene;
@@ -114,6 +130,80 @@ pub enum ShadowOrigin {
     Surface,
 }
 
+/// How shadow rays sample a light (param `shadow`; see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ShadowMode {
+    /// One any-hit ray to the light's centre (hard shadows).
+    Hard,
+    /// This many any-hit rays to stratified points of the light's disc.
+    Samples(u32),
+    /// One ray to the centre, traced for its edge-width occlusion (seed 003 §5, eq. 5.1).
+    EdgeWidth,
+}
+
+impl ShadowMode {
+    /// The param value naming this mode (`hard`, `samples`, `edge_width`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            ShadowMode::Hard => "hard",
+            ShadowMode::Samples(_) => "samples",
+            ShadowMode::EdgeWidth => "edge_width",
+        }
+    }
+
+    /// Shadow rays per (surface, light).
+    pub fn rays_per_light(&self) -> u32 {
+        match self {
+            ShadowMode::Samples(n) => *n,
+            _ => 1,
+        }
+    }
+
+    /// The `shadow` and `shadow_samples` params of a resolved `spec`; `hard` when the spec
+    /// does not declare them (a generator that reuses Whitted's shadow rays).
+    pub fn from_spec(spec: &StageSpec) -> Result<ShadowMode> {
+        if !spec.params.contains_key("shadow") {
+            return Ok(ShadowMode::Hard);
+        }
+        match spec.str("shadow")? {
+            "hard" => Ok(ShadowMode::Hard),
+            "edge_width" => Ok(ShadowMode::EdgeWidth),
+            "samples" => Ok(ShadowMode::Samples(
+                spec.u32_in("shadow_samples", 1..=MAX_SHADOW_SAMPLES)
+                    .map_err(|e| match e {
+                        CoreError::InvalidParam { reason, .. } => CoreError::InvalidParam {
+                            key: "raygen.shadow_samples".into(),
+                            reason,
+                        },
+                        e => e,
+                    })?,
+            )),
+            other => Err(CoreError::InvalidParam {
+                key: "raygen.shadow".into(),
+                reason: format!("`{other}` is not one of hard, samples, edge_width"),
+            }),
+        }
+    }
+}
+
+/// The largest `shadow_samples`.
+pub const MAX_SHADOW_SAMPLES: u32 = 1024;
+
+/// The point of sample `sample` of `n` on a light disc of centre `c`, radius `radius` and unit
+/// normal `w` (see the module docs: `√n × √n` strata for a square `n`, else `1 × n`, jittered
+/// by the uniforms `xi`).
+pub fn disc_sample(c: Vec3, radius: f32, w: Vec3, sample: u32, n: u32, xi: [f32; 2]) -> Vec3 {
+    let m = (n as f64).sqrt().round() as u32;
+    let (cols, rows) = if m * m == n { (m, m) } else { (n, 1) };
+    let (i, k) = (sample % cols, sample / cols);
+    let u1 = (i as f32 + xi[0]) / cols as f32;
+    let u2 = (k as f32 + xi[1]) / rows as f32;
+    let r = radius * u1.sqrt();
+    let phi = std::f32::consts::TAU * u2;
+    let (t, b) = basis(w);
+    c + (t * phi.cos() + b * phi.sin()) * r
+}
+
 /// The per-material data ray generation needs.
 #[derive(Clone, Copy, Debug)]
 struct MatRays {
@@ -133,6 +223,8 @@ impl MatRays {
 #[derive(Clone, Debug)]
 pub struct Whitted {
     lights: Vec<Vec3>,
+    radii: Vec<f32>,
+    shadow: ShadowMode,
     materials: Vec<MatRays>,
     shadow_origin: ShadowOrigin,
     cull_backfacing: bool,
@@ -357,8 +449,24 @@ pub fn info() -> StageVariantInfo {
         StageKind::Raygen,
         "whitted",
         "shadow, reflection and refraction rays with total internal reflection, seed 000 \
-         §3.2.3 eq. 3.1-3.7",
+         §3.2.3 eq. 3.1-3.7; soft shadows by light samples or edge width (seed 003 §5)",
     )))
+    .param(ParamInfo::choice(
+        "shadow",
+        "hard",
+        &["hard", "samples", "edge_width"],
+        "shadow rays: one to the light's centre (hard), shadow_samples to stratified points \
+         of the light's disc (samples), or one traced for its edge-width occlusion, seed 003 \
+         eq. 5.1 (edge_width); the light radius is the scene's",
+    ))
+    .param(ParamInfo::int(
+        "shadow_samples",
+        16,
+        1,
+        MAX_SHADOW_SAMPLES as i64,
+        "shadow rays per light and surface for shadow = samples (√N×√N strata when N is a \
+         square)",
+    ))
 }
 
 /// The parameters of [`Whitted::new`] (`shadow_origin`, `cull_backfacing`, `min_throughput`
@@ -527,8 +635,16 @@ impl Whitted {
                 "light at {l} is not finite"
             )));
         }
+        let radii = scene.lights.iter().map(|l| l.radius).collect::<Vec<_>>();
+        if let Some(r) = radii.iter().find(|r| !(r.is_finite() && **r >= 0.0)) {
+            return Err(CoreError::InvalidInput(format!(
+                "light radius {r} is not a finite distance >= 0"
+            )));
+        }
         Ok(Whitted {
             lights,
+            radii,
+            shadow: ShadowMode::from_spec(spec)?,
             materials,
             shadow_origin,
             cull_backfacing,
@@ -537,6 +653,11 @@ impl Whitted {
             policy,
             offsets: Offsets::from_spec(scene, spec)?,
         })
+    }
+
+    /// How shadow rays sample the lights (params `shadow`, `shadow_samples`).
+    pub fn shadow(&self) -> ShadowMode {
+        self.shadow
     }
 
     /// The same generator with origin offsets `offsets` ([`super::offsets`]).
@@ -575,10 +696,18 @@ impl Whitted {
         throughput.max_element() >= self.min_throughput && throughput.is_finite()
     }
 
-    /// The shadow ray from surface `s` (index `source`) to light `light`, if one is needed.
-    fn shadow_ray(&self, source: u32, s: &Surface, m: &MatRays, light: u32) -> Option<Ray> {
-        let l = self.lights[light as usize];
-        let to_light = l - s.position;
+    /// Shadow ray `sample` (of [`ShadowMode::rays_per_light`]) from surface `s` (index
+    /// `source`) to light `light`, if one is needed.
+    fn shadow_ray(
+        &self,
+        source: u32,
+        s: &Surface,
+        m: &MatRays,
+        light: u32,
+        sample: u32,
+    ) -> Option<Ray> {
+        let centre = self.lights[light as usize];
+        let to_light = centre - s.position;
         if self.cull_backfacing && to_light.dot(s.geo_normal) <= 0.0 {
             return None;
         }
@@ -586,6 +715,26 @@ impl Whitted {
         if !self.keeps(throughput) {
             return None;
         }
+        let l = match self.shadow {
+            ShadowMode::Samples(n) => {
+                let key = RngKey {
+                    pixel: s.pixel,
+                    sample,
+                    bounce: s.depth,
+                    seed: light,
+                };
+                let w = key.words();
+                disc_sample(
+                    centre,
+                    self.radii[light as usize],
+                    (s.position - centre).normalize_or_zero(),
+                    sample,
+                    n,
+                    [unit(w[0]), unit(w[1])],
+                )
+            }
+            _ => centre,
+        };
         let leg = match self.shadow_origin {
             ShadowOrigin::Light => Leg::From(l),
             ShadowOrigin::Surface => Leg::To(l),
@@ -653,8 +802,8 @@ impl Whitted {
         trim(&slots, &flags)
     }
 
-    /// Ray creation before trimming (§3.2.3): one slot per surface (per light and surface,
-    /// light-major, for shadow rays) and its head flag, 1 where the slot holds a ray and 0
+    /// Ray creation before trimming (§3.2.3): one slot per surface (per light, sample and
+    /// surface, light-major then sample-major, for shadow rays) and its head flag, 1 where the slot holds a ray and 0
     /// where the surface spawns none (background, culled light, absorbed bounce); empty
     /// slots hold a zeroed ray.
     pub fn slots(&self, surfaces: &[Surface], kind: RayKind) -> Result<(Vec<Ray>, Vec<u32>)> {
@@ -679,8 +828,9 @@ impl Whitted {
                 ),
             });
         }
+        let samples = self.shadow.rays_per_light() as usize;
         let per_surface = if kind == RayKind::Shadow {
-            self.lights.len()
+            self.lights.len() * samples
         } else {
             1
         };
@@ -713,14 +863,15 @@ impl Whitted {
                 let mut ended = 0u64;
                 for (j, (ray, head)) in rays.iter_mut().zip(heads.iter_mut()).enumerate() {
                     let slot = c * CHUNK + j;
-                    let (source, light) = (slot % n, slot / n);
+                    let (source, light_sample) = (slot % n, slot / n);
+                    let (light, sample) = (light_sample / samples, light_sample % samples);
                     let s = &surfaces[source];
                     if !s.is_hit() {
                         continue;
                     }
                     let m = &self.materials[s.material as usize];
                     let made = if kind == RayKind::Shadow {
-                        self.shadow_ray(source as u32, s, m, light as u32)
+                        self.shadow_ray(source as u32, s, m, light as u32, sample as u32)
                     } else {
                         self.bounce_ray(source as u32, s, m, kind)
                     };
@@ -744,6 +895,13 @@ impl RayGen<Cpu> for Whitted {
 
     fn table_bytes(&self) -> u64 {
         self.offsets.table_bytes()
+    }
+
+    fn visibility_mode(&self) -> HitMode {
+        match self.shadow {
+            ShadowMode::EdgeWidth => HitMode::EdgeWidth,
+            _ => HitMode::Any,
+        }
     }
 
     fn generate(
@@ -809,6 +967,7 @@ pub(crate) mod tests {
             color: Vec3::ONE,
             intensity: 1.0,
             attenuation: [1.0, 0.0, 0.0],
+            radius: 0.0,
         }
     }
 

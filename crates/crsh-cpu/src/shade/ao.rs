@@ -16,8 +16,8 @@
 use std::sync::Arc;
 
 use crsh_core::{
-    CoreError, Hit, ParamInfo, Ray, RayKind, Registry, Result, Shader, StageKind, StageSpec,
-    StageVariantInfo, Stats, Surface,
+    CoreError, Hit, HitMode, ParamInfo, Ray, RayKind, Registry, Result, Shader, StageKind,
+    StageSpec, StageVariantInfo, Stats, Surface,
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
@@ -143,9 +143,20 @@ impl Shader<Cpu> for AoShader {
         surfaces: &Vec<Surface>,
         rays: &Vec<Ray>,
         hits: &Vec<Hit>,
+        mode: HitMode,
         image: &mut Vec<[f32; 4]>,
         _stats: &mut Stats,
     ) -> Result<()> {
+        if mode != HitMode::Any {
+            return Err(CoreError::Unsupported {
+                stage: "shade",
+                variant: "ao".into(),
+                what: format!(
+                    "ambient-occlusion rays traced with {} queries (only any-hit)",
+                    mode.name()
+                ),
+            });
+        }
         self.shade(surfaces, rays, hits, image)
     }
 

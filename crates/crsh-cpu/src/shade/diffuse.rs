@@ -13,8 +13,8 @@
 use std::sync::Arc;
 
 use crsh_core::{
-    Hit, ParamInfo, Ray, RayKind, Registry, Result, Shader, StageKind, StageSpec, StageVariantInfo,
-    Stats, Surface,
+    Hit, HitMode, ParamInfo, Ray, RayKind, Registry, Result, Shader, StageKind, StageSpec,
+    StageVariantInfo, Stats, Surface,
 };
 use crsh_scene::Scene;
 
@@ -89,10 +89,12 @@ impl Shader<Cpu> for DiffuseShader {
         surfaces: &Vec<Surface>,
         shadow_rays: &Vec<Ray>,
         shadow_hits: &Vec<Hit>,
+        mode: HitMode,
         image: &mut Vec<[f32; 4]>,
         _stats: &mut Stats,
     ) -> Result<()> {
-        self.inner.shade(surfaces, shadow_rays, shadow_hits, image)
+        self.inner
+            .shade_mode(surfaces, shadow_rays, shadow_hits, mode, image)
     }
 
     fn resolve(

@@ -3,10 +3,14 @@
 //!
 //! # Direct light ([`Phong::shade_direct`])
 //!
-//! For every surface record that holds a hit, and every light whose shadow ray found no
-//! occluder (a light without a shadow ray, because ray generation culled it, contributes
-//! nothing; as in the thesis, any occluder blocks the light fully, transparent ones included),
-//! eq. 3.19:
+//! For every surface record that holds a hit, and every light that is visible from it, eq.
+//! 3.19 weighted by the light's visibility. The visibility of a light from a surface is the
+//! mean over its shadow rays (one for hard shadows, several for sampled soft shadows) of 1 for
+//! a ray that found no occluder, 0 for an any-hit ray that found one (as in the thesis, any
+//! occluder blocks the light fully, transparent ones included) and `1 − occlusion` for an
+//! edge-width ray (seed 003 §5, eq. 5.1, [`crsh_core::HitMode::EdgeWidth`]). A light without a
+//! shadow ray (ray generation culled it) contributes nothing. With one any-hit ray per light
+//! the visibility is 0 or 1 and the image is exactly the hard-shadow one:
 //!
 //! ```text
 //! l     = (light − p) / |light − p|                        (3.19a)
@@ -59,7 +63,7 @@ use std::sync::Arc;
 
 use crsh_core::glam::Vec3;
 use crsh_core::{
-    CoreError, Hit, ParamInfo, Ray, Registry, Result, Shader, StageKind, StageSpec,
+    CoreError, Hit, HitMode, ParamInfo, Ray, Registry, Result, Shader, StageKind, StageSpec,
     StageVariantInfo, Stats, Surface,
 };
 use crsh_scene::Scene;
@@ -285,8 +289,9 @@ impl Phong {
         &self.scene
     }
 
-    /// The radiance record `s` adds to its pixel, given which lights are visible from it.
-    fn contribution(&self, s: &Surface, visible: impl Fn(usize) -> bool) -> Vec3 {
+    /// The radiance record `s` adds to its pixel, given the visibility (in `[0, 1]`) of each
+    /// light from it.
+    fn contribution(&self, s: &Surface, visible: impl Fn(usize) -> f32) -> Vec3 {
         if !s.is_hit() {
             return s.throughput * self.background;
         }
@@ -300,9 +305,10 @@ impl Phong {
             };
             let mut color = Vec3::ZERO;
             for (li, l) in self.lights.iter().enumerate() {
-                if visible(li) {
+                let f = visible(li);
+                if f > 0.0 {
                     color +=
-                        light_term(s.position, s.normal, s.geo_normal, s.incident, &lambert, l);
+                        light_term(s.position, s.normal, s.geo_normal, s.incident, &lambert, l) * f;
                 }
             }
             return emitted + color * s.throughput;
@@ -312,16 +318,16 @@ impl Phong {
         }
         let mut color = m.diffuse * self.ambient;
         for (li, l) in self.lights.iter().enumerate() {
-            if visible(li) {
-                color += light_term(s.position, s.normal, s.geo_normal, s.incident, m, l);
+            let f = visible(li);
+            if f > 0.0 {
+                color += light_term(s.position, s.normal, s.geo_normal, s.incident, m, l) * f;
             }
         }
         emitted + color * m.local_weight * s.throughput
     }
 
-    /// Adds the direct light of `surfaces` to `image` (see the module docs). `visible` rays are
-    /// the shadow rays with their hits; an unoccluded ray makes its light visible from its
-    /// source surface.
+    /// Adds the direct light of `surfaces` to `image` (see the module docs) for shadow rays
+    /// traced with any-hit queries: [`Phong::shade_mode`] with [`HitMode::Any`].
     pub fn shade(
         &self,
         surfaces: &[Surface],
@@ -329,6 +335,29 @@ impl Phong {
         shadow_hits: &[Hit],
         image: &mut [[f32; 4]],
     ) -> Result<()> {
+        self.shade_mode(surfaces, shadow_rays, shadow_hits, HitMode::Any, image)
+    }
+
+    /// Adds the direct light of `surfaces` to `image` (see the module docs): the shadow rays
+    /// with their hits, traced with `mode` ([`HitMode::Any`] or [`HitMode::EdgeWidth`]), give
+    /// each light's visibility from each ray's source surface.
+    pub fn shade_mode(
+        &self,
+        surfaces: &[Surface],
+        shadow_rays: &[Ray],
+        shadow_hits: &[Hit],
+        mode: HitMode,
+        image: &mut [[f32; 4]],
+    ) -> Result<()> {
+        if mode == HitMode::Closest {
+            return Err(CoreError::Unsupported {
+                stage: "shade",
+                variant: "phong".into(),
+                what: "shadow rays traced for their nearest hit (visibility needs any-hit or \
+                       edge-width queries)"
+                    .into(),
+            });
+        }
         if shadow_rays.len() != shadow_hits.len() {
             return Err(CoreError::InvalidInput(format!(
                 "{} shadow rays but {} hits",
@@ -349,9 +378,11 @@ impl Phong {
                 self.materials.len()
             )));
         }
-        // Visibility bit per (surface, light).
+        // Visibility per (surface, light): the sum over its shadow rays, in ray order (so the
+        // result does not depend on the thread count), and their number.
         let nl = self.lights.len();
-        let mut visible = vec![0u64; (surfaces.len() * nl).div_ceil(64)];
+        let mut lit = vec![0f32; surfaces.len() * nl];
+        let mut rays = vec![0u32; surfaces.len() * nl];
         for (r, h) in shadow_rays.iter().zip(shadow_hits) {
             let (src, li) = (r.source as usize, r.light as usize);
             if src >= surfaces.len() || li >= nl {
@@ -361,18 +392,24 @@ impl Phong {
                     surfaces.len()
                 )));
             }
-            if !h.is_hit() {
-                let bit = src * nl + li;
-                visible[bit / 64] |= 1 << (bit % 64);
-            }
+            let k = src * nl + li;
+            lit[k] += match mode {
+                HitMode::EdgeWidth => 1.0 - crsh_core::edge_width::occlusion(h),
+                _ => f32::from(u8::from(!h.is_hit())),
+            };
+            rays[k] += 1;
         }
         let contributions: Vec<Vec3> = surfaces
             .par_iter()
             .enumerate()
             .map(|(i, s)| {
                 self.contribution(s, |li| {
-                    let bit = i * nl + li;
-                    visible[bit / 64] & (1 << (bit % 64)) != 0
+                    let k = i * nl + li;
+                    match rays[k] {
+                        0 => 0.0,
+                        1 => lit[k],
+                        n => lit[k] / n as f32,
+                    }
                 })
             })
             .collect();
@@ -404,10 +441,11 @@ impl Shader<Cpu> for Phong {
         surfaces: &Vec<Surface>,
         shadow_rays: &Vec<Ray>,
         shadow_hits: &Vec<Hit>,
+        mode: HitMode,
         image: &mut Vec<[f32; 4]>,
         _stats: &mut Stats,
     ) -> Result<()> {
-        self.shade(surfaces, shadow_rays, shadow_hits, image)
+        self.shade_mode(surfaces, shadow_rays, shadow_hits, mode, image)
     }
 
     fn resolve(
@@ -485,6 +523,52 @@ mod tests {
         sh.shade(&s[..1], &rays[..1], &[Hit::MISS], &mut img)
             .unwrap();
         assert_eq!(img[0], [2.0, 1.0, 0.5, 1.0]);
+    }
+
+    #[test]
+    fn visibility_is_the_mean_over_a_light_s_shadow_rays() {
+        let mat = Material {
+            diffuse: Vec3::new(1.0, 0.5, 0.25),
+            ..Material::default()
+        };
+        let scene = quad_scene(vec![mat], vec![light(Vec3::new(0.0, 0.0, 1.0))]);
+        let sh = Phong::new(&scene, &spec(0.0, 0.0)).unwrap();
+        let s = [surface(Vec3::ZERO, 0, 0)];
+        // Sampled soft shadows: 3 of 4 any-hit rays unoccluded.
+        let rays = [shadow(0, 0); 4];
+        let mut img = vec![[0.0f32; 4]; 1];
+        sh.shade(
+            &s,
+            &rays,
+            &[Hit::MISS, OCCLUDED, Hit::MISS, Hit::MISS],
+            &mut img,
+        )
+        .unwrap();
+        assert_eq!(img[0], [0.75, 0.375, 0.1875, 1.0]);
+        // Edge width (seed 003 eq. 5.1): occlusion u = 0.25 leaves 3/4 of the light; a miss
+        // all of it; a full occlusion none.
+        let partial = Hit {
+            u: 0.25,
+            v: 0.1,
+            ..OCCLUDED
+        };
+        for (hit, want) in [
+            (partial, 0.75),
+            (Hit::MISS, 1.0),
+            (Hit { u: 1.0, ..OCCLUDED }, 0.0),
+        ] {
+            let mut img = vec![[0.0f32; 4]; 1];
+            sh.shade_mode(&s, &rays[..1], &[hit], HitMode::EdgeWidth, &mut img)
+                .unwrap();
+            assert_eq!(img[0], [want, 0.5 * want, 0.25 * want, 1.0], "{hit:?}");
+        }
+        // Any-hit shading reads an edge-width hit as a full occlusion; nearest hits are refused.
+        let mut img = vec![[0.0f32; 4]; 1];
+        sh.shade(&s, &rays[..1], &[partial], &mut img).unwrap();
+        assert_eq!(img[0], [0.0, 0.0, 0.0, 1.0]);
+        assert!(sh
+            .shade_mode(&s, &rays[..1], &[partial], HitMode::Closest, &mut img)
+            .is_err());
     }
 
     #[test]

@@ -128,6 +128,7 @@ pub fn builder() -> SceneBuilder {
         color: Vec3::ONE,
         intensity: 1.0,
         attenuation: [1.0, 0.0, 0.0],
+        radius: 0.0,
     });
     b.camera(Camera {
         eye: v(0.0, 0.1, 0.95),

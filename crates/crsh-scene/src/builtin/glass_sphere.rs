@@ -512,5 +512,6 @@ pub(crate) fn corridor(b: &mut SceneBuilder) {
         color: Vec3::ONE,
         intensity: 1.0,
         attenuation: [1.0, 0.0, 0.0],
+        radius: 0.0,
     });
 }

@@ -327,12 +327,14 @@ pub fn builder() -> SceneBuilder {
         color: v(1.0, 0.97, 0.9),
         intensity: 1.0,
         attenuation: [1.0, 0.0, 0.0],
+        radius: 0.0,
     });
     b.light(Light {
         position: v(2.5, 2.8, 1.5),
         color: v(0.9, 0.95, 1.0),
         intensity: 0.8,
         attenuation: [1.0, 0.0, 0.0],
+        radius: 0.0,
     });
     b.camera(Camera {
         eye: v(-4.3, 2.2, 3.6),

@@ -141,6 +141,7 @@ fn light(position: Vec3) -> Light {
         color: Vec3::ONE,
         intensity: 1.0,
         attenuation: [1.0, 0.0, 0.0],
+        radius: 0.0,
     }
 }
 

@@ -321,6 +321,9 @@ impl Intersector<Wgpu> for BruteForce {
         hits: &mut GpuBuffer<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
+        if mode == HitMode::EdgeWidth {
+            return Err(mode.unsupported("brute (wgpu)"));
+        }
         if rays.len() != hits.len() {
             return Err(CoreError::InvalidInput(format!(
                 "{} rays but {} hits",

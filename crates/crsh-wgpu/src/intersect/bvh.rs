@@ -137,6 +137,9 @@ impl Intersector<Wgpu> for CwBvh {
         hits: &mut GpuBuffer<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
+        if mode == HitMode::EdgeWidth {
+            return Err(mode.unsupported("bvh (wgpu)"));
+        }
         if !matches!(query, Query::Scene) {
             return Err(CoreError::Unsupported {
                 stage: "intersect",

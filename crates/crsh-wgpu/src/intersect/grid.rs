@@ -423,6 +423,9 @@ impl Intersector<Wgpu> for UniformGrid {
         hits: &mut GpuBuffer<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
+        if mode == HitMode::EdgeWidth {
+            return Err(mode.unsupported("grid (wgpu)"));
+        }
         if !matches!(query, Query::Scene) {
             return Err(CoreError::Unsupported {
                 stage: "intersect",
@@ -681,7 +684,9 @@ mod tests {
                             assert_eq!(g, w, "{name} ray {i}: gpu vs cpu grid");
                             assert_eq!(g, r, "{name} ray {i}: gpu vs brute");
                         }
-                        HitMode::Any => assert_eq!(g.is_hit(), r.is_hit(), "{name} any ray {i}"),
+                        HitMode::Any | HitMode::EdgeWidth => {
+                            assert_eq!(g.is_hit(), r.is_hit(), "{name} any ray {i}")
+                        }
                     }
                 }
                 assert!(want.iter().filter(|h| h.is_hit()).count() > rays.len() / 4);

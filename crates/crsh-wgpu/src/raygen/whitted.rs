@@ -117,6 +117,16 @@ impl Whitted {
         // The CPU constructor validates every other parameter and the scene's materials and
         // lights (without building a second hemisphere set).
         let cpu = crsh_cpu::raygen::whitted::Whitted::new(&scene.scene, &without_offsets(spec))?;
+        if cpu.shadow() != crsh_cpu::raygen::whitted::ShadowMode::Hard {
+            return Err(CoreError::Unsupported {
+                stage: "raygen",
+                variant: "whitted (wgpu)".into(),
+                what: format!(
+                    "shadow = {} (soft shadows are CPU-only; use shadow = hard)",
+                    cpu.shadow().name()
+                ),
+            });
+        }
         let (policy, offset) = slots::policy_code(cpu.policy());
         Ok(Whitted {
             scene: Arc::clone(scene),

@@ -16,7 +16,7 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 use crsh_core::{
-    CoreError, Hit, Ray, RayKind, Registry, Result, Shader, StageSpec, Stats, Surface,
+    CoreError, Hit, HitMode, Ray, RayKind, Registry, Result, Shader, StageSpec, Stats, Surface,
 };
 
 use crate::adapter::GpuContext;
@@ -199,9 +199,21 @@ impl Shader<Wgpu> for AoShader {
         surfaces: &GpuBuffer<Surface>,
         rays: &GpuBuffer<Ray>,
         hits: &GpuBuffer<Hit>,
+        mode: HitMode,
         image: &mut GpuBuffer<[f32; 4]>,
         _stats: &mut Stats,
     ) -> Result<()> {
+        if mode != HitMode::Any {
+            return Err(CoreError::Unsupported {
+                stage: "shade",
+                variant: "ao (wgpu)".into(),
+                what: format!(
+                    "visibility rays traced with {} queries (only any-hit: soft shadows are \
+                     CPU-only)",
+                    mode.name()
+                ),
+            });
+        }
         self.shade(backend, surfaces, rays, hits, image)
     }
 

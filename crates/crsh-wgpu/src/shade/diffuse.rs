@@ -11,7 +11,9 @@
 
 use std::sync::Arc;
 
-use crsh_core::{Hit, ParamValue, Ray, Registry, Result, Shader, StageSpec, Stats, Surface};
+use crsh_core::{
+    CoreError, Hit, HitMode, ParamValue, Ray, Registry, Result, Shader, StageSpec, Stats, Surface,
+};
 
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::scene::GpuScene;
@@ -58,9 +60,21 @@ impl Shader<Wgpu> for DiffuseShader {
         surfaces: &GpuBuffer<Surface>,
         shadow_rays: &GpuBuffer<Ray>,
         shadow_hits: &GpuBuffer<Hit>,
+        mode: HitMode,
         image: &mut GpuBuffer<[f32; 4]>,
         _stats: &mut Stats,
     ) -> Result<()> {
+        if mode != HitMode::Any {
+            return Err(CoreError::Unsupported {
+                stage: "shade",
+                variant: "diffuse (wgpu)".into(),
+                what: format!(
+                    "visibility rays traced with {} queries (only any-hit: soft shadows are \
+                     CPU-only)",
+                    mode.name()
+                ),
+            });
+        }
         self.inner
             .shade(backend, surfaces, shadow_rays, shadow_hits, image)
     }

@@ -21,7 +21,9 @@
 use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
-use crsh_core::{CoreError, Hit, Ray, Registry, Result, Shader, StageSpec, Stats, Surface};
+use crsh_core::{
+    CoreError, Hit, HitMode, Ray, Registry, Result, Shader, StageSpec, Stats, Surface,
+};
 pub use crsh_cpu::shade::phong::Model;
 
 use crate::adapter::GpuContext;
@@ -335,9 +337,21 @@ impl Shader<Wgpu> for Phong {
         surfaces: &GpuBuffer<Surface>,
         shadow_rays: &GpuBuffer<Ray>,
         shadow_hits: &GpuBuffer<Hit>,
+        mode: HitMode,
         image: &mut GpuBuffer<[f32; 4]>,
         _stats: &mut Stats,
     ) -> Result<()> {
+        if mode != HitMode::Any {
+            return Err(CoreError::Unsupported {
+                stage: "shade",
+                variant: "phong (wgpu)".into(),
+                what: format!(
+                    "visibility rays traced with {} queries (only any-hit: soft shadows are \
+                     CPU-only)",
+                    mode.name()
+                ),
+            });
+        }
         self.shade(backend, surfaces, shadow_rays, shadow_hits, image)
     }
 
