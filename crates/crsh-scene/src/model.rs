@@ -1022,6 +1022,37 @@ mod tests {
     }
 
     #[test]
+    fn light_radius_is_validated_and_overridden() {
+        let mut b = builder();
+        b.mesh("a", &TRI, None, &[[0, 1, 2]], 0);
+        b.light(Light {
+            position: Vec3::ONE,
+            color: Vec3::ONE,
+            intensity: 1.0,
+            attenuation: [1.0, 0.0, 0.0],
+            radius: -0.5,
+        });
+        let e = err(b);
+        assert!(e.contains("light #0") && e.contains("radius"), "{e}");
+        let mut b = builder();
+        b.mesh("a", &TRI, None, &[[0, 1, 2]], 0);
+        b.light(Light {
+            position: Vec3::ONE,
+            color: Vec3::ONE,
+            intensity: 1.0,
+            attenuation: [1.0, 0.0, 0.0],
+            radius: 0.0,
+        });
+        let mut s = b.build("x").unwrap();
+        s.set_light_radius(0.25).unwrap();
+        assert_eq!(s.lights[0].radius, 0.25);
+        for bad in [-1.0, f32::NAN, f32::INFINITY] {
+            assert!(s.set_light_radius(bad).is_err(), "{bad}");
+            assert_eq!(s.lights[0].radius, 0.25, "unchanged after {bad}");
+        }
+    }
+
+    #[test]
     fn normals_count_mismatch_is_an_error() {
         let mut b = builder();
         b.mesh("n", &TRI, Some(&[Vec3::Z]), &[[0, 1, 2]], 0);
