@@ -859,9 +859,10 @@ mod tests {
                     for t in [Traversal::Frustum, Traversal::Mft, Traversal::Cone] {
                         let off = counts(&fx, rays, want, o(t, tile, false), Shape::Pyramid);
                         let on = counts(&fx, rays, want, o(t, tile, true), Shape::Pyramid);
-                        // Culling only skips tests, never nodes.
+                        // Culling only skips tests. (Nodes may differ either way: a packet
+                        // tested in a cell its rays miss can find their hits sooner, and the
+                        // cells past a group's hits are skipped.)
                         assert!(on.packet_tests <= off.packet_tests, "{name} {t:?} {tile}");
-                        assert_eq!(on.nodes, off.nodes, "{name} {t:?} {tile}");
                         assert_eq!(off.culled_tests, 0);
                         assert_eq!(on.packets, pk.packets);
                     }

@@ -211,6 +211,9 @@ pub fn trace_proxy<T: TriangleTest>(
         mut far,
     }) = stack.pop()
     {
+        if near > st.limit() {
+            continue;
+        }
         loop {
             let n = &tree.nodes[node as usize];
             st.pc.nodes += 1;
@@ -222,6 +225,7 @@ pub fn trace_proxy<T: TriangleTest>(
                 if st.all_done() {
                     return;
                 }
+                st.update_limits();
                 break;
             }
             st.kd.inner += 1;

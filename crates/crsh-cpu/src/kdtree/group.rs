@@ -154,6 +154,10 @@ pub struct GroupState<'t, T: TriangleTest> {
     pub packets: Vec<PacketRef>,
     /// Unfinished rays per tile quadrant.
     pub remaining: [u32; 4],
+    /// Per tile quadrant, the largest best-hit `t` of its unfinished rays (`+∞` while one of
+    /// them has no hit): a subtree whose interval starts beyond it holds nothing those rays
+    /// still need ([`GroupState::update_limits`]).
+    pub limits: [f32; 4],
     /// Node and ray-triangle counts.
     pub kd: KdCounts,
     /// The paper's packet metrics.
@@ -205,6 +209,7 @@ impl<'t, T: TriangleTest> GroupState<'t, T> {
             root,
             packets: group.packets.clone(),
             remaining,
+            limits: [f32::INFINITY; 4],
             kd: KdCounts::default(),
             pc: PacketCounts {
                 packets: group.packets.len() as u64,
@@ -220,12 +225,47 @@ impl<'t, T: TriangleTest> GroupState<'t, T> {
         self.remaining == [0; 4]
     }
 
+    /// Recomputes [`GroupState::limits`] (after a leaf's tests). A closest-hit ray with a hit on
+    /// a split plane is final in no cell; the limits let the traversals skip the cells past
+    /// such hits (the group's intervals are widened, so no cell that could hold a closer hit
+    /// is skipped).
+    pub fn update_limits(&mut self) {
+        let mut limits = [f32::NEG_INFINITY; 4];
+        for pk in &self.packets {
+            let q = pk.quadrant as usize;
+            for i in pk.start as usize..(pk.start + pk.len) as usize {
+                if !self.done[i] {
+                    limits[q] = limits[q].max(self.best[i].t);
+                }
+            }
+        }
+        self.limits = limits;
+    }
+
+    /// The largest of [`GroupState::limits`]: the proxy of the whole tile needs nothing past
+    /// it.
+    #[inline]
+    pub fn limit(&self) -> f32 {
+        self.limits.iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b))
+    }
+
     /// Bit mask (over the tile quadrants) of the quadrants with unfinished rays.
     #[inline]
     pub fn alive_quadrants(&self) -> u32 {
         (0..4)
             .filter(|&q| self.remaining[q] > 0)
             .fold(0, |m, q| m | 1 << q)
+    }
+
+    /// The best-hit `t` of packet `p`'s lanes (`+∞` for lanes past its rays).
+    #[inline]
+    pub fn packet_best_t(&self, p: usize) -> super::simd::F4 {
+        let pk = self.packets[p];
+        let mut t = [f32::INFINITY; 4];
+        for (l, t) in t.iter_mut().enumerate().take(pk.len as usize) {
+            *t = self.best[pk.start as usize + l].t;
+        }
+        super::simd::F4::new(t)
     }
 
     /// Bit mask of packet `p`'s unfinished rays (bit `l`: ray `start + l`).

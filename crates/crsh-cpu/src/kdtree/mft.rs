@@ -121,6 +121,12 @@ pub fn trace_group<T: TriangleTest>(
         loop {
             // Steps 2, 5 and 7.
             mask &= st.alive_quadrants();
+            // Quadrants whose unfinished rays all have hits before this subtree.
+            for q in 0..4 {
+                if near.lane(q) > st.limits[q] {
+                    mask &= !(1 << q);
+                }
+            }
             if mask == 0 {
                 break;
             }
@@ -134,6 +140,7 @@ pub fn trace_group<T: TriangleTest>(
                         st.test_packet(n.index as usize, p, 0xF, cull);
                     }
                 }
+                st.update_limits();
                 break;
             }
             st.kd.inner += 1;

@@ -104,7 +104,10 @@ pub fn trace_lanes<T: TriangleTest>(
     {
         loop {
             let alive = st.live(p) & lanes;
-            let active = near.le(far).and(M4::from_bits(alive));
+            // A lane whose best hit lies before this subtree needs nothing in it (a hit on a
+            // split plane is final in no cell).
+            let best = st.packet_best_t(p);
+            let active = near.le(far).and(near.le(best)).and(M4::from_bits(alive));
             if active.bits() == 0 {
                 break;
             }
