@@ -39,10 +39,9 @@
 use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
-use crsh_core::glam::Vec3;
 use crsh_core::{
-    CoreError, Hit, HitMode, Intersector, ParamInfo, Query, Ray, Registry, Result, StageKind,
-    StageSpec, StageVariantInfo, Stats,
+    CoreError, Hit, HitMode, Intersector, Query, Ray, Registry, Result, StageSpec,
+    StageVariantInfo, Stats,
 };
 #[cfg(doc)]
 use crsh_cpu::kdtree::trace_single;
@@ -384,8 +383,8 @@ mod tests {
     fn chain(depth: u32) -> KdTree {
         let mut tree = KdTree {
             bounds: Aabb {
-                min: Vec3::ZERO,
-                max: Vec3::ONE,
+                min: crsh_core::glam::Vec3::ZERO,
+                max: crsh_core::glam::Vec3::ONE,
             },
             depth,
             ..KdTree::default()
