@@ -219,8 +219,10 @@ pub fn trace_proxy<T: TriangleTest>(
             st.pc.nodes += 1;
             if n.is_leaf() {
                 st.kd.leaves += 1;
-                for p in 0..st.packets.len() {
-                    st.test_packet(n.index as usize, p, 0xF, cull);
+                if st.tree.leaves[n.index as usize].count > 0 {
+                    for p in 0..st.packets.len() {
+                        st.test_packet(n.index as usize, p, 0xF, cull);
+                    }
                 }
                 if st.all_done() {
                     return;

@@ -300,11 +300,14 @@ impl<'t, T: TriangleTest> GroupState<'t, T> {
     pub fn test_packet(&mut self, leaf: usize, p: usize, lanes: u32, cull: bool) {
         let pk = self.packets[p];
         let start = pk.start as usize;
+        let lf = &self.tree.leaves[leaf];
+        if lf.count == 0 {
+            return;
+        }
         let mut live = self.live(p) & lanes;
         if live == 0 {
             return;
         }
-        let lf = &self.tree.leaves[leaf];
         if cull {
             let cell = lf.cell();
             let meets = lanes_of(live).any(|l| {
