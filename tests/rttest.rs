@@ -92,3 +92,30 @@ fn bad_traversal_values_are_refused() {
         assert!(err.to_string().contains(key), "{set}: {err}");
     }
 }
+
+#[test]
+fn coherent_kinds_picks_the_rays_that_travel_together() {
+    let scene = Arc::new(crsh_scene::builtin::build("office-boxes").unwrap());
+    let want = render(&scene, &cast_by("brute", &[]));
+    for (kinds, grouped, alone) in [
+        ("primary", "primary", "shadow"),
+        ("shadow", "shadow", "primary"),
+    ] {
+        let cfg = cast_by(
+            "kdtree",
+            &[
+                "intersect.traversal=mft",
+                &format!("intersect.coherent_kinds={kinds}"),
+            ],
+        );
+        let got = render(&scene, &cfg);
+        assert_eq!(bits(&got.image), bits(&want.image), "{kinds}");
+        let p = &got.stats.packets;
+        assert!(
+            p[grouped].groups > 0 && p[grouped].single_rays == 0,
+            "{kinds}: {p:?}"
+        );
+        assert_eq!(p[alone].groups, 0, "{kinds}: {p:?}");
+        assert_eq!(p[alone].single_rays, p[alone].packets, "{kinds}: {p:?}");
+    }
+}

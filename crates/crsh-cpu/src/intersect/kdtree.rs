@@ -190,6 +190,14 @@ pub fn traversal_params() -> Vec<ParamInfo> {
             i64::from(CoherentOptions::MAX_TILE),
             "tile side in pixels of frustum, mft and cone (even; the paper's 4 to 32)",
         ),
+        ParamInfo::choice(
+            "coherent_kinds",
+            "all",
+            &["all", "primary", "shadow"],
+            "which rays take `traversal`: `all`, or only camera (`primary`) or shadow rays, the \
+             others going alone (seed 003 traces frusta of camera rays and packets of \
+             secondary rays)",
+        ),
         ParamInfo::bool(
             "leaf_culling",
             true,
@@ -305,6 +313,8 @@ pub fn build_tree(scene: &Scene, spec: &StageSpec, test: TestKind) -> Result<KdT
 /// The `kdtree` intersector: the tree and every scene triangle prepared for the test.
 pub struct KdIntersector {
     coherent: CoherentOptions,
+    /// The ray kind `coherent` applies to (`None`: every kind).
+    coherent_kind: Option<RayKind>,
     /// The scene lights' radii: the `R` of edge-width queries.
     radii: Vec<f32>,
     tree: KdTree,
@@ -348,6 +358,7 @@ impl KdIntersector {
         let build_time = t0.elapsed();
         KdIntersector {
             coherent: CoherentOptions::new(Traversal::Single, 1),
+            coherent_kind: None,
             radii: scene.lights.iter().map(|l| l.radius).collect(),
             tree,
             tris: AnyTriangleSet::new(scene, test),
@@ -386,6 +397,17 @@ impl KdIntersector {
             width,
         };
         opts.validate().map_err(|e| bad("tile_size", e))?;
+        self.coherent_kind = match spec.str("coherent_kinds").unwrap_or("all") {
+            "all" => None,
+            "primary" => Some(RayKind::Primary),
+            "shadow" => Some(RayKind::Shadow),
+            other => {
+                return Err(bad(
+                    "coherent_kinds",
+                    format!("`{other}` is not one of all, primary, shadow"),
+                ))
+            }
+        };
         self.coherent = opts;
         Ok(self)
     }
@@ -510,7 +532,15 @@ impl Intersector<Cpu> for KdIntersector {
             }
         }
         check_batch(rays, hits)?;
-        let o = &self.coherent;
+        let kind = rays.first().and_then(|r| RayKind::from_u32(r.kind));
+        let single = CoherentOptions {
+            traversal: Traversal::Single,
+            ..self.coherent
+        };
+        let o = match self.coherent_kind {
+            Some(k) if kind != Some(k) => &single,
+            _ => &self.coherent,
+        };
         let (counts, packets) = match &self.tris {
             AnyTriangleSet::MollerTrumbore(s) => {
                 trace_batch::<MollerTrumbore>(&self.tree, s.triangles(), rays, mode, hits, o)
@@ -522,7 +552,7 @@ impl Intersector<Cpu> for KdIntersector {
                 trace_batch::<Projected>(&self.tree, s.triangles(), rays, mode, hits, o)
             }
         };
-        if let Some(kind) = rays.first().and_then(|r| RayKind::from_u32(r.kind)) {
+        if let Some(kind) = kind {
             packets.record(kind, stats);
         }
         counts.record(stats);
