@@ -1822,3 +1822,67 @@ pipeline = "bvh"
         text(&o.stderr)
     );
 }
+
+/// The shipped seed 003 plans (`plans/rttest.toml`, `plans/rttest-shadows.toml`) validate, and
+/// a tiny version of the traversal plan (32 pixels, two built-in scenes) runs every cell
+/// exactly (hit agreement 1 against the CWBVH) and writes the paper's `N` and `I` per ray kind
+/// to results.csv.
+#[test]
+fn rttest_plan_is_exact_on_every_cell_and_reports_packets() {
+    let dir = scratch("rttest");
+    for name in ["plans/rttest.toml", "plans/rttest-shadows.toml"] {
+        let path = repo_root().join(name);
+        let o = crsh(
+            &dir,
+            &["ablate", "--plan", path.to_str().unwrap(), "--dry-run"],
+        );
+        assert_ok(&o);
+    }
+    let shipped = std::fs::read_to_string(repo_root().join("plans/rttest.toml")).unwrap();
+    for needle in [
+        "width = 512",
+        "depth = 0",
+        "reference = \"bvh\"",
+        "\"primary.accel\" = \"pipeline\"",
+    ] {
+        assert!(shipped.contains(needle), "rttest.toml changed: {needle}");
+    }
+    let start = shipped.find("scenes = [").unwrap();
+    let end = start + shipped[start..].find("]\n").unwrap() + 2;
+    let small = format!(
+        "{}scenes = [\"office-boxes\", \"cornell-mirrors\"]\n{}",
+        &shipped[..start],
+        &shipped[end..]
+    )
+    .replace("width = 512", "width = 32");
+    let plan = dir.join("rttest-small.toml");
+    std::fs::write(&plan, small).unwrap();
+    let o = crsh(
+        &dir,
+        &["ablate", "--plan", plan.to_str().unwrap(), "--out", "out"],
+    );
+    assert_ok(&o);
+    let v = read_json(&dir.join("out/results.json"));
+    let cs = cells(&v);
+    assert_eq!(cs.len(), 2 * 24);
+    for c in cs {
+        assert_eq!(c["status"], "ok", "{c:#}");
+        let m = &c["measures"];
+        assert_eq!(m["accuracy"]["hit_agreement"], 1.0, "{c:#}");
+        if c["pipeline"] != "cwbvh" {
+            assert!(
+                m["packets"]["primary"]["packets"].as_u64().unwrap() > 0,
+                "{c:#}"
+            );
+        }
+    }
+    let csv = std::fs::read_to_string(dir.join("out/results.csv")).unwrap();
+    let header = csv.lines().next().unwrap();
+    for col in [
+        "packets_primary_n",
+        "packets_primary_i",
+        "packets_shadow_culled_fraction",
+    ] {
+        assert!(header.contains(col), "{col} missing from {header}");
+    }
+}
