@@ -16,7 +16,7 @@ use crsh_scene::Scene;
 use crsh_wgpu::Wgpu;
 
 /// The presets whose every stage has a WGSL implementation: all of them.
-const GPU_PRESETS: [&str; 6] = ["brute", "bvh", "crsh", "rah", "grid", "tile_cone"];
+const GPU_PRESETS: [&str; 7] = ["brute", "bvh", "crsh", "rah", "grid", "tile_cone", "kdtree"];
 
 const W: u32 = 48;
 const H: u32 = 36;
