@@ -25,13 +25,13 @@
 //! The result is the brute-force answer bit for bit (the same crossings, by the same
 //! triangle test, fed in the same order to the same scan), and the early exit of listing 5.1
 //! applies as soon as a pair as wide as `R` is fed (or, with `R = 0`, the first crossing).
-//! This walks the tree itself rather than through [`super::walk_leaves`] because the bound
-//! above needs the pending stack entries.
+//! The walk is [`super::walk_leaves_until`], which hands each leaf the pending stack entries
+//! the bound above is taken from.
 
 use crsh_core::edge_width::{sort_crossings, Crossing, EdgeWidthScan};
 use crsh_core::{Hit, Ray};
 
-use super::{clip, crossing, descend, front_back, Entry, KdCounts, KdTree};
+use super::{walk_leaves_until, Entry, KdCounts, KdTree};
 use crate::triangle::TriangleTest;
 
 /// Traces the edge-width shadow ray `ray` through `tree` with test `T` for a light of radius
@@ -48,77 +48,39 @@ pub fn trace_edge_width<T: TriangleTest>(
 ) -> KdCounts {
     let mut n = KdCounts::default();
     *best = Hit::MISS;
-    stack.clear();
-    if ray.t_min.partial_cmp(&ray.t_max) != Some(std::cmp::Ordering::Less) || tree.nodes.is_empty()
-    {
+    if ray.t_min.partial_cmp(&ray.t_max) != Some(std::cmp::Ordering::Less) {
         return n;
     }
-    let Some((near, far)) = clip(&tree.bounds, ray.origin, ray.dir, ray.t_min, ray.t_max) else {
-        return n;
-    };
     let r = T::ray_of(ray);
-    let inv = crsh_core::glam::Vec3::ONE / ray.dir;
     let mut scan = EdgeWidthScan::new(radius);
     // Crossings found but not yet fed to the scan, and every triangle taken so far.
     let mut pending: Vec<Crossing> = Vec::new();
     let mut taken: Vec<u32> = Vec::new();
-    stack.push(Entry { node: 0, near, far });
-    'walk: while let Some(Entry {
-        mut node,
-        mut near,
-        mut far,
-    }) = stack.pop()
-    {
-        loop {
-            let nd = &tree.nodes[node as usize];
-            if nd.is_leaf() {
-                n.leaves += 1;
-                let leaf = &tree.leaves[nd.index as usize];
-                for &id in &tree.leaf_tris[leaf.range()] {
-                    n.tests += 1;
-                    if let Some(h) = T::hit(&tris[id as usize], &r, ray.t_min, ray.t_max, id) {
-                        if h.t >= near && h.t <= far && !taken.contains(&id) {
-                            taken.push(id);
-                            pending.push(Crossing { t: h.t, tri: id });
-                        }
+    n.inner = walk_leaves_until(
+        tree,
+        ray.origin,
+        ray.dir,
+        ray.t_min,
+        ray.t_max,
+        f32::INFINITY,
+        stack,
+        |l, near, far, to_come| {
+            n.leaves += 1;
+            let leaf = &tree.leaves[l];
+            for &id in &tree.leaf_tris[leaf.range()] {
+                n.tests += 1;
+                if let Some(h) = T::hit(&tris[id as usize], &r, ray.t_min, ray.t_max, id) {
+                    if h.t >= near && h.t <= far && !taken.contains(&id) {
+                        taken.push(id);
+                        pending.push(Crossing { t: h.t, tri: id });
                     }
                 }
-                // Every leaf still to come starts at or after the smallest pending start.
-                let bound = stack.iter().map(|e| e.near).fold(f32::INFINITY, f32::min);
-                if feed(&mut scan, &mut pending, bound) {
-                    break 'walk;
-                }
-                break;
             }
-            n.inner += 1;
-            let a = nd.axis as usize;
-            let (front, back, dist) = front_back(nd, ray.origin[a]);
-            if dist == 0.0 {
-                // On the plane: the ray may go either way; keep both sides whole.
-                stack.push(Entry {
-                    node: back as u32,
-                    near,
-                    far,
-                });
-                node = front as u32;
-                continue;
-            }
-            let d = crossing(dist, inv[a]);
-            match descend(near, far, d, d) {
-                (Some(f), Some(b)) => {
-                    stack.push(Entry {
-                        node: back as u32,
-                        near: b.0,
-                        far: b.1,
-                    });
-                    (node, near, far) = (front as u32, f.0, f.1);
-                }
-                (Some(f), None) => (node, near, far) = (front as u32, f.0, f.1),
-                (None, Some(b)) => (node, near, far) = (back as u32, b.0, b.1),
-                (None, None) => break,
-            }
-        }
-    }
+            // Every leaf still to come starts at or after the smallest pending start.
+            let bound = to_come.iter().map(|e| e.near).fold(f32::INFINITY, f32::min);
+            (!feed(&mut scan, &mut pending, bound)).then_some(f32::INFINITY)
+        },
+    );
     feed(&mut scan, &mut pending, f32::INFINITY);
     *best = scan.finish();
     n

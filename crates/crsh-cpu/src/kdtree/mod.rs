@@ -348,28 +348,14 @@ pub struct Entry {
 }
 
 /// Visits the leaves the ray `origin + t·dir` (`t ∈ [t_min, t_max]`) passes through, front to
-/// back, calling `leaf(leaf_index, near, far)` with the ray's (widened) interval in the leaf's
-/// cell; `leaf` returns `false` to stop. Returns the inner nodes visited. `stack` is scratch
-/// space (cleared here).
-#[inline]
-pub fn walk_leaves(
-    tree: &KdTree,
-    origin: Vec3,
-    dir: Vec3,
-    t_min: f32,
-    t_max: f32,
-    stack: &mut Vec<Entry>,
-    mut leaf: impl FnMut(usize, f32, f32) -> bool,
-) -> u64 {
-    let go_on = |l, near, far| leaf(l, near, far).then_some(f32::INFINITY);
-    walk_leaves_until(tree, origin, dir, t_min, t_max, f32::INFINITY, stack, go_on)
-}
-
-/// [`walk_leaves`] whose `leaf` returns how far the ray still needs to go: `None` stops,
-/// `Some(limit)` goes on and skips every stacked subtree whose interval starts beyond
-/// `limit` (for a closest-hit ray: its best `t`; the intervals are widened, so a subtree
-/// that could hold a hit at `t ≤ limit` is never skipped). `limit` is the one in force
-/// before the first leaf.
+/// back, calling `leaf(leaf_index, near, far, pending)` with the ray's (widened) interval in
+/// the leaf's cell and the stack entries still to visit (every leaf to come lies in one of
+/// them, and their intervals only shrink as they are descended). `leaf` returns how far the
+/// ray still needs to go: `None` stops, `Some(limit)` goes on and skips every stacked subtree
+/// whose interval starts beyond `limit` (for a closest-hit ray: its best `t`; the intervals
+/// are widened, so a subtree that could hold a hit at `t ≤ limit` is never skipped). `limit`
+/// is the one in force before the first leaf. Returns the inner nodes visited. `stack` is
+/// scratch space (cleared here).
 #[inline]
 #[allow(clippy::too_many_arguments)]
 pub fn walk_leaves_until(
@@ -380,7 +366,7 @@ pub fn walk_leaves_until(
     t_max: f32,
     mut limit: f32,
     stack: &mut Vec<Entry>,
-    mut leaf: impl FnMut(usize, f32, f32) -> Option<f32>,
+    mut leaf: impl FnMut(usize, f32, f32, &[Entry]) -> Option<f32>,
 ) -> u64 {
     let mut inner = 0;
     stack.clear();
@@ -404,7 +390,7 @@ pub fn walk_leaves_until(
         loop {
             let n = &tree.nodes[node as usize];
             if n.is_leaf() {
-                match leaf(n.index as usize, near, far) {
+                match leaf(n.index as usize, near, far, stack) {
                     Some(l) => limit = l,
                     None => return inner,
                 }
@@ -508,7 +494,7 @@ pub fn trace_single<T: TriangleTest>(
         ray.t_max,
         limit,
         stack,
-        |l, _, _| {
+        |l, _, _, _| {
             n.leaves += 1;
             let leaf = &tree.leaves[l];
             n.tests += test_leaf::<T>(tree, tris, leaf, ray, &r, mode, best);

@@ -1,5 +1,5 @@
 // `kdtree` on the device: one ray per invocation through RTTest's kd-tree (seed 003 listing
-// 2.2 with its errata fixed), the twin of crsh_cpu::kdtree::trace_single (walk_leaves, clip,
+// 2.2 with its errata fixed), the twin of crsh_cpu::kdtree::trace_single (walk_leaves_until, clip,
 // front_back, crossing, descend, test_leaf, KdLeaf::holds_final), the same operations in the
 // same order. Prepended: common.wgsl, mt.wgsl, and the constants T_SLACK, CELL_MARGIN (f32)
 // and STACK (u32) generated from the Rust ones (kdtree.rs).
