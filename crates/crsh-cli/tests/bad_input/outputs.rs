@@ -1,0 +1,1 @@
+//! Output paths, write failures, `ablate --compare` inputs, sizes and `--set` values.
