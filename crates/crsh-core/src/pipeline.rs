@@ -707,7 +707,7 @@ pub fn compare_hits(got: &[Hit], want: &[Hit], mode: HitMode, acc: &mut Accuracy
         if a.is_hit() != b.is_hit() {
             acc.hit_miss_mismatches += 1;
         } else if (mode == HitMode::Closest && a.is_hit() && a.nearest_differs(b))
-            || (mode == HitMode::EdgeWidth && a.is_hit() && a.u.to_bits() != b.u.to_bits())
+            || (mode.is_edge_width() && a.is_hit() && a.u.to_bits() != b.u.to_bits())
         {
             acc.nearest_mismatches += 1;
         } else {

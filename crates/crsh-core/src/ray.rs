@@ -101,16 +101,25 @@ pub enum HitMode {
     /// (`f32::INFINITY` for an unpaired entry and for `R = 0`). Intersectors that do not
     /// implement it return [`crate::CoreError::Unsupported`]; those that do replace the stored
     /// hit (the query is not merged across calls).
-    EdgeWidth,
+    ///
+    /// The [`EdgePairing`](crate::edge_width::EdgePairing) says which entry and exit form a
+    /// pair: any consecutive two, or only triangles sharing a vertex (the thesis's light-leak
+    /// fix, fig. 5.10; any other pair has an infinite width).
+    EdgeWidth(crate::edge_width::EdgePairing),
 }
 
 impl HitMode {
+    /// Whether this is an edge-width query (with either pairing rule).
+    pub fn is_edge_width(self) -> bool {
+        matches!(self, HitMode::EdgeWidth(_))
+    }
+
     /// Lower-case name for messages (`closest`, `any`, `edge_width`).
     pub fn name(self) -> &'static str {
         match self {
             HitMode::Closest => "closest",
             HitMode::Any => "any",
-            HitMode::EdgeWidth => "edge_width",
+            HitMode::EdgeWidth(_) => "edge_width",
         }
     }
 

@@ -100,7 +100,7 @@ fn compare(scene: &Scene, rays: &[Ray], got: &[Hit], want: &[Hit], mode: HitMode
     let mut mismatches = 0;
     for (i, (g, w)) in got.iter().zip(want).enumerate() {
         let same = match mode {
-            HitMode::Any | HitMode::EdgeWidth => g.is_hit() == w.is_hit(),
+            HitMode::Any | HitMode::EdgeWidth(_) => g.is_hit() == w.is_hit(),
             HitMode::Closest => {
                 g.tri == w.tri && (!w.is_hit() || (g.t - w.t).abs() <= 1e-5 * w.t.abs())
             }

@@ -68,7 +68,7 @@
 
 use std::sync::{Arc, Mutex};
 
-use crsh_core::edge_width::{edge_width_hit, Crossing};
+use crsh_core::edge_width::{Crossing, EdgePairing, EdgeWidthLights};
 use crsh_core::{
     check_leaf_offsets, lowest_node_leaves, Candidate, CoreError, Hit, HitMode, Intersector,
     ParamInfo, Query, Ray, RayHierarchy, RayKind, Registry, Result, StageKind, StageSpec,
@@ -90,8 +90,8 @@ pub const PACKET: usize = 16;
 #[derive(Debug)]
 pub struct BruteForce {
     tris: AnyTriangleSet,
-    /// The scene lights' radii: the `R` of edge-width queries.
-    radii: Vec<f32>,
+    /// The scene lights' radii (the `R` of edge-width queries) and shared vertices.
+    lights: EdgeWidthLights,
     /// What the candidate queries last validated.
     validated: Mutex<Validated>,
 }
@@ -101,7 +101,7 @@ impl Clone for BruteForce {
     fn clone(&self) -> BruteForce {
         BruteForce {
             tris: self.tris.clone(),
-            radii: self.radii.clone(),
+            lights: self.lights.clone(),
             validated: Mutex::default(),
         }
     }
@@ -172,7 +172,7 @@ impl BruteForce {
     pub fn with_test(scene: &Scene, kind: TestKind) -> BruteForce {
         BruteForce {
             tris: AnyTriangleSet::new(scene, kind),
-            radii: scene.lights.iter().map(|l| l.radius).collect(),
+            lights: edge_width_lights(scene),
             validated: Mutex::default(),
         }
     }
@@ -207,7 +207,8 @@ fn edge_width_packet<T: TriangleTest>(
     set: &TriangleSet<T>,
     rays: &[Ray],
     hits: &mut [Hit],
-    radii: &[f32],
+    lights: &EdgeWidthLights,
+    pairing: EdgePairing,
 ) -> u64 {
     let mut crossings = Vec::new();
     for (ray, hit) in rays.iter().zip(hits.iter_mut()) {
@@ -224,25 +225,19 @@ fn edge_width_packet<T: TriangleTest>(
                 }
             }
         }
-        *hit = edge_width_hit(&mut crossings, radii[ray.light as usize]);
+        *hit = lights.hit(ray, pairing, &mut crossings);
     }
     (set.len() * rays.len()) as u64
 }
 
-/// Checks that every ray of an edge-width query names a light of the scene (its radius is
-/// the query's `R`).
-pub(crate) fn check_lights(rays: &[Ray], radii: &[f32]) -> Result<()> {
-    match rays
-        .par_iter()
-        .position_first(|r| r.light as usize >= radii.len())
-    {
-        Some(i) => Err(CoreError::InvalidInput(format!(
-            "edge-width ray {i} names light {} but the scene has {} lights",
-            rays[i].light,
-            radii.len()
-        ))),
-        None => Ok(()),
-    }
+/// What the CPU intersectors keep of `scene` to answer edge-width queries: its lights' radii
+/// and its triangles' shared vertices.
+pub(crate) fn edge_width_lights(scene: &Scene) -> EdgeWidthLights {
+    EdgeWidthLights::new(
+        scene.lights.iter().map(|l| l.radius).collect(),
+        &scene.positions,
+        &scene.indices,
+    )
 }
 
 /// Scene query for one packet (`rays.len() <= PACKET`) with test `T`; returns the tests
@@ -289,7 +284,7 @@ fn scene_packet<T: TriangleTest>(
             tests = (n * count) as u64;
         }
         // Edge-width queries are answered by `edge_width_packet`, never here.
-        HitMode::Any | HitMode::EdgeWidth => {
+        HitMode::Any | HitMode::EdgeWidth(_) => {
             let mut remaining = active[..count].iter().filter(|&&a| a).count();
             for (k, block) in blocks.iter().enumerate() {
                 if remaining == 0 {
@@ -552,7 +547,7 @@ fn node_packet<T: TriangleTest>(
             };
             match mode {
                 // Edge-width queries never reach candidate tests (refused in `intersect`).
-                HitMode::Any | HitMode::EdgeWidth => {
+                HitMode::Any | HitMode::EdgeWidth(_) => {
                     best[l] = h;
                     active &= !(1 << l);
                 }
@@ -665,7 +660,7 @@ impl Intersector<Cpu> for BruteForce {
         stats: &mut Stats,
     ) -> Result<()> {
         check_lengths(rays, hits)?;
-        if mode == HitMode::EdgeWidth {
+        if mode.is_edge_width() {
             if let Query::Candidates { .. } = query {
                 return Err(CoreError::Unsupported {
                     stage: "intersect",
@@ -676,22 +671,28 @@ impl Intersector<Cpu> for BruteForce {
                 });
             }
             check_rays(rays)?;
-            check_lights(rays, &self.radii)?;
+            self.lights.check(rays)?;
+            let HitMode::EdgeWidth(pairing) = mode else {
+                unreachable!("an edge-width mode")
+            };
             fn sweep_edges<T: TriangleTest>(
                 set: &TriangleSet<T>,
                 rays: &[Ray],
                 hits: &mut [Hit],
-                radii: &[f32],
+                lights: &EdgeWidthLights,
+                pairing: EdgePairing,
             ) -> u64 {
                 rays.par_chunks(PACKET)
                     .zip(hits.par_chunks_mut(PACKET))
-                    .map(|(r, h)| edge_width_packet(set, r, h, radii))
+                    .map(|(r, h)| edge_width_packet(set, r, h, lights, pairing))
                     .sum()
             }
             let tests = match &self.tris {
-                AnyTriangleSet::MollerTrumbore(s) => sweep_edges(s, rays, hits, &self.radii),
-                AnyTriangleSet::Watertight(s) => sweep_edges(s, rays, hits, &self.radii),
-                AnyTriangleSet::Projected(s) => sweep_edges(s, rays, hits, &self.radii),
+                AnyTriangleSet::MollerTrumbore(s) => {
+                    sweep_edges(s, rays, hits, &self.lights, pairing)
+                }
+                AnyTriangleSet::Watertight(s) => sweep_edges(s, rays, hits, &self.lights, pairing),
+                AnyTriangleSet::Projected(s) => sweep_edges(s, rays, hits, &self.lights, pairing),
             };
             stats.add_ray_triangle(tests);
             return Ok(());
@@ -1028,7 +1029,7 @@ pub(crate) mod tests {
                         (rays.len() * b.triangles().len()) as u64
                     );
                 }
-                HitMode::Any | HitMode::EdgeWidth => {
+                HitMode::Any | HitMode::EdgeWidth(_) => {
                     for (g, w) in hits.iter().zip(&want) {
                         assert_eq!(g.is_hit(), w.is_hit());
                     }

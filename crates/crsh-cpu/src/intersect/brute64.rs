@@ -158,7 +158,7 @@ impl BruteForce64 {
             v: v as f32,
         };
         let keep_new = match mode {
-            HitMode::Any | HitMode::EdgeWidth => true,
+            HitMode::Any | HitMode::EdgeWidth(_) => true,
             HitMode::Closest => hit.closer_than(&stored),
         };
         (if keep_new { hit } else { stored }, tests)
@@ -183,7 +183,7 @@ impl Intersector<Cpu> for BruteForce64 {
         hits: &mut Vec<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
-        if mode == HitMode::EdgeWidth {
+        if mode.is_edge_width() {
             return Err(mode.unsupported("brute64"));
         }
         if let Query::Candidates { .. } = query {

@@ -87,7 +87,7 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use crsh_core::edge_width::{edge_width_hit, Crossing};
+use crsh_core::edge_width::{Crossing, EdgePairing, EdgeWidthLights};
 use crsh_core::glam::{UVec2, Vec3, Vec3A};
 use crsh_core::{
     CoreError, Hit, HitMode, Intersector, ParamInfo, Query, Ray, Registry, Result, StageContext,
@@ -104,7 +104,7 @@ use obvhs::BvhBuildParams;
 use rayon::prelude::*;
 
 use crate::backend::Cpu;
-use crate::intersect::brute::{check_batch, check_lights, test_kind};
+use crate::intersect::brute::{check_batch, test_kind};
 use crate::triangle::{MollerTrumbore, Projected, TestKind, TriangleSet, TriangleTest, Watertight};
 
 /// Rays per rayon task.
@@ -190,8 +190,8 @@ pub(crate) enum LeafTriangles {
 pub(crate) struct Leaves {
     pub tris: LeafTriangles,
     pub ids: Vec<u32>,
-    /// The scene lights' radii: the `R` of edge-width queries.
-    pub radii: Vec<f32>,
+    /// The scene lights' radii (the `R` of edge-width queries) and shared vertices.
+    pub lights: EdgeWidthLights,
 }
 
 impl Leaves {
@@ -212,7 +212,7 @@ impl Leaves {
         Leaves {
             tris,
             ids,
-            radii: scene.lights.iter().map(|l| l.radius).collect(),
+            lights: crate::intersect::brute::edge_width_lights(scene),
         }
     }
 
@@ -716,18 +716,22 @@ pub(crate) fn intersect_scene<X: LeafTracer>(
         });
     }
     check_batch(rays, hits)?;
-    if mode == HitMode::EdgeWidth {
+    if mode.is_edge_width() {
         if !X::EDGE_WIDTH {
             return Err(mode.unsupported(variant));
         }
-        check_lights(rays, &x.leaves().radii)?;
+        x.leaves().lights.check(rays)?;
+        let HitMode::EdgeWidth(pairing) = mode else {
+            unreachable!("an edge-width mode")
+        };
         fn edges<T: TriangleTest, X: LeafTracer>(
             x: &X,
             leaf_tris: &[T::Tri],
             rays: &[Ray],
             hits: &mut [Hit],
+            pairing: EdgePairing,
         ) -> Counts {
-            let radii = &x.leaves().radii;
+            let lights = &x.leaves().lights;
             rays.par_chunks(CHUNK)
                 .zip(hits.par_chunks_mut(CHUNK))
                 .map(|(rs, hs)| {
@@ -738,16 +742,18 @@ pub(crate) fn intersect_scene<X: LeafTracer>(
                         .fold(Counts::default(), |n, (ray, h)| {
                             crossings.clear();
                             let c = x.gather::<T>(leaf_tris, ray, &mut crossings, &mut scratch);
-                            *h = edge_width_hit(&mut crossings, radii[ray.light as usize]);
+                            *h = lights.hit(ray, pairing, &mut crossings);
                             n.add(c)
                         })
                 })
                 .reduce(Counts::default, Counts::add)
         }
         let counts = match &x.leaves().tris {
-            LeafTriangles::MollerTrumbore(t) => edges::<MollerTrumbore, X>(x, t, rays, hits),
-            LeafTriangles::Watertight(t) => edges::<Watertight, X>(x, t, rays, hits),
-            LeafTriangles::Projected(t) => edges::<Projected, X>(x, t, rays, hits),
+            LeafTriangles::MollerTrumbore(t) => {
+                edges::<MollerTrumbore, X>(x, t, rays, hits, pairing)
+            }
+            LeafTriangles::Watertight(t) => edges::<Watertight, X>(x, t, rays, hits, pairing),
+            LeafTriangles::Projected(t) => edges::<Projected, X>(x, t, rays, hits, pairing),
         };
         counts.record(stats);
         return Ok(());
@@ -977,7 +983,7 @@ pub(crate) mod tests {
     ) {
         for (i, (g, w)) in got.iter().zip(want).enumerate() {
             match mode {
-                HitMode::Closest | HitMode::EdgeWidth => assert_eq!(
+                HitMode::Closest | HitMode::EdgeWidth(_) => assert_eq!(
                     (g.tri, g.t.to_bits(), g.u.to_bits(), g.v.to_bits()),
                     (w.tri, w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
                     "{what} ray {i}: {:?}: got {g:?} brute {w:?}",

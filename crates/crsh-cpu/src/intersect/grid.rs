@@ -924,7 +924,7 @@ impl Intersector<Cpu> for UniformGrid {
         hits: &mut Vec<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
-        if mode == HitMode::EdgeWidth {
+        if mode.is_edge_width() {
             return Err(mode.unsupported("grid"));
         }
         if let Query::Candidates { .. } = query {
@@ -1479,7 +1479,7 @@ mod tests {
                                 HitMode::Closest => {
                                     assert_eq!(bits(g), bits(w), "{} {test:?} ray {i}", case.name)
                                 }
-                                HitMode::Any | HitMode::EdgeWidth => assert_eq!(
+                                HitMode::Any | HitMode::EdgeWidth(_) => assert_eq!(
                                     g.is_hit(),
                                     w.is_hit(),
                                     "{} {test:?} ray {i}",
@@ -1748,7 +1748,7 @@ mod tests {
             for (i, (g, w)) in a.iter().zip(&b).enumerate() {
                 match mode {
                     HitMode::Closest => assert_eq!(bits(g), bits(w), "ray {i}"),
-                    HitMode::Any | HitMode::EdgeWidth => {
+                    HitMode::Any | HitMode::EdgeWidth(_) => {
                         assert_eq!(g.is_hit(), w.is_hit(), "ray {i}");
                         if start[i].is_hit() {
                             assert_eq!(g, &start[i]);

@@ -315,8 +315,8 @@ pub struct KdIntersector {
     coherent: CoherentOptions,
     /// The ray kind `coherent` applies to (`None`: every kind).
     coherent_kind: Option<RayKind>,
-    /// The scene lights' radii: the `R` of edge-width queries.
-    radii: Vec<f32>,
+    /// The scene lights' radii (the `R` of edge-width queries) and shared vertices.
+    lights: crsh_core::edge_width::EdgeWidthLights,
     tree: KdTree,
     tris: AnyTriangleSet,
     build: Build,
@@ -359,7 +359,7 @@ impl KdIntersector {
         KdIntersector {
             coherent: CoherentOptions::new(Traversal::Single, 1),
             coherent_kind: None,
-            radii: scene.lights.iter().map(|l| l.radius).collect(),
+            lights: crate::intersect::brute::edge_width_lights(scene),
             tree,
             tris: AnyTriangleSet::new(scene, test),
             build,
@@ -501,15 +501,16 @@ impl Intersector<Cpu> for KdIntersector {
         // Every mode is named: a new one must say how the tree answers it.
         match mode {
             HitMode::Closest | HitMode::Any => {}
-            HitMode::EdgeWidth => {
+            HitMode::EdgeWidth(pairing) => {
                 // Seed 003 §5: front to back through the tree, one ray at a time.
-                let r = &self.radii;
+                let r = &self.lights;
                 let counts = match &self.tris {
                     AnyTriangleSet::MollerTrumbore(s) => trace_batch_edge_width::<MollerTrumbore>(
                         &self.tree,
                         s.triangles(),
                         rays,
                         r,
+                        pairing,
                         hits,
                     ),
                     AnyTriangleSet::Watertight(s) => trace_batch_edge_width::<Watertight>(
@@ -517,6 +518,7 @@ impl Intersector<Cpu> for KdIntersector {
                         s.triangles(),
                         rays,
                         r,
+                        pairing,
                         hits,
                     ),
                     AnyTriangleSet::Projected(s) => trace_batch_edge_width::<Projected>(
@@ -524,6 +526,7 @@ impl Intersector<Cpu> for KdIntersector {
                         s.triangles(),
                         rays,
                         r,
+                        pairing,
                         hits,
                     ),
                 }?;

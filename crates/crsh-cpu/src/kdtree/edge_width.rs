@@ -28,21 +28,23 @@
 //! The walk is [`super::walk_leaves_until`], which hands each leaf the pending stack entries
 //! the bound above is taken from.
 
-use crsh_core::edge_width::{sort_crossings, Crossing, EdgeWidthScan};
+use crsh_core::edge_width::{
+    sort_crossings, Crossing, EdgePairing, EdgeWidthLights, EdgeWidthScan,
+};
 use crsh_core::{Hit, Ray};
 
 use super::{walk_leaves_until, Entry, KdCounts, KdTree};
 use crate::triangle::TriangleTest;
 
-/// Traces the edge-width shadow ray `ray` through `tree` with test `T` for a light of radius
-/// `radius` (`R` of eq. 5.1), storing the [`crsh_core::HitMode::EdgeWidth`] answer in `best`
+/// Traces the edge-width shadow ray `ray` through `tree` with test `T`, feeding its crossings
+/// to `scan` (which holds the light's radius, `R` of eq. 5.1, and the pairing rule), storing the [`crsh_core::HitMode::EdgeWidth`] answer in `best`
 /// (replaced, not merged). `stack` is scratch space. Returns the inner nodes, leaves and
 /// triangle tests visited (see the module docs).
 pub fn trace_edge_width<T: TriangleTest>(
     tree: &KdTree,
     tris: &[T::Tri],
     ray: &Ray,
-    radius: f32,
+    mut scan: EdgeWidthScan<'_>,
     best: &mut Hit,
     stack: &mut Vec<Entry>,
 ) -> KdCounts {
@@ -52,7 +54,6 @@ pub fn trace_edge_width<T: TriangleTest>(
         return n;
     }
     let r = T::ray_of(ray);
-    let mut scan = EdgeWidthScan::new(radius);
     // Crossings found but not yet fed to the scan, and every triangle taken so far.
     let mut pending: Vec<Crossing> = Vec::new();
     let mut taken: Vec<u32> = Vec::new();
@@ -88,17 +89,18 @@ pub fn trace_edge_width<T: TriangleTest>(
 
 /// [`trace_edge_width`] for a batch, in parallel (each ray independently, so hits and counts
 /// do not depend on the thread count): ray `i`'s answer goes to `hits[i]` (replaced), with `R`
-/// the radius `radii[ray.light]` of its light. What the `kdtree` intersector runs for
-/// [`crsh_core::HitMode::EdgeWidth`].
+/// the radius of its light in `lights` and crossings paired by `pairing`. What the `kdtree`
+/// intersector runs for [`crsh_core::HitMode::EdgeWidth`].
 ///
 /// # Errors
 /// [`crsh_core::CoreError::InvalidInput`] when the lengths differ or a ray names a light
-/// outside `radii`.
+/// outside `lights`.
 pub fn trace_batch_edge_width<T: TriangleTest>(
     tree: &KdTree,
     tris: &[T::Tri],
     rays: &[Ray],
-    radii: &[f32],
+    lights: &EdgeWidthLights,
+    pairing: EdgePairing,
     hits: &mut [Hit],
 ) -> crsh_core::Result<KdCounts> {
     use rayon::prelude::*;
@@ -109,7 +111,7 @@ pub fn trace_batch_edge_width<T: TriangleTest>(
             hits.len()
         )));
     }
-    crate::intersect::brute::check_lights(rays, radii)?;
+    lights.check(rays)?;
     Ok(rays
         .par_chunks(256)
         .zip(hits.par_chunks_mut(256))
@@ -120,7 +122,7 @@ pub fn trace_batch_edge_width<T: TriangleTest>(
                     tree,
                     tris,
                     r,
-                    radii[r.light as usize],
+                    lights.scan(r, pairing),
                     h,
                     &mut stack,
                 ))
@@ -131,7 +133,7 @@ pub fn trace_batch_edge_width<T: TriangleTest>(
 
 /// Feeds the pending crossings before `bound` to `scan` in sorted order and drops them;
 /// returns whether the scan is done (fully occluded: the traversal may stop).
-fn feed(scan: &mut EdgeWidthScan, pending: &mut Vec<Crossing>, bound: f32) -> bool {
+fn feed(scan: &mut EdgeWidthScan<'_>, pending: &mut Vec<Crossing>, bound: f32) -> bool {
     if scan.is_done() {
         return true;
     }
@@ -155,12 +157,22 @@ mod tests {
     use crate::intersect::brute::tests::{random_rays, soup, test_ray};
     use crate::kdtree::middle;
     use crate::triangle::{MollerTrumbore, Projected, TriangleSet};
-    use crsh_core::edge_width::{edge_width_hit, occlusion};
+    use crsh_core::edge_width::{edge_width_hit, occlusion, SharedVertices};
     use crsh_core::glam::Vec3;
     use crsh_scene::{Scene, SceneBuilder};
 
     /// Brute force's edge-width answer for `ray` with test `T` (every triangle).
     fn brute<T: TriangleTest>(set: &TriangleSet<T>, ray: &Ray, radius: f32) -> Hit {
+        brute_with(set, ray, radius, None)
+    }
+
+    /// [`brute`] pairing by `shared`.
+    fn brute_with<T: TriangleTest>(
+        set: &TriangleSet<T>,
+        ray: &Ray,
+        radius: f32,
+        shared: Option<&SharedVertices>,
+    ) -> Hit {
         let r = T::ray_of(ray);
         let mut c: Vec<Crossing> = (0..set.len() as u32)
             .filter_map(|id| {
@@ -168,7 +180,7 @@ mod tests {
                     .map(|h| Crossing { t: h.t, tri: id })
             })
             .collect();
-        edge_width_hit(&mut c, radius)
+        edge_width_hit(&mut c, radius, shared)
     }
 
     fn kd<T: TriangleTest>(scene: &Scene, leaf: usize) -> (KdTree, TriangleSet<T>) {
@@ -183,41 +195,46 @@ mod tests {
         (tree, set)
     }
 
-    /// Checks the kd-tree against brute force for every ray and radius, with trees of a few
-    /// leaf sizes; returns how many answers were partial occlusions (penumbra).
-    fn check<T: TriangleTest>(scene: &Scene, rays: &[Ray], radii: &[f32]) -> usize {
-        let mut partial = 0;
+    /// Checks the kd-tree against brute force for every ray, radius and pairing rule, with
+    /// trees of a few leaf sizes; returns how many answers were partial occlusions (penumbra)
+    /// with each rule.
+    fn check<T: TriangleTest>(scene: &Scene, rays: &[Ray], radii: &[f32]) -> [usize; 2] {
+        let mut partial = [0; 2];
+        let sv = SharedVertices::weld(&scene.positions, &scene.indices);
         for leaf in [1, 8] {
             let (tree, set) = kd::<T>(scene, leaf);
             let mut stack = Vec::new();
-            for &radius in radii {
-                for ray in rays {
-                    let want = brute(&set, ray, radius);
-                    let mut got = Hit {
-                        t: 1.0,
-                        tri: 3,
-                        u: 0.5,
-                        v: 0.5,
-                    };
-                    trace_edge_width::<T>(
-                        &tree,
-                        set.triangles(),
-                        ray,
-                        radius,
-                        &mut got,
-                        &mut stack,
-                    );
-                    assert_eq!(
-                        (got.tri, got.t.to_bits(), got.u.to_bits(), got.v.to_bits()),
-                        (
-                            want.tri,
-                            want.t.to_bits(),
-                            want.u.to_bits(),
-                            want.v.to_bits()
-                        ),
-                        "R {radius} leaf {leaf}: {ray:?}"
-                    );
-                    partial += usize::from(occlusion(&got) > 0.0 && occlusion(&got) < 1.0);
+            for (rule, shared) in [None, Some(&sv)].into_iter().enumerate() {
+                for &radius in radii {
+                    for ray in rays {
+                        let want = brute_with(&set, ray, radius, shared);
+                        let mut got = Hit {
+                            t: 1.0,
+                            tri: 3,
+                            u: 0.5,
+                            v: 0.5,
+                        };
+                        trace_edge_width::<T>(
+                            &tree,
+                            set.triangles(),
+                            ray,
+                            EdgeWidthScan::new(radius, shared),
+                            &mut got,
+                            &mut stack,
+                        );
+                        assert_eq!(
+                            (got.tri, got.t.to_bits(), got.u.to_bits(), got.v.to_bits()),
+                            (
+                                want.tri,
+                                want.t.to_bits(),
+                                want.u.to_bits(),
+                                want.v.to_bits()
+                            ),
+                            "R {radius} leaf {leaf} rule {rule}: {ray:?}"
+                        );
+                        partial[rule] +=
+                            usize::from(occlusion(&got) > 0.0 && occlusion(&got) < 1.0);
+                    }
                 }
             }
         }
@@ -230,12 +247,13 @@ mod tests {
         let (tree, set) = kd::<MollerTrumbore>(&scene, 4);
         let rays: Vec<Ray> = [10.0, 2.75, 2.25, 1.5, 0.5].map(x_ray).to_vec();
         let mut hits = vec![Hit::MISS; rays.len()];
-        let radii = [4.0];
+        let lights = EdgeWidthLights::new(vec![4.0], &scene.positions, &scene.indices);
         let n = trace_batch_edge_width::<MollerTrumbore>(
             &tree,
             set.triangles(),
             &rays,
-            &radii,
+            &lights,
+            EdgePairing::Any,
             &mut hits,
         )
         .unwrap();
@@ -249,7 +267,8 @@ mod tests {
             &tree,
             set.triangles(),
             &bad,
-            &radii,
+            &lights,
+            EdgePairing::Any,
             &mut hits
         )
         .is_err());
@@ -257,7 +276,8 @@ mod tests {
             &tree,
             set.triangles(),
             &rays,
-            &radii,
+            &lights,
+            EdgePairing::Any,
             &mut hits[1..]
         )
         .is_err());
@@ -273,10 +293,8 @@ mod tests {
             r.light = 0;
         }
         let radii = [0.0, 0.05, 0.3, 10.0];
-        assert!(
-            check::<MollerTrumbore>(&scene, &rays, &radii) > 0,
-            "no penumbra ray"
-        );
+        let partial = check::<MollerTrumbore>(&scene, &rays, &radii);
+        assert!(partial[0] > 0, "no penumbra ray");
         check::<Projected>(&scene, &rays, &radii);
     }
 
@@ -347,7 +365,7 @@ mod tests {
                 &tree,
                 set.triangles(),
                 &x_ray(10.0),
-                2.0,
+                EdgeWidthScan::new(2.0, None),
                 &mut got,
                 &mut stack,
             );
@@ -368,7 +386,7 @@ mod tests {
                     &tree,
                     set.triangles(),
                     &x_ray(t_max),
-                    radius,
+                    EdgeWidthScan::new(radius, None),
                     &mut got,
                     &mut stack,
                 );
@@ -395,7 +413,7 @@ mod tests {
             &tree,
             set.triangles(),
             &ray,
-            100.0,
+            EdgeWidthScan::new(100.0, None),
             &mut got,
             &mut stack,
         );
@@ -404,7 +422,7 @@ mod tests {
             &tree,
             set.triangles(),
             &ray,
-            0.75,
+            EdgeWidthScan::new(0.75, None),
             &mut got,
             &mut stack,
         );

@@ -32,7 +32,8 @@
 //!   slots are light-major, then sample-major, then in surface order. With `R = 0` every
 //!   sample is the centre and the image is the hard one. `edge_width` makes the hard ray and
 //!   asks the driver to trace it with [`HitMode::EdgeWidth`] ([`RayGen::visibility_mode`]):
-//!   eq. 5.1's occlusion from one ray. Back-face culling and the throughput are decided with
+//!   eq. 5.1's occlusion from one ray; `edge_pairing = shared_vertex` pairs only crossings of
+//!   triangles sharing a vertex (§5.4's light-leak fix, [`crsh_core::edge_width`]). Back-face culling and the throughput are decided with
 //!   the light's centre for every variant. Generators that reuse these shadow rays without
 //!   declaring the params (`diffuse`) get `hard`.
 //! - **Reflection** (eq. 3.3-3.4): `d = i − 2 n (n · i)` with the incident direction `i` and the
@@ -105,6 +106,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use crsh_core::edge_width::EdgePairing;
 use crsh_core::glam::Vec3;
 use crsh_core::rng::{basis, unit, RngKey};
 use crsh_core::{
@@ -137,8 +139,9 @@ pub enum ShadowMode {
     Hard,
     /// This many any-hit rays to stratified points of the light's disc.
     Samples(u32),
-    /// One ray to the centre, traced for its edge-width occlusion (seed 003 §5, eq. 5.1).
-    EdgeWidth,
+    /// One ray to the centre, traced for its edge-width occlusion (seed 003 §5, eq. 5.1),
+    /// pairing crossings by the rule (param `edge_pairing`).
+    EdgeWidth(EdgePairing),
 }
 
 impl ShadowMode {
@@ -147,7 +150,7 @@ impl ShadowMode {
         match self {
             ShadowMode::Hard => "hard",
             ShadowMode::Samples(_) => "samples",
-            ShadowMode::EdgeWidth => "edge_width",
+            ShadowMode::EdgeWidth(_) => "edge_width",
         }
     }
 
@@ -159,15 +162,23 @@ impl ShadowMode {
         }
     }
 
-    /// The `shadow` and `shadow_samples` params of a resolved `spec`; `hard` when the spec
-    /// does not declare them (a generator that reuses Whitted's shadow rays).
+    /// The `shadow`, `shadow_samples` and `edge_pairing` params of a resolved `spec`; `hard`
+    /// when the spec does not declare them (a generator that reuses Whitted's shadow rays).
     pub fn from_spec(spec: &StageSpec) -> Result<ShadowMode> {
         if !spec.params.contains_key("shadow") {
             return Ok(ShadowMode::Hard);
         }
         match spec.str("shadow")? {
             "hard" => Ok(ShadowMode::Hard),
-            "edge_width" => Ok(ShadowMode::EdgeWidth),
+            "edge_width" => {
+                let name = spec.str("edge_pairing")?;
+                EdgePairing::from_name(name)
+                    .map(ShadowMode::EdgeWidth)
+                    .ok_or_else(|| CoreError::InvalidParam {
+                        key: "raygen.edge_pairing".into(),
+                        reason: format!("`{name}` is not one of {}", EdgePairing::NAMES.join(", ")),
+                    })
+            }
             "samples" => Ok(ShadowMode::Samples(
                 spec.u32_in("shadow_samples", 1..=MAX_SHADOW_SAMPLES)
                     .map_err(|e| match e {
@@ -466,6 +477,14 @@ pub fn info() -> StageVariantInfo {
         MAX_SHADOW_SAMPLES as i64,
         "shadow rays per light and surface for shadow = samples (√N×√N strata when N is a \
          square)",
+    ))
+    .param(ParamInfo::choice(
+        "edge_pairing",
+        "any",
+        &EdgePairing::NAMES,
+        "which crossings form an edge width for shadow = edge_width: any consecutive entry \
+         and exit (listing 5.1), or only triangles sharing a vertex, any other pair occluding \
+         fully (shared_vertex: the thesis's light-leak fix, seed 003 §5.4 fig. 5.10)",
     ))
 }
 
@@ -899,7 +918,7 @@ impl RayGen<Cpu> for Whitted {
 
     fn visibility_mode(&self) -> HitMode {
         match self.shadow {
-            ShadowMode::EdgeWidth => HitMode::EdgeWidth,
+            ShadowMode::EdgeWidth(p) => HitMode::EdgeWidth(p),
             _ => HitMode::Any,
         }
     }

@@ -394,7 +394,7 @@ impl Phong {
             }
             let k = src * nl + li;
             lit[k] += match mode {
-                HitMode::EdgeWidth => 1.0 - crsh_core::edge_width::occlusion(h),
+                HitMode::EdgeWidth(_) => 1.0 - crsh_core::edge_width::occlusion(h),
                 _ => f32::from(u8::from(!h.is_hit())),
             };
             rays[k] += 1;
@@ -558,8 +558,14 @@ mod tests {
             (Hit { u: 1.0, ..OCCLUDED }, 0.0),
         ] {
             let mut img = vec![[0.0f32; 4]; 1];
-            sh.shade_mode(&s, &rays[..1], &[hit], HitMode::EdgeWidth, &mut img)
-                .unwrap();
+            sh.shade_mode(
+                &s,
+                &rays[..1],
+                &[hit],
+                HitMode::EdgeWidth(Default::default()),
+                &mut img,
+            )
+            .unwrap();
             assert_eq!(img[0], [want, 0.5 * want, 0.25 * want, 1.0], "{hit:?}");
         }
         // Any-hit shading reads an edge-width hit as a full occlusion; nearest hits are refused.

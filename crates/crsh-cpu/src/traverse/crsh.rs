@@ -941,7 +941,7 @@ mod tests {
         for (i, (g, w)) in got.iter().zip(want).enumerate() {
             match mode {
                 HitMode::Closest => assert_eq!(g, w, "{what}: ray {i}"),
-                HitMode::Any | HitMode::EdgeWidth => {
+                HitMode::Any | HitMode::EdgeWidth(_) => {
                     assert_eq!(g.is_hit(), w.is_hit(), "{what}: ray {i}")
                 }
             }

@@ -321,7 +321,7 @@ impl Intersector<Wgpu> for BruteForce {
         hits: &mut GpuBuffer<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
-        if mode == HitMode::EdgeWidth {
+        if mode.is_edge_width() {
             return Err(mode.unsupported("brute (wgpu)"));
         }
         if rays.len() != hits.len() {

@@ -137,7 +137,7 @@ impl Intersector<Wgpu> for CwBvh {
         hits: &mut GpuBuffer<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
-        if mode == HitMode::EdgeWidth {
+        if mode.is_edge_width() {
             return Err(mode.unsupported("bvh (wgpu)"));
         }
         if !matches!(query, Query::Scene) {

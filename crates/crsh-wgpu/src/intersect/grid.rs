@@ -423,7 +423,7 @@ impl Intersector<Wgpu> for UniformGrid {
         hits: &mut GpuBuffer<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
-        if mode == HitMode::EdgeWidth {
+        if mode.is_edge_width() {
             return Err(mode.unsupported("grid (wgpu)"));
         }
         if !matches!(query, Query::Scene) {
@@ -684,7 +684,7 @@ mod tests {
                             assert_eq!(g, w, "{name} ray {i}: gpu vs cpu grid");
                             assert_eq!(g, r, "{name} ray {i}: gpu vs brute");
                         }
-                        HitMode::Any | HitMode::EdgeWidth => {
+                        HitMode::Any | HitMode::EdgeWidth(_) => {
                             assert_eq!(g.is_hit(), r.is_hit(), "{name} any ray {i}")
                         }
                     }
