@@ -123,7 +123,7 @@ fn check(args: &GridBuildArgs) -> CliResult<()> {
         }
     }
     if let Some(path) = &args.json {
-        output::check_writable(path, "--json")?;
+        output::check_json_path(path, "--json")?;
     }
     Ok(())
 }

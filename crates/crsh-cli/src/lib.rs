@@ -79,6 +79,33 @@ where
     }
 }
 
+/// Keeps Mesa's Vulkan device-selection layer (`VK_LAYER_MESA_device_select`, an implicit
+/// layer loaded into every Vulkan instance) from printing `error: XDG_RUNTIME_DIR is invalid
+/// or not set in the environment.` on stderr — twice, from libwayland straight to file
+/// descriptor 2 — on a successful `--backend wgpu` run without a Wayland session: it asks
+/// the compositor which GPU drives the display. Without `XDG_RUNTIME_DIR` there is no such
+/// compositor to ask, so the layer is switched off (`NODEVICE_SELECT=1`, its own switch)
+/// unless the user steers it (`NODEVICE_SELECT`, `MESA_VK_DEVICE_SELECT`, `DRI_PRIME`) or a
+/// Wayland socket is named by an absolute path. crsh picks its adapter itself
+/// (`WGPU_ADAPTER_NAME`, `WGPU_POWER_PREF`), so nothing else changes.
+///
+/// Called first thing in [`main_with_args`], while the process has one thread (setting the
+/// environment is not safe once other threads may read it).
+fn quiet_vulkan_device_select() {
+    let set = |k: &str| std::env::var_os(k).is_some_and(|v| !v.is_empty());
+    let runtime_dir = std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| {
+        std::path::Path::new(&d).is_absolute() && std::path::Path::new(&d).is_dir()
+    });
+    let wayland_socket =
+        std::env::var_os("WAYLAND_DISPLAY").is_some_and(|d| std::path::Path::new(&d).is_absolute());
+    let steered = ["NODEVICE_SELECT", "MESA_VK_DEVICE_SELECT", "DRI_PRIME"]
+        .iter()
+        .any(|k| set(k));
+    if !runtime_dir && !wayland_socket && !steered {
+        std::env::set_var("NODEVICE_SELECT", "1");
+    }
+}
+
 /// The `crsh` program with `registries`: parses the process's arguments, runs the command,
 /// prints an error as one line on stderr and exits with its code (2 for usage errors, as
 /// clap's own, 1 for failures of the work, 0 on success).
@@ -93,6 +120,7 @@ where
     I: IntoIterator<Item = T>,
     T: Into<OsString> + Clone,
 {
+    quiet_vulkan_device_select();
     // clap prints its own usage errors (`error: ...`) and exits with code 2.
     let cli = Cli::parse_from(args);
     let code = match dispatch(&registries, cli) {

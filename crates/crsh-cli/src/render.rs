@@ -22,8 +22,9 @@ pub fn run(args: &RenderArgs, registries: &Registries) -> CliResult<()> {
     output::check_png_path(&args.out)?;
     check_light_radius(args.light_radius, "--light-radius")?;
     if let Some(stats) = &args.stats {
-        output::check_writable(stats, "--stats")?;
+        output::check_json_path(stats, "--stats")?;
     }
+    check_run_files(args, registries)?;
     let backend = args.backend.kind();
     let cfg = pipeline_config(registries, &args.pipeline, &args.set, backend)?;
     // The reference always runs on the CPU (on the wgpu backend through the host), so it may
@@ -103,6 +104,26 @@ pub fn run(args: &RenderArgs, registries: &Registries) -> CliResult<()> {
         None => format!("wrote     {}\n", args.out.display()),
     };
     output::print_stdout(&(report.summary() + &wrote))
+}
+
+/// Refuses outputs (`--out`, or its numbered frames, and `--stats`) that would write over an
+/// input of the run (the scene's files, a pipeline file) or over each other.
+fn check_run_files(args: &RenderArgs, registries: &Registries) -> CliResult<()> {
+    let mut files = output::RunFiles::new();
+    files.scene(&args.scene);
+    files.pipeline(registries, &args.pipeline);
+    match args.frames {
+        Some(n) => {
+            for f in 0..n {
+                files.output(&frame_path(&args.out, f), format!("--out (frame {f})"));
+            }
+        }
+        None => files.output(&args.out, "--out"),
+    }
+    if let Some(stats) = &args.stats {
+        files.output(stats, "--stats");
+    }
+    files.check()
 }
 
 /// Checks a light-radius override (`what` names it in the error): a finite distance `≥ 0`.

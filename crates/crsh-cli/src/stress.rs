@@ -145,15 +145,11 @@ pub fn run(args: &StressArgs, registries: &Registries) -> CliResult<()> {
         eprint!("\r{:60}\r", "");
     }
     let md = markdown(&cases, &rows, threads);
-    print!("{md}");
+    crate::output::print_stdout(&md)?;
     if let Some(dir) = &args.out {
         std::fs::create_dir_all(dir)
             .map_err(|e| CliError::runtime(format!("--out {}: {e}", dir.display())))?;
-        let write = |name: &str, text: String| {
-            let path = dir.join(name);
-            std::fs::write(&path, text)
-                .map_err(|e| CliError::runtime(format!("cannot write {}: {e}", path.display())))
-        };
+        let write = |name: &str, text: String| crate::output::write_text(&dir.join(name), &text);
         write("stress.md", md.clone())?;
         write("stress.csv", csv(&cases, &rows))?;
         let json = serde_json::to_string_pretty(&JsonReport {

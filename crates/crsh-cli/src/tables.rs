@@ -75,10 +75,13 @@ impl SceneRuns {
     }
 }
 
+/// The files `--csv DIR` writes.
+const CSV_FILES: [&str; 3] = ["levels.csv", "totals.csv", "times.csv"];
+
 /// Runs `crsh tables`.
 pub fn run(args: &TablesArgs, registries: &Registries) -> CliResult<()> {
     if let Some(path) = &args.out {
-        output::check_writable(path, "--out")?;
+        output::check_md_path(path, "--out")?;
     }
     if let Some(dir) = &args.csv {
         if !dir.is_dir() {
@@ -88,6 +91,22 @@ pub fn run(args: &TablesArgs, registries: &Registries) -> CliResult<()> {
             )));
         }
     }
+    let mut files = output::RunFiles::new();
+    for scene in &args.scenes {
+        files.scene(scene);
+    }
+    for pipeline in &args.pipelines {
+        files.pipeline(registries, pipeline);
+    }
+    if let Some(path) = &args.out {
+        files.output(path, "--out");
+    }
+    if let Some(dir) = &args.csv {
+        for name in CSV_FILES {
+            files.output(&dir.join(name), format!("--csv {}'s", dir.display()));
+        }
+    }
+    files.check()?;
     let configs: Vec<Config> = args
         .subdivision
         .iter()
@@ -197,9 +216,10 @@ pub fn run(args: &TablesArgs, registries: &Registries) -> CliResult<()> {
         output::write_text(path, &md)?;
     }
     if let Some(dir) = &args.csv {
-        output::write_text(&dir.join("levels.csv"), &levels_csv(&scenes))?;
-        output::write_text(&dir.join("totals.csv"), &totals_csv(&scenes))?;
-        output::write_text(&dir.join("times.csv"), &times_csv(&scenes))?;
+        let [levels, totals, times] = CSV_FILES;
+        output::write_text(&dir.join(levels), &levels_csv(&scenes))?;
+        output::write_text(&dir.join(totals), &totals_csv(&scenes))?;
+        output::write_text(&dir.join(times), &times_csv(&scenes))?;
     }
     output::print_stdout(&md)
 }

@@ -12,6 +12,7 @@
 //!   file.
 //! - [`load_path`] / [`load_path_with_report`]: a file, by extension.
 //! - [`manifest::list`]: the manifests of a scenes directory, for `crsh scenes`.
+//! - [`input_files`]: the files loading a scene reads (so that no output overwrites them).
 //! - [`SceneBuilder`]: builds and validates a [`Scene`] from meshes, computing normals,
 //!   per-triangle and per-mesh minimal bounding spheres ([`bounding`]) and bounds.
 //!
@@ -60,6 +61,7 @@ pub mod animation;
 pub mod bounding;
 pub mod builtin;
 pub mod error;
+pub mod inputs;
 pub mod manifest;
 pub mod model;
 pub mod obj;
@@ -71,9 +73,10 @@ use std::path::Path;
 
 pub use animation::{AnimatedScene, Instance, Motion, UpdateTimes};
 pub use error::SceneError;
+pub use inputs::input_files;
 pub use model::{
     is_degenerate_triangle, Camera, Light, Material, Mesh, Scene, SceneBuilder, SceneSummary,
-    MAX_TRIANGLES, MAX_VERTICES,
+    MAX_TRIANGLES, MAX_VERTICES, MAX_VFOV_DEG, MIN_VFOV_DEG,
 };
 
 /// What a load produced besides the scene: where it came from and the non-fatal problems

@@ -223,9 +223,10 @@ pub struct CameraSpec {
     /// Up hint (default `+y`).
     #[serde(default = "default_up")]
     pub up: [f32; 3],
-    /// Vertical field of view in degrees.
+    /// Vertical field of view in degrees, [`crate::MIN_VFOV_DEG`]`..=`[`crate::MAX_VFOV_DEG`]
+    /// (outside, no usable image: [`crate::Camera::validate`]).
     pub vfov_deg: f32,
-    /// Width / height the camera was framed for.
+    /// Width / height the camera was framed for, `1/16384..=16384` (the image side limit).
     #[serde(default)]
     pub aspect: Option<f32>,
 }

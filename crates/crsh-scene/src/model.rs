@@ -179,6 +179,15 @@ pub struct Camera {
     pub aspect: Option<f32>,
 }
 
+/// The narrowest vertical field of view a camera may have, in degrees: at
+/// [`crsh_core::pipeline::MAX_IMAGE_SIDE`] pixels the rays of neighbouring pixels then still
+/// differ by about one unit in the last place of a single-precision direction.
+pub const MIN_VFOV_DEG: f32 = 0.1;
+
+/// The widest vertical field of view a camera may have, in degrees (a pinhole camera's image
+/// plane grows as `tan(vfov / 2)`, infinite at 180°).
+pub const MAX_VFOV_DEG: f32 = 179.0;
+
 impl Camera {
     /// Orthonormal basis `(right, up, forward)`; forward points from eye to target.
     pub fn basis(&self) -> (Vec3, Vec3, Vec3) {
@@ -204,9 +213,16 @@ impl Camera {
 
     /// The image height that matches the framing aspect for an image `width` pixels wide, if
     /// the camera has one (at least 1 pixel).
+    /// The height saturates at `u32::MAX`; [`Camera::height_for_f64`] gives the exact figure.
     pub fn height_for(&self, width: u32) -> Option<u32> {
+        self.height_for_f64(width).map(|h| h as u32)
+    }
+
+    /// [`Camera::height_for`] before conversion to an integer (rounded, at least 1), for
+    /// messages about heights out of range.
+    pub fn height_for_f64(&self, width: u32) -> Option<f64> {
         self.aspect
-            .map(|a| ((width as f64 / a as f64).round() as u32).max(1))
+            .map(|a| (width as f64 / a as f64).round().max(1.0))
     }
 
     /// Checks that the camera defines a view: finite vectors, eye ≠ target, `up` not parallel
@@ -235,9 +251,24 @@ impl Camera {
                 self.vfov_deg
             ));
         }
+        if !(MIN_VFOV_DEG..=MAX_VFOV_DEG).contains(&self.vfov_deg) {
+            return Err(format!(
+                "camera vfov_deg {} gives no usable image: it must lie in {MIN_VFOV_DEG}..={MAX_VFOV_DEG} \
+                 (narrower, neighbouring pixels' rays coincide in single precision; wider, the \
+                 image plane stretches to infinity)",
+                self.vfov_deg
+            ));
+        }
         if let Some(a) = self.aspect {
             if !(a.is_finite() && a > 0.0) {
                 return Err(format!("camera aspect {a} must be finite and positive"));
+            }
+            let side = crsh_core::pipeline::MAX_IMAGE_SIDE as f32;
+            if !(1.0 / side..=side).contains(&a) {
+                return Err(format!(
+                    "camera aspect {a} gives no usable image: it must lie in 1/{side}..={side} \
+                     (images are 1..={side} pixels per side)"
+                ));
             }
         }
         Ok(())
@@ -894,6 +925,47 @@ mod tests {
             .height_for(10),
             Some(1)
         );
+    }
+
+    #[test]
+    fn cameras_that_give_no_usable_image_are_refused() {
+        let ok = camera();
+        assert!(ok.validate().is_ok());
+        for (vfov, aspect, says) in [
+            (
+                1e-30,
+                None,
+                "vfov_deg 0.000000000000000000000000000001 gives no usable image",
+            ),
+            (0.09, None, "vfov_deg 0.09 gives no usable image"),
+            (179.5, None, "vfov_deg 179.5 gives no usable image"),
+            (45.0, Some(1e9), "aspect 1000000000 gives no usable image"),
+            (45.0, Some(1e-9), "aspect 0.000000001 gives no usable image"),
+        ] {
+            let c = Camera {
+                vfov_deg: vfov,
+                aspect,
+                ..ok.clone()
+            };
+            let e = c.validate().unwrap_err();
+            assert!(e.contains(says), "{e}");
+        }
+        for (vfov, aspect) in [
+            (MIN_VFOV_DEG, Some(16384.0)),
+            (MAX_VFOV_DEG, Some(1.0 / 16384.0)),
+        ] {
+            let c = Camera {
+                vfov_deg: vfov,
+                aspect,
+                ..ok.clone()
+            };
+            assert!(c.validate().is_ok(), "{vfov} {aspect:?}");
+        }
+        let thin = Camera {
+            aspect: Some(1.0 / 16384.0),
+            ..ok
+        };
+        assert_eq!(thin.height_for_f64(16384), Some(268_435_456.0));
     }
 
     fn camera() -> Camera {

@@ -252,14 +252,16 @@ impl<'r> Renderer<'r> {
     pub fn frame_size(&self, width: u32, height: Option<u32>) -> Result<FrameSize> {
         let camera = &self.scene.camera;
         let Some(h) = height else {
-            let h = camera.height_for(width).unwrap_or(width);
-            return FrameSize::new(width, h).map_err(|e| {
-                CoreError::InvalidInput(format!(
-                    "width {width} with the camera's aspect {} gives an image of {width}x{h}: {e}; give a height",
-                    camera.aspect.unwrap_or(1.0)
+            let h = camera.height_for_f64(width).unwrap_or(width as f64);
+            if !(1.0..=crsh_core::pipeline::MAX_IMAGE_SIDE as f64).contains(&h) {
+                return Err(CoreError::InvalidInput(format!(
+                    "width {width} with the camera's aspect {} gives a height of {h} pixels, outside 1..={}; give a height",
+                    camera.aspect.unwrap_or(1.0),
+                    crsh_core::pipeline::MAX_IMAGE_SIDE
                 ))
-                .into()
-            });
+                .into());
+            }
+            return Ok(FrameSize::new(width, h as u32)?);
         };
         Ok(FrameSize::new(width, h)?)
     }

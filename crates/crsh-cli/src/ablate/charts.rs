@@ -226,7 +226,8 @@ pub fn write_all(results: &Results, dir: &Path) -> Result<Vec<(String, Vec<Chart
             let stem = format!("{base}-{kind}");
             for (ext, bytes) in [("svg", svg.as_bytes()), ("png", png.as_slice())] {
                 let p = dir.join(format!("{stem}.{ext}"));
-                std::fs::write(&p, bytes).map_err(|e| format!("writing {}: {e}", p.display()))?;
+                crsh::output::write_atomic(&p, |w| std::io::Write::write_all(w, bytes))
+                    .map_err(|e| format!("writing {}: {e}", p.display()))?;
             }
             files.push(ChartFile {
                 kind,

@@ -6,40 +6,131 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
+use serde::Deserialize;
 use serde_json::Value;
 
 use crate::error::{CliError, CliResult};
 
-/// Reads a `results.json`; a missing or malformed file is a usage error.
-fn read(path: &Path) -> CliResult<Vec<Value>> {
+/// What `--compare` reads of a results file: its cells.
+#[derive(Deserialize)]
+struct Document {
+    cells: Vec<Cell>,
+}
+
+/// What `--compare` reads of a cell; every field must be there with its type (a file that
+/// lacks one is refused, not shown as `?`).
+#[derive(Clone, Debug, Deserialize)]
+pub struct Cell {
+    scene: String,
+    pipeline: String,
+    backend: String,
+    params: BTreeMap<String, Value>,
+    width: u32,
+    height: u32,
+    depth: u32,
+    status: String,
+    #[serde(default)]
+    measures: Option<Measures>,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+struct Measures {
+    timings_ms: Timings,
+    tests: Tests,
+    #[serde(default)]
+    accuracy: Option<Accuracy>,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+struct Timings {
+    total: Median,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+struct Median {
+    median: f64,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+struct Tests {
+    total: u64,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+struct Accuracy {
+    hit_agreement: f64,
+}
+
+/// Reads the cells of a `results.json`; a missing or malformed file, or a cell without the
+/// fields a comparison needs (named with its line and column, or its position), is a usage
+/// error.
+fn read(path: &Path) -> CliResult<Vec<Cell>> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| CliError::usage(format!("cannot read {}: {e}", path.display())))?;
-    let v: Value = serde_json::from_str(&text)
-        .map_err(|e| CliError::usage(format!("{} is not JSON: {e}", path.display())))?;
-    v.get("cells")
-        .and_then(Value::as_array)
-        .cloned()
-        .ok_or_else(|| {
+    let doc: Document = serde_json::from_str(&text).map_err(|e| {
+        let at = if e.line() > 0 {
+            format!("{}:{}:{}", path.display(), e.line(), e.column())
+        } else {
+            path.display().to_string()
+        };
+        let why = e.to_string();
+        let why = why.split(" at line ").next().unwrap_or(&why).to_string();
+        CliError::usage(format!("{at}: not a crsh ablate results.json: {why}"))
+    })?;
+    let mut seen: BTreeMap<String, usize> = BTreeMap::new();
+    for (i, c) in doc.cells.iter().enumerate() {
+        if let Some(first) = seen.insert(cell_key(c), i) {
+            return Err(CliError::usage(format!(
+                "{}: cells[{i}] ({}) is the same cell as cells[{first}]: cells must differ in scene, pipeline, backend, parameters, size or depth",
+                path.display(),
+                cell_key(c)
+            )));
+        }
+        let bad = |why: String| {
             CliError::usage(format!(
-                "{} is not a crsh ablate results.json (no `cells` list)",
-                path.display()
+                "{}: cells[{i}] ({}): {why}",
+                path.display(),
+                cell_key(c)
             ))
-        })
+        };
+        match c.status.as_str() {
+            "ok" if c.measures.is_none() => {
+                return Err(bad("status `ok` but no `measures`".into()))
+            }
+            "ok" | "failed" => {}
+            other => {
+                return Err(bad(format!(
+                    "status `{other}` is neither `ok` nor `failed`"
+                )))
+            }
+        }
+        if let Some(m) = &c.measures {
+            let time = m.timings_ms.total.median;
+            if !(time.is_finite() && time >= 0.0) {
+                return Err(bad(format!(
+                    "measures.timings_ms.total.median {time} is not a time"
+                )));
+            }
+            if let Some(a) = &m.accuracy {
+                if !(0.0..=1.0).contains(&a.hit_agreement) {
+                    return Err(bad(format!(
+                        "measures.accuracy.hit_agreement {} is outside 0..=1",
+                        a.hit_agreement
+                    )));
+                }
+            }
+        }
+    }
+    Ok(doc.cells)
 }
 
 /// The identity of a cell: `scene | pipeline | backend | k=v ... | WxH d=D`.
-pub fn cell_key(c: &Value) -> String {
-    let s = |k: &str| c.get(k).and_then(Value::as_str).unwrap_or("?").to_string();
-    let n = |k: &str| c.get(k).and_then(Value::as_u64).unwrap_or(0);
+pub fn cell_key(c: &Cell) -> String {
     let params: Vec<String> = c
-        .get("params")
-        .and_then(Value::as_object)
-        .map(|o| {
-            o.iter()
-                .map(|(k, v)| format!("{k}={}", v.as_str().map_or(v.to_string(), str::to_string)))
-                .collect()
-        })
-        .unwrap_or_default();
+        .params
+        .iter()
+        .map(|(k, v)| format!("{k}={}", v.as_str().map_or(v.to_string(), str::to_string)))
+        .collect();
     let params = if params.is_empty() {
         "-".to_string()
     } else {
@@ -47,25 +138,20 @@ pub fn cell_key(c: &Value) -> String {
     };
     format!(
         "{} | {} | {} | {params} | {}x{} depth {}",
-        s("scene"),
-        s("pipeline"),
-        s("backend"),
-        n("width"),
-        n("height"),
-        n("depth")
+        c.scene, c.pipeline, c.backend, c.width, c.height, c.depth
     )
 }
 
-fn figures(c: &Value) -> Option<(f64, f64, Option<f64>)> {
-    if c.get("status").and_then(Value::as_str) != Some("ok") {
+fn figures(c: &Cell) -> Option<(f64, f64, Option<f64>)> {
+    if c.status != "ok" {
         return None;
     }
-    let time = c.pointer("/measures/timings_ms/total/median")?.as_f64()?;
-    let tests = c.pointer("/measures/tests/total")?.as_f64()?;
-    let agreement = c
-        .pointer("/measures/accuracy/hit_agreement")
-        .and_then(Value::as_f64);
-    Some((time, tests, agreement))
+    let m = c.measures.as_ref()?;
+    Some((
+        m.timings_ms.total.median,
+        m.tests.total as f64,
+        m.accuracy.as_ref().map(|a| a.hit_agreement),
+    ))
 }
 
 fn ratio(new: f64, old: f64) -> String {
@@ -79,8 +165,8 @@ fn ratio(new: f64, old: f64) -> String {
 }
 
 /// The comparison text of two results files.
-pub fn compare_text(old: &[Value], new: &[Value]) -> String {
-    let index = |cells: &[Value]| -> BTreeMap<String, Value> {
+pub fn compare_text(old: &[Cell], new: &[Cell]) -> String {
+    let index = |cells: &[Cell]| -> BTreeMap<String, Cell> {
         cells.iter().map(|c| (cell_key(c), c.clone())).collect()
     };
     let (o, n) = (index(old), index(new));
@@ -148,8 +234,8 @@ mod tests {
     use super::*;
     use serde_json::json;
 
-    fn cell(pipeline: &str, sub: &str, time: f64, tests: u64, agree: f64) -> Value {
-        json!({
+    fn cell(pipeline: &str, sub: &str, time: f64, tests: u64, agree: f64) -> Cell {
+        serde_json::from_value(json!({
             "scene": "s", "pipeline": pipeline, "backend": "cpu",
             "params": {"hierarchy.subdivision": sub}, "width": 32, "height": 32, "depth": 3,
             "status": "ok",
@@ -158,7 +244,8 @@ mod tests {
                 "tests": {"total": tests},
                 "accuracy": {"hit_agreement": agree}
             }
-        })
+        }))
+        .unwrap()
     }
 
     #[test]

@@ -45,6 +45,7 @@ use clap::Args;
 use crsh::Registries;
 
 use crate::error::{CliError, CliResult};
+use crate::output::{canonical, RunFiles};
 use plan::{split_list, Cell, Plan, QuickPlan};
 use results::{CellResult, Expansion, Machine, Results, ShardInfo};
 
@@ -327,6 +328,29 @@ fn expansion_of(cells: &[Cell]) -> Expansion {
     }
 }
 
+/// The files [`write_outputs`] writes (or removes, when stale) in the output directory,
+/// besides `charts/`.
+const OUT_FILES: [&str; 6] = [
+    "results.json",
+    "results.csv",
+    "frames.csv",
+    "baseline.csv",
+    "baseline.md",
+    "report.html",
+];
+
+/// Refuses an output directory `out` where writing the results (with `results.json` when
+/// `write_json`) would write over an input in `files`.
+fn check_outputs(mut files: RunFiles, out: &Path, write_json: bool) -> CliResult<()> {
+    for name in OUT_FILES {
+        if write_json || name != "results.json" {
+            files.output(&out.join(name), "--out");
+        }
+    }
+    files.output_dir(&out.join("charts"), "--out");
+    files.check()
+}
+
 /// Writes `results.json`, `results.csv`, the charts and `report.html` of `results` into
 /// `out` (created if missing), removing chart files of an earlier run that this one does not
 /// draw. Returns the number of chart files.
@@ -495,6 +519,11 @@ pub fn run(args: &AblateArgs, registries: &Registries) -> CliResult<()> {
             .out
             .as_ref()
             .ok_or_else(|| CliError::usage("--merge needs --out DIR for the merged results"))?;
+        let mut files = RunFiles::new();
+        for d in dirs {
+            files.input(&d.join("results.json"), "a shard's results.json");
+        }
+        check_outputs(files, out, true)?;
         let results = merge::merge(dirs)?;
         let charts = write_outputs(&results, out, true)?;
         return crate::output::print_stdout(&summary(&results, out, charts));
@@ -502,7 +531,11 @@ pub fn run(args: &AblateArgs, registries: &Registries) -> CliResult<()> {
     if let Some(dir) = &args.redraw {
         let results = merge::read_results(dir)?;
         let out = args.out.as_deref().unwrap_or(dir);
-        let charts = write_outputs(&results, out, out != dir.as_path())?;
+        let write_json = canonical(out) != canonical(dir);
+        let mut files = RunFiles::new();
+        files.input(&dir.join("results.json"), "the results.json redrawn");
+        check_outputs(files, out, write_json)?;
+        let charts = write_outputs(&results, out, write_json)?;
         return crate::output::print_stdout(&summary(&results, out, charts));
     }
     if args.dry_run {
@@ -528,6 +561,26 @@ pub fn run(args: &AblateArgs, registries: &Registries) -> CliResult<()> {
         .iter()
         .filter(|c| shard.is_none_or(|s| s.holds(c.index)))
         .collect();
+    let mut files = RunFiles::new();
+    if let Some(p) = &args.plan {
+        files.input(p, "the plan");
+    }
+    for p in &plan.pipelines {
+        if registries.preset(&p.pipeline).is_none() {
+            files.input(Path::new(&p.pipeline), "a pipeline file of the plan");
+            if let Some(d) = &plan_dir {
+                files.input(&d.join(&p.pipeline), "a pipeline file of the plan");
+            }
+        }
+    }
+    let scenes: BTreeSet<&str> = all_cells
+        .iter()
+        .filter_map(|c| c.scene.as_deref().ok())
+        .collect();
+    for s in scenes {
+        files.scene(s);
+    }
+    check_outputs(files, out, true)?;
     prepare_out(out)?;
 
     let started = Instant::now();

@@ -130,3 +130,69 @@ pub fn assert_unchanged(
         assert!(new.is_empty(), "a failed run left files {new:?}: {ctx}");
     }
 }
+
+impl Case {
+    /// [`Case::expect_error`] with `crsh` started by `sh -c` after the shell commands
+    /// `prelude` (e.g. `trap '' XFSZ; ulimit -f 1`), for failures that the system, not the
+    /// input, causes.
+    pub fn expect_error_after(
+        &self,
+        prelude: &str,
+        args: &[&str],
+        code: i32,
+        mentions: &[&str],
+    ) -> String {
+        let before = snapshot(&self.dir);
+        let o = std::process::Command::new("sh")
+            .arg("-c")
+            .arg(format!("{prelude}; exec \"$0\" \"$@\""))
+            .arg(env!("CARGO_BIN_EXE_crsh"))
+            .args(args)
+            .current_dir(&self.dir)
+            .env_remove("RAYON_NUM_THREADS")
+            .output()
+            .expect("run sh");
+        let line = one_error_line(&o, code, mentions, &format!("{prelude}; crsh {args:?}"));
+        let after = snapshot(&self.dir);
+        assert_unchanged(&before, &after, true, &format!("{prelude}; crsh {args:?}"));
+        line
+    }
+
+    /// [`Case::expect_ok`] with the environment variables `unset` removed.
+    pub fn expect_ok_without_env(&self, args: &[&str], unset: &[&str]) -> Output {
+        let before = snapshot(&self.dir);
+        let o = common::crsh_with(&self.dir, args, unset);
+        common::assert_ok(&o);
+        let err = common::text(&o.stderr);
+        assert!(
+            !err.contains("error:"),
+            "crsh {args:?} (without {unset:?}) succeeded but printed `error:`:\n{err}"
+        );
+        let after = snapshot(&self.dir);
+        assert_unchanged(&before, &after, false, &format!("crsh {args:?}"));
+        o
+    }
+}
+
+/// Asserts that `o` failed with `code` (no panic) and printed exactly one line containing
+/// `error:`, starting with it and containing every string of `mentions`; returns the line.
+pub fn one_error_line(o: &Output, code: i32, mentions: &[&str], what: &str) -> String {
+    let err = common::text(&o.stderr);
+    let ctx = format!(
+        "{what}\nexit: {:?}\nstdout:\n{}\nstderr:\n{err}",
+        o.status.code(),
+        common::text(&o.stdout)
+    );
+    assert!(!err.contains("panicked"), "panicked: {ctx}");
+    assert_eq!(o.status.code(), Some(code), "wrong exit code: {ctx}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.contains("error:")).collect();
+    assert_eq!(lines.len(), 1, "want exactly one `error:` line: {ctx}");
+    assert!(
+        lines[0].starts_with("error:"),
+        "not an `error:` line: {ctx}"
+    );
+    for m in mentions {
+        assert!(lines[0].contains(m), "the error line lacks `{m}`: {ctx}");
+    }
+    lines[0].to_string()
+}
