@@ -1864,7 +1864,7 @@ fn rttest_plan_is_exact_on_every_cell_and_reports_packets() {
     assert_ok(&o);
     let v = read_json(&dir.join("out/results.json"));
     let cs = cells(&v);
-    assert_eq!(cs.len(), 2 * 30);
+    assert_eq!(cs.len(), 2 * 36);
     for c in cs {
         assert_eq!(c["status"], "ok", "{c:#}");
         let m = &c["measures"];
