@@ -48,10 +48,10 @@ pub struct Keyframe {
     /// Time in seconds.
     pub time: f32,
     /// Offset added to the instance's position.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "crate::manifest::exact")]
     pub translate: [f32; 3],
     /// Rotation about the instance's origin: `[axis_x, axis_y, axis_z, degrees]`.
-    #[serde(default = "no_rotation")]
+    #[serde(default = "no_rotation", deserialize_with = "crate::manifest::exact")]
     pub rotate: [f32; 4],
     /// Uniform scale about the instance's origin.
     #[serde(default = "one")]
@@ -84,17 +84,18 @@ pub enum Motion {
     /// Constant velocity: `p + velocity·t`.
     Translate {
         /// Units per second.
+        #[serde(deserialize_with = "crate::manifest::exact")]
         velocity: [f32; 3],
     },
     /// Constant spin about `axis` through `pivot`.
     Rotate {
         /// Rotation axis (normalized when used).
-        #[serde(default = "y_axis")]
+        #[serde(default = "y_axis", deserialize_with = "crate::manifest::exact")]
         axis: [f32; 3],
         /// Angular speed.
         degrees_per_second: f32,
         /// A point on the axis (default: the instance's origin).
-        #[serde(default)]
+        #[serde(default, deserialize_with = "crate::manifest::exact_opt")]
         pivot: Option<[f32; 3]>,
     },
     /// Uniform scale by `factor_per_second^t` about `pivot`.
@@ -102,7 +103,7 @@ pub enum Motion {
         /// Scale factor after one second (> 0).
         factor_per_second: f32,
         /// Fixed point (default: the instance's origin).
-        #[serde(default)]
+        #[serde(default, deserialize_with = "crate::manifest::exact_opt")]
         pivot: Option<[f32; 3]>,
     },
     /// Rigid keyframes, linearly interpolated (rotation by slerp), held before the first and
@@ -124,17 +125,17 @@ pub enum Motion {
         /// Phase speed, units per second.
         speed: f32,
         /// Direction of travel (normalized when used).
-        #[serde(default = "x_axis")]
+        #[serde(default = "x_axis", deserialize_with = "crate::manifest::exact")]
         direction: [f32; 3],
         /// Displacement direction (normalized when used).
-        #[serde(default = "y_axis")]
+        #[serde(default = "y_axis", deserialize_with = "crate::manifest::exact")]
         axis: [f32; 3],
     },
     /// A twist about `axis` through the object-space origin whose angle grows with the height
     /// along the axis and swings in time: `angle = degrees_per_unit · h · sin(2π t / period)`.
     Twist {
         /// Twist axis (normalized when used).
-        #[serde(default = "y_axis")]
+        #[serde(default = "y_axis", deserialize_with = "crate::manifest::exact")]
         axis: [f32; 3],
         /// Twist per unit of height at the swing's extreme.
         degrees_per_unit: f32,

@@ -62,6 +62,7 @@ pub mod builtin;
 pub mod error;
 pub mod manifest;
 pub mod model;
+pub mod mtl;
 pub mod obj;
 pub mod random;
 mod rng;
@@ -73,7 +74,7 @@ pub use animation::{AnimatedScene, Instance, Motion, UpdateTimes};
 pub use error::SceneError;
 pub use model::{
     is_degenerate_triangle, Camera, Light, Material, Mesh, Scene, SceneBuilder, SceneSummary,
-    MAX_TRIANGLES, MAX_VERTICES,
+    MAX_COORDINATE, MAX_TRIANGLES, MAX_VERTICES,
 };
 
 /// What a load produced besides the scene: where it came from and the non-fatal problems

@@ -426,6 +426,12 @@ pub const MAX_TRIANGLES: usize = 64 << 20;
 /// Largest number of vertices a scene may hold (64 Mi).
 pub const MAX_VERTICES: usize = 64 << 20;
 
+/// Largest magnitude of a vertex coordinate (`1e15`). Tracing squares coordinate differences
+/// (edge cross products, bounding-box diagonals, sphere radii), and `f32` overflows to
+/// infinity above about `1.8e19`; below this bound such squares stay finite with a wide
+/// margin. Real scenes are many orders of magnitude smaller.
+pub const MAX_COORDINATE: f32 = 1e15;
+
 /// A mesh as added to the builder, before validation.
 #[derive(Clone, Debug)]
 struct PendingMesh {
@@ -543,7 +549,8 @@ impl SceneBuilder {
     /// Adds a mesh: `positions` and optional per-vertex `normals` (same length), `indices`
     /// into them, and one material id for all of its triangles.
     ///
-    /// The mesh is checked at once (indices in range, finite positions, normals count, size
+    /// The mesh is checked at once (indices in range, finite positions no larger than
+    /// [`MAX_COORDINATE`], normals count, size
     /// limits [`MAX_TRIANGLES`] / [`MAX_VERTICES`] before anything is copied); the first
     /// problem is returned by [`SceneBuilder::build`] and the offending mesh is not added.
     pub fn mesh(
@@ -594,6 +601,20 @@ impl SceneBuilder {
         }
         if let Some((i, p)) = positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
             self.fail(label, format!("vertex {i} has a non-finite coordinate {p}"));
+            return self;
+        }
+        if let Some((i, p)) = positions
+            .iter()
+            .enumerate()
+            .find(|(_, p)| p.abs().max_element() > MAX_COORDINATE)
+        {
+            self.fail(
+                label,
+                format!(
+                    "vertex {i} has a coordinate beyond the supported magnitude \
+                     {MAX_COORDINATE:e}: {p}"
+                ),
+            );
             return self;
         }
         let nv = positions.len() as u32;
