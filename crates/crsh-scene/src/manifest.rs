@@ -812,11 +812,17 @@ mod tests {
             "{CAMERA}[[instances]]\nshape = \"box\"\n[[instances.motion]]\nkind = \"rotate\"\n\
              degrees_per_second = 1\npivot = [0, 0, 0, 0]\n"
         ));
-        assert!(e.contains("m.toml:") && e.contains("invalid length 4"), "{e}");
+        assert!(
+            e.contains("m.toml:") && e.contains("invalid length 4"),
+            "{e}"
+        );
         let e = parse_err(&format!(
             "{CAMERA}[[instances]]\nshape = \"box\"\n[[instances.motion]]\nkind = \"translate\"\n\
              velocity = [1, 2]\n"
         ));
-        assert!(e.contains("m.toml:") && e.contains("invalid length 2"), "{e}");
+        assert!(
+            e.contains("m.toml:") && e.contains("invalid length 2"),
+            "{e}"
+        );
     }
 }

@@ -387,7 +387,10 @@ fn comment_out_line_elements(bytes: &mut [u8]) {
             .iter()
             .position(|&b| b == b'\n')
             .map_or(bytes.len(), |i| start + i);
-        if let Some(k) = bytes[start..end].iter().position(|b| !b.is_ascii_whitespace()) {
+        if let Some(k) = bytes[start..end]
+            .iter()
+            .position(|b| !b.is_ascii_whitespace())
+        {
             let at = start + k;
             if bytes[at] == b'l' && bytes.get(at + 1).is_none_or(|b| b.is_ascii_whitespace()) {
                 bytes[at] = b'#';

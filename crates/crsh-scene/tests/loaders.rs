@@ -361,10 +361,18 @@ fn dropped_faces_and_bad_attribute_indices_name_the_line() {
         ("f2", "f 1 2", "face has 2 vertices (3 or more needed)"),
         ("f1", "f 3", "face has 1 vertices (3 or more needed)"),
         ("f0", "f", "face has 0 vertices (3 or more needed)"),
-        ("vt", "f 1/9 2/9 3/9", "texture coordinate index 9 is out of range (0 in the file)"),
+        (
+            "vt",
+            "f 1/9 2/9 3/9",
+            "texture coordinate index 9 is out of range (0 in the file)",
+        ),
         ("vn0", "f 1//0 2//0 3//0", "normal index 0 is invalid"),
         ("vnx", "f 1//x 2 3", "normal index 'x' is not an integer"),
-        ("slashes", "f 1/// 2 3", "face corner '1///' has more than three"),
+        (
+            "slashes",
+            "f 1/// 2 3",
+            "face corner '1///' has more than three",
+        ),
         ("l1", "l 1", "line element has 1 vertices"),
         ("p9", "p 9", "vertex index 9 is out of range"),
         ("mtllib", "mtllib", "mtllib without a file name"),
@@ -387,7 +395,10 @@ fn huge_coordinates_are_not_called_non_finite() {
     );
     // The weight divides: 1 / 1e-30 is huge too.
     let e = obj_error("w", "v 0 0 0\nv 1 0 0 1e-30\nv 0 1 0\nf 1 2 3\n");
-    assert!(e.contains("bad.obj:2: ") && e.contains("supported magnitude"), "{e}");
+    assert!(
+        e.contains("bad.obj:2: ") && e.contains("supported magnitude"),
+        "{e}"
+    );
     // Right at the limit loads.
     let d = TempDir::new("e15");
     let p = d.write("ok.obj", "v 0 0 0\nv 1e15 0 0\nv 0 -1e15 0\nf 1 2 3\n");
@@ -404,10 +415,9 @@ fn lines_and_points_are_ignored_with_a_warning() {
     let (s, report) = load_with_report(p.to_str().unwrap()).unwrap();
     assert_eq!(s.triangle_count(), 1);
     assert!(
-        report
-            .warnings
-            .iter()
-            .any(|w| w.contains("lp.obj") && w.contains("2 line (l) and point (p) elements ignored")),
+        report.warnings.iter().any(
+            |w| w.contains("lp.obj") && w.contains("2 line (l) and point (p) elements ignored")
+        ),
         "{:?}",
         report.warnings
     );
