@@ -62,7 +62,7 @@ use serde::{Deserialize, Serialize};
 
 use glam::{Affine3A, Quat, Vec3};
 
-use crate::animation::{AnimatedScene, Instance, Motion, DEFAULT_FPS};
+use crate::animation::{AnimatedScene, Instance, Motion, DEFAULT_FPS, FPS_RANGE};
 use crate::builtin::Geometry;
 use crate::error::SceneError;
 use crate::model::{Camera, Light, Material, Scene, SceneBuilder};
@@ -116,6 +116,10 @@ impl<'de, const N: usize> Visitor<'de> for Exact<N> {
         Ok(out)
     }
 }
+
+/// Smallest placement scale of an instance (per axis); the largest is its inverse. Beyond,
+/// the normals of a placed mesh cannot be transformed in `f32`.
+pub const MIN_SCALE: f32 = 1e-12;
 
 /// A parsed manifest.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -231,8 +235,11 @@ impl InstanceSpec {
     /// Object to world at rest: scale, then rotation, then translation.
     pub fn placement(&self) -> Result<Affine3A, String> {
         let scale = self.scale.map(ScaleSpec::vec).unwrap_or(Vec3::ONE);
-        if !scale.is_finite() || scale.min_element() <= 0.0 {
-            return Err(format!("scale {scale} must be finite and positive"));
+        if !(scale.min_element() >= MIN_SCALE && scale.max_element() <= 1.0 / MIN_SCALE) {
+            return Err(format!(
+                "scale {scale} must lie in {MIN_SCALE:e}..={:e}",
+                1.0 / MIN_SCALE
+            ));
         }
         let translate = Vec3::from_array(self.translate);
         if !translate.is_finite() {
@@ -443,8 +450,22 @@ pub fn build_animated(
         ));
     }
     let fps = manifest.animation.as_ref().map_or(DEFAULT_FPS, |a| a.fps);
-    let (scene, warnings) = builder.build_with_warnings(&path.display().to_string())?;
-    Ok((AnimatedScene::new(scene, instances, fps)?, warnings))
+    if !FPS_RANGE.contains(&fps) {
+        return Err(SceneError::invalid(
+            format!("{}: [animation]", path.display()),
+            format!(
+                "fps {fps:?} is outside {}..={}",
+                FPS_RANGE.start(),
+                FPS_RANGE.end()
+            ),
+        ));
+    }
+    let here = path.display().to_string();
+    let (scene, warnings) = builder.build_with_warnings(&here)?;
+    // Its errors name the scene and the instance; add the file.
+    let anim = AnimatedScene::new(scene, instances, fps)
+        .map_err(|e| SceneError::invalid(&here, e.to_string()))?;
+    Ok((anim, warnings))
 }
 
 /// Adds what `manifest` (at `path`) describes to `builder`: what it extends, its mesh and

@@ -801,12 +801,17 @@ fn compute_normals(
     indices: &[[u32; 3]],
     warnings: &mut Vec<String>,
 ) -> Vec<Vec3> {
-    let usable = |n: Option<Vec3>| n.filter(|n| n.is_finite() && n.length_squared() > 0.0);
+    // Scaled by its largest component first, so that a huge (`1e30`) or tiny (`1e-30`)
+    // finite normal is not lost to an infinite or zero squared length.
+    let usable = |n: Option<Vec3>| {
+        n.filter(|n| n.is_finite() && n.abs().max_element() > 0.0)
+            .map(|n| (n / n.abs().max_element()).normalize())
+    };
     let mut out: Vec<Vec3> = Vec::with_capacity(positions.len());
     let mut need = false;
     for &n in supplied {
         match usable(n) {
-            Some(n) => out.push(n.normalize()),
+            Some(n) => out.push(n),
             None => {
                 out.push(Vec3::ZERO);
                 need = true;

@@ -61,6 +61,8 @@ struct Counts {
     triangles: usize,
     /// Line (`l`) and point (`p`) elements, which are ignored.
     ignored: usize,
+    /// Vertices given with a colour (`v x y z r g b`).
+    coloured: usize,
 }
 
 /// Calls `f(line_number, line_bytes)` for every line (1-based, without `\r\n`).
@@ -212,6 +214,18 @@ fn check_line(line: &[u8], seen: &mut Counts, totals: &Counts, strict: bool) -> 
                 }
                 n => return Err(format!("vertex has {n} values (3, 4 or 6 expected)")),
             }
+            // `tobj` keeps colours in a list of their own, indexed like the vertices.
+            let coloured = rest.len() == 6;
+            if seen.coloured != if coloured { seen.positions } else { 0 } {
+                return Err(format!(
+                    "vertex {} {} a colour but the vertices before it {}: give every vertex a \
+                     colour, or none",
+                    seen.positions + 1,
+                    if coloured { "has" } else { "lacks" },
+                    if coloured { "have none" } else { "have one" },
+                ));
+            }
+            seen.coloured += usize::from(coloured);
             // `tobj` divides by the weight: check what it will store.
             let p = Vec3::from_array([xyz[0], xyz[1], xyz[2]]) / w;
             if !p.is_finite() {
@@ -499,6 +513,11 @@ pub fn read(path: &Path, builder: &mut SceneBuilder) -> Result<ObjInfo, SceneErr
                     ));
                     Err(tobj::LoadError::OpenFileFailed)
                 }
+                // An unreadable file (a directory, no permission): say which mtllib it is.
+                Err(SceneError::Io { source, .. }) => fail(SceneError::invalid(
+                    format!("{}: mtllib {}", path.display(), full.display()),
+                    source.to_string(),
+                )),
                 Err(e) => fail(e),
             }
         },

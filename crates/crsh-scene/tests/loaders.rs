@@ -423,6 +423,56 @@ fn lines_and_points_are_ignored_with_a_warning() {
     );
 }
 
+/// Found by `fuzz_inputs`: each loaded, then broke an invariant of the scene.
+#[test]
+fn fuzz_findings_stay_fixed() {
+    let d = TempDir::new("fuzzfound");
+    // A subnormal coordinate, degenerate once the instance halves it: the count follows.
+    d.write(
+        "t.obj",
+        "v 0 0 1\nv 1e-45 0 1\nv 0 1 1\nf 1 2 3\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 4 5 6\n",
+    );
+    let head = "[camera]\neye = [0, 0, 5]\ntarget = [0, 0, 0]\nvfov_deg = 40\n\
+                [[lights]]\nposition = [0, 2, 2]\n[[instances]]\nmesh = \"t.obj\"\n";
+    let m = d.write("a.toml", &format!("{head}scale = 0.5\n"));
+    let s = load_path(&m).unwrap();
+    let counted = (0..s.triangle_count())
+        .filter(|&t| s.is_degenerate(t))
+        .count();
+    assert_eq!((counted, s.degenerate_triangles), (1, 1));
+    // A scale that collapses the normals' transform.
+    let m = d.write("b.toml", &format!("{head}scale = 1e-45\n"));
+    let e = err_text(load_path(&m));
+    assert!(
+        e.contains("b.toml: instance #0") && e.contains("must lie in 1e-12..=1e12"),
+        "{e}"
+    );
+    // A subnormal fps put frame 1 at infinity.
+    let m = d.write("c.toml", &format!("{head}[animation]\nfps = 1e-45\n"));
+    let e = err_text(load_path(&m));
+    assert!(
+        e.contains("c.toml: [animation]: fps 1e-45 is outside 0.001..=1000000"),
+        "{e}"
+    );
+    // A huge supplied normal was normalized to zero.
+    let p = d.write(
+        "n.obj",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn -1e30 0 1\nvn 0 0 1e-40\nf 1//1 2//2 3//2\n",
+    );
+    let s = load_path(&p).unwrap();
+    assert!(
+        (s.normals[0] - Vec3::new(-1.0, 0.0, 1e-30)).length() < 1e-6,
+        "{}",
+        s.normals[0]
+    );
+    assert_eq!(s.normals[1], Vec3::Z);
+    // An mtllib naming a directory.
+    std::fs::create_dir_all(d.0.join("sub")).unwrap();
+    let p = d.write("m.obj", "mtllib sub\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let e = err_text(load_path(&p));
+    assert!(e.contains("m.obj: mtllib ") && e.contains("sub: "), "{e}");
+}
+
 #[test]
 fn empty_scenes_are_errors() {
     let e = obj_error("empty", "# nothing here\n");
