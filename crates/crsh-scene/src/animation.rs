@@ -36,10 +36,20 @@ use serde::{Deserialize, Serialize};
 
 use crate::bounding;
 use crate::error::SceneError;
-use crate::model::{is_degenerate_triangle, Scene};
+use crate::model::{is_degenerate_triangle, Scene, MAX_COORDINATE};
+
+/// Whether a vertex at `p` is outside what a scene may hold: not finite, or a coordinate
+/// beyond [`MAX_COORDINATE`].
+fn out_of_range(p: Vec3) -> bool {
+    !p.is_finite() || p.abs().max_element() > MAX_COORDINATE
+}
 
 /// Frames per second of scene time when the manifest does not say.
 pub const DEFAULT_FPS: f32 = 24.0;
+
+/// Accepted frames per second: frame `f` is at `f / fps` seconds, which must stay finite for
+/// every frame number (a subnormal `fps` made frame 1 infinitely far).
+pub const FPS_RANGE: std::ops::RangeInclusive<f32> = 1e-3..=1e6;
 
 /// One keyframe of [`Motion::Keyframes`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -48,10 +58,10 @@ pub struct Keyframe {
     /// Time in seconds.
     pub time: f32,
     /// Offset added to the instance's position.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "crate::manifest::exact")]
     pub translate: [f32; 3],
     /// Rotation about the instance's origin: `[axis_x, axis_y, axis_z, degrees]`.
-    #[serde(default = "no_rotation")]
+    #[serde(default = "no_rotation", deserialize_with = "crate::manifest::exact")]
     pub rotate: [f32; 4],
     /// Uniform scale about the instance's origin.
     #[serde(default = "one")]
@@ -84,17 +94,18 @@ pub enum Motion {
     /// Constant velocity: `p + velocity·t`.
     Translate {
         /// Units per second.
+        #[serde(deserialize_with = "crate::manifest::exact")]
         velocity: [f32; 3],
     },
     /// Constant spin about `axis` through `pivot`.
     Rotate {
         /// Rotation axis (normalized when used).
-        #[serde(default = "y_axis")]
+        #[serde(default = "y_axis", deserialize_with = "crate::manifest::exact")]
         axis: [f32; 3],
         /// Angular speed.
         degrees_per_second: f32,
         /// A point on the axis (default: the instance's origin).
-        #[serde(default)]
+        #[serde(default, deserialize_with = "crate::manifest::exact_opt")]
         pivot: Option<[f32; 3]>,
     },
     /// Uniform scale by `factor_per_second^t` about `pivot`.
@@ -102,7 +113,7 @@ pub enum Motion {
         /// Scale factor after one second (> 0).
         factor_per_second: f32,
         /// Fixed point (default: the instance's origin).
-        #[serde(default)]
+        #[serde(default, deserialize_with = "crate::manifest::exact_opt")]
         pivot: Option<[f32; 3]>,
     },
     /// Rigid keyframes, linearly interpolated (rotation by slerp), held before the first and
@@ -124,17 +135,17 @@ pub enum Motion {
         /// Phase speed, units per second.
         speed: f32,
         /// Direction of travel (normalized when used).
-        #[serde(default = "x_axis")]
+        #[serde(default = "x_axis", deserialize_with = "crate::manifest::exact")]
         direction: [f32; 3],
         /// Displacement direction (normalized when used).
-        #[serde(default = "y_axis")]
+        #[serde(default = "y_axis", deserialize_with = "crate::manifest::exact")]
         axis: [f32; 3],
     },
     /// A twist about `axis` through the object-space origin whose angle grows with the height
     /// along the axis and swings in time: `angle = degrees_per_unit · h · sin(2π t / period)`.
     Twist {
         /// Twist axis (normalized when used).
-        #[serde(default = "y_axis")]
+        #[serde(default = "y_axis", deserialize_with = "crate::manifest::exact")]
         axis: [f32; 3],
         /// Twist per unit of height at the swing's extreme.
         degrees_per_unit: f32,
@@ -483,17 +494,22 @@ impl AnimatedScene {
     ///
     /// # Errors
     /// [`SceneError::Invalid`] for an invalid motion, overlapping or out-of-range instance
-    /// ranges, a non-finite `fps`, or a placement or frame 0 that is not finite.
+    /// ranges, an `fps` outside [`FPS_RANGE`], or a placement or frame 0 that is not finite or moves a
+    /// vertex beyond [`MAX_COORDINATE`].
     pub fn new(
         mut scene: Scene,
         mut instances: Vec<Instance>,
         fps: f32,
     ) -> Result<AnimatedScene, SceneError> {
         let context = scene.name.clone();
-        if !(fps.is_finite() && fps > 0.0) {
+        if !FPS_RANGE.contains(&fps) {
             return Err(SceneError::invalid(
                 context,
-                format!("animation fps {fps} must be finite and positive"),
+                format!(
+                    "animation fps {fps:?} is outside {}..={}",
+                    FPS_RANGE.start(),
+                    FPS_RANGE.end()
+                ),
             ));
         }
         let mut end_v = 0;
@@ -527,10 +543,11 @@ impl AnimatedScene {
                     .normalize_or_zero()
                     .into();
             }
-            if scene.positions[vs].iter().any(|p| !p.is_finite()) {
-                return Err(bad(
-                    "placement moves a vertex to a non-finite position".into()
-                ));
+            if let Some(p) = scene.positions[vs].iter().find(|p| out_of_range(**p)) {
+                return Err(bad(format!(
+                    "placement moves a vertex to {p}: non-finite or beyond the supported \
+                     magnitude {MAX_COORDINATE:e}"
+                )));
             }
         }
         let mut anim = AnimatedScene {
@@ -557,7 +574,9 @@ impl AnimatedScene {
             .filter(|i| i.moves())
             .map(|i| count_degenerate(&anim.scene, i.triangles.clone()))
             .sum();
-        anim.static_degenerate = anim.scene.degenerate_triangles - moving_degenerate;
+        // Placing can make a triangle degenerate (or not): count again, all of them.
+        let all_degenerate = count_degenerate(&anim.scene, 0..anim.scene.indices.len());
+        anim.static_degenerate = all_degenerate - moving_degenerate;
         let mut scene = anim.scene.clone();
         anim.update(&mut scene, 0, true)?;
         anim.scene = scene;
@@ -620,7 +639,7 @@ impl AnimatedScene {
     ///
     /// # Errors
     /// [`SceneError::Invalid`] when `scene` is not this animation's (other array sizes), or a
-    /// motion carries a vertex to a non-finite position.
+    /// motion carries a vertex to a non-finite position or one beyond [`MAX_COORDINATE`].
     pub fn update(
         &self,
         scene: &mut Scene,
@@ -653,11 +672,12 @@ impl AnimatedScene {
                     let d = deforming.iter().fold(o, |q, motion| motion.deform(q, t));
                     *p = m.transform_point3(d);
                 });
-            if let Some(i) = positions.iter().position(|p| !p.is_finite()) {
+            if let Some(i) = positions.iter().position(|p| out_of_range(*p)) {
                 return Err(SceneError::invalid(
                     format!("{}: instance '{}'", self.scene.name, inst.name),
                     format!(
-                        "frame {frame}: vertex {i} moves to the non-finite position {}",
+                        "frame {frame}: vertex {i} moves to {}: non-finite or beyond the \
+                         supported magnitude {MAX_COORDINATE:e}",
                         positions[i]
                     ),
                 ));
@@ -708,11 +728,24 @@ impl AnimatedScene {
 
 /// The inverse transpose of the linear part (normals under non-uniform scale).
 fn normal_matrix(m: &Affine3A) -> Mat3A {
-    let det = m.matrix3.determinant();
-    if det.abs() > f32::MIN_POSITIVE {
-        m.matrix3.inverse().transpose()
+    // Divided by its largest entry first (normals are normalized after the transform), so a
+    // uniform scale as small as `1e-30` or as large as `1e30` still inverts.
+    let big = m
+        .matrix3
+        .abs()
+        .to_cols_array()
+        .into_iter()
+        .fold(0.0, f32::max);
+    let m3 = if big.is_finite() && big > 0.0 {
+        m.matrix3 * (1.0 / big)
     } else {
         m.matrix3
+    };
+    let det = m3.determinant();
+    if det.abs() > f32::MIN_POSITIVE {
+        m3.inverse().transpose()
+    } else {
+        m3
     }
 }
 

@@ -64,6 +64,7 @@ pub mod error;
 pub mod inputs;
 pub mod manifest;
 pub mod model;
+pub mod mtl;
 pub mod obj;
 pub mod random;
 mod rng;
@@ -76,7 +77,7 @@ pub use error::SceneError;
 pub use inputs::input_files;
 pub use model::{
     is_degenerate_triangle, Camera, Light, Material, Mesh, Scene, SceneBuilder, SceneSummary,
-    MAX_TRIANGLES, MAX_VERTICES, MAX_VFOV_DEG, MIN_VFOV_DEG,
+    MAX_COORDINATE, MAX_TRIANGLES, MAX_VERTICES, MAX_VFOV_DEG, MIN_VFOV_DEG,
 };
 
 /// What a load produced besides the scene: where it came from and the non-fatal problems

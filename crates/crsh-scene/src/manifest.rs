@@ -57,11 +57,12 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use serde::de::{self, Deserializer, SeqAccess, Visitor};
 use serde::{Deserialize, Serialize};
 
 use glam::{Affine3A, Quat, Vec3};
 
-use crate::animation::{AnimatedScene, Instance, Motion, DEFAULT_FPS};
+use crate::animation::{AnimatedScene, Instance, Motion, DEFAULT_FPS, FPS_RANGE};
 use crate::builtin::Geometry;
 use crate::error::SceneError;
 use crate::model::{Camera, Light, Material, Scene, SceneBuilder};
@@ -71,6 +72,54 @@ pub const MAX_EXTENDS_DEPTH: usize = 8;
 
 /// Largest `subdivisions` of a built-in shape (icosphere levels; box and grid divisions).
 pub const MAX_SUBDIVISIONS: [u32; 3] = [7, 512, 2048];
+
+/// Deserializes an array of exactly `N` numbers: `serde` alone fills an `[f32; N]` from the
+/// first `N` elements and drops the rest without a word (`eye = [0, 2, 3, "x"]`).
+pub(crate) fn exact<'de, D, const N: usize>(d: D) -> Result<[f32; N], D::Error>
+where
+    D: Deserializer<'de>,
+{
+    d.deserialize_seq(Exact::<N>)
+}
+
+/// [`exact`] for an optional field (which also needs `#[serde(default)]`).
+pub(crate) fn exact_opt<'de, D, const N: usize>(d: D) -> Result<Option<[f32; N]>, D::Error>
+where
+    D: Deserializer<'de>,
+{
+    exact(d).map(Some)
+}
+
+struct Exact<const N: usize>;
+
+impl<'de, const N: usize> Visitor<'de> for Exact<N> {
+    type Value = [f32; N];
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        write!(f, "an array of {N} numbers")
+    }
+
+    fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<[f32; N], A::Error> {
+        let mut out = [0.0; N];
+        for (i, slot) in out.iter_mut().enumerate() {
+            *slot = seq
+                .next_element()?
+                .ok_or_else(|| de::Error::invalid_length(i, &self))?;
+        }
+        let mut n = N;
+        while seq.next_element::<de::IgnoredAny>()?.is_some() {
+            n += 1;
+        }
+        if n > N {
+            return Err(de::Error::invalid_length(n, &self));
+        }
+        Ok(out)
+    }
+}
+
+/// Smallest placement scale of an instance (per axis); the largest is its inverse. Beyond,
+/// the normals of a placed mesh cannot be transformed in `f32`.
+pub const MIN_SCALE: f32 = 1e-12;
 
 /// A parsed manifest.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -136,7 +185,7 @@ pub enum ScaleSpec {
     /// The same on every axis.
     Uniform(f32),
     /// Per axis.
-    Axes([f32; 3]),
+    Axes(#[serde(deserialize_with = "exact")] [f32; 3]),
 }
 
 impl ScaleSpec {
@@ -169,10 +218,10 @@ pub struct InstanceSpec {
     #[serde(default)]
     pub material: Option<MaterialOverride>,
     /// Placement translation.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "exact")]
     pub translate: [f32; 3],
     /// Placement rotation: axis and degrees.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "exact_opt")]
     pub rotate: Option<[f32; 4]>,
     /// Placement scale.
     #[serde(default)]
@@ -186,8 +235,11 @@ impl InstanceSpec {
     /// Object to world at rest: scale, then rotation, then translation.
     pub fn placement(&self) -> Result<Affine3A, String> {
         let scale = self.scale.map(ScaleSpec::vec).unwrap_or(Vec3::ONE);
-        if !scale.is_finite() || scale.min_element() <= 0.0 {
-            return Err(format!("scale {scale} must be finite and positive"));
+        if !(scale.min_element() >= MIN_SCALE && scale.max_element() <= 1.0 / MIN_SCALE) {
+            return Err(format!(
+                "scale {scale} must lie in {MIN_SCALE:e}..={:e}",
+                1.0 / MIN_SCALE
+            ));
         }
         let translate = Vec3::from_array(self.translate);
         if !translate.is_finite() {
@@ -217,11 +269,13 @@ impl InstanceSpec {
 #[serde(deny_unknown_fields)]
 pub struct CameraSpec {
     /// Eye position.
+    #[serde(deserialize_with = "exact")]
     pub eye: [f32; 3],
     /// Point looked at.
+    #[serde(deserialize_with = "exact")]
     pub target: [f32; 3],
     /// Up hint (default `+y`).
-    #[serde(default = "default_up")]
+    #[serde(default = "default_up", deserialize_with = "exact")]
     pub up: [f32; 3],
     /// Vertical field of view in degrees, [`crate::MIN_VFOV_DEG`]`..=`[`crate::MAX_VFOV_DEG`]
     /// (outside, no usable image: [`crate::Camera::validate`]).
@@ -252,15 +306,16 @@ fn default_attenuation() -> [f32; 3] {
 #[serde(deny_unknown_fields)]
 pub struct LightSpec {
     /// Position.
+    #[serde(deserialize_with = "exact")]
     pub position: [f32; 3],
     /// Colour (default white).
-    #[serde(default = "default_white")]
+    #[serde(default = "default_white", deserialize_with = "exact")]
     pub color: [f32; 3],
     /// Scalar intensity (default 1).
     #[serde(default = "default_one")]
     pub intensity: f32,
     /// Constant, linear, quadratic attenuation (seed 000 eq. 3.19c; default `[1, 0, 0]`).
-    #[serde(default = "default_attenuation")]
+    #[serde(default = "default_attenuation", deserialize_with = "exact")]
     pub attenuation: [f32; 3],
     /// Radius for soft shadows (seed 003 §5; default 0, a point light): finite and `≥ 0`.
     #[serde(default)]
@@ -272,8 +327,10 @@ pub struct LightSpec {
 #[serde(deny_unknown_fields)]
 pub struct MaterialOverride {
     /// Diffuse colour.
+    #[serde(default, deserialize_with = "exact_opt")]
     pub diffuse: Option<[f32; 3]>,
     /// Specular colour.
+    #[serde(default, deserialize_with = "exact_opt")]
     pub specular: Option<[f32; 3]>,
     /// Phong exponent.
     pub shininess: Option<f32>,
@@ -284,6 +341,7 @@ pub struct MaterialOverride {
     /// Index of refraction.
     pub ior: Option<f32>,
     /// Emitted radiance (marks an emitter's surface).
+    #[serde(default, deserialize_with = "exact_opt")]
     pub emission: Option<[f32; 3]>,
 }
 
@@ -393,8 +451,22 @@ pub fn build_animated(
         ));
     }
     let fps = manifest.animation.as_ref().map_or(DEFAULT_FPS, |a| a.fps);
-    let (scene, warnings) = builder.build_with_warnings(&path.display().to_string())?;
-    Ok((AnimatedScene::new(scene, instances, fps)?, warnings))
+    if !FPS_RANGE.contains(&fps) {
+        return Err(SceneError::invalid(
+            format!("{}: [animation]", path.display()),
+            format!(
+                "fps {fps:?} is outside {}..={}",
+                FPS_RANGE.start(),
+                FPS_RANGE.end()
+            ),
+        ));
+    }
+    let here = path.display().to_string();
+    let (scene, warnings) = builder.build_with_warnings(&here)?;
+    // Its errors name the scene and the instance; add the file.
+    let anim = AnimatedScene::new(scene, instances, fps)
+        .map_err(|e| SceneError::invalid(&here, e.to_string()))?;
+    Ok((anim, warnings))
 }
 
 /// Adds what `manifest` (at `path`) describes to `builder`: what it extends, its mesh and
@@ -673,4 +745,106 @@ pub fn list(dir: &Path) -> Result<Vec<ManifestEntry>, SceneError> {
             },
         })
         .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const CAMERA: &str = "[camera]\neye = [0, 2, 3]\ntarget = [0, 0, 0]\nvfov_deg = 40\n";
+
+    fn parse_err(text: &str) -> String {
+        Manifest::parse(text, Path::new("m.toml"))
+            .expect_err(text)
+            .to_string()
+    }
+
+    #[test]
+    fn arrays_of_three_parse() {
+        let m = Manifest::parse(
+            &format!("mesh = \"a.obj\"\n{CAMERA}[[lights]]\nposition = [1, 2, 3]\n"),
+            Path::new("m.toml"),
+        )
+        .unwrap();
+        let c = m.camera.unwrap();
+        assert_eq!((c.eye, c.up), ([0.0, 2.0, 3.0], [0.0, 1.0, 0.0]));
+        assert_eq!(m.lights[0].color, [1.0; 3]);
+    }
+
+    #[test]
+    fn arrays_of_another_length_name_the_line() {
+        for (text, line, got) in [
+            (
+                "mesh = \"a.obj\"\n[camera]\neye = [0, 2, 3, \"x\"]\ntarget = [0, 0, 0]\nvfov_deg = 40\n",
+                3,
+                "invalid length 4",
+            ),
+            (
+                "mesh = \"a.obj\"\n[camera]\neye = [0, 2, 3]\ntarget = [0, 0]\nvfov_deg = 40\n",
+                4,
+                "invalid length 2",
+            ),
+            (
+                &format!("mesh = \"a.obj\"\n{CAMERA}up = []\n"),
+                6,
+                "invalid length 0",
+            ),
+            (
+                &format!("mesh = \"a.obj\"\n{CAMERA}[[lights]]\nposition = [1, 2, 3, 4]\n"),
+                7,
+                "invalid length 4",
+            ),
+            (
+                &format!("mesh = \"a.obj\"\n{CAMERA}[[lights]]\nposition = [1, 2, 3]\ncolor = [1, 1, 1, 1]\n"),
+                8,
+                "invalid length 4",
+            ),
+            (
+                &format!("mesh = \"a.obj\"\n{CAMERA}[materials.m]\ndiffuse = [1, 1]\n"),
+                7,
+                "invalid length 2",
+            ),
+            (
+                &format!("{CAMERA}[[instances]]\nshape = \"box\"\ntranslate = [1, 2, 3, 4]\n"),
+                7,
+                "invalid length 4",
+            ),
+            (
+                &format!("{CAMERA}[[instances]]\nshape = \"box\"\nrotate = [0, 1, 0, 90, 5]\n"),
+                7,
+                "invalid length 5",
+            ),
+        ] {
+            let e = parse_err(text);
+            assert!(
+                e.starts_with(&format!("m.toml:{line}: ")) && e.contains(got),
+                "{text}\n=> {e}"
+            );
+            assert!(e.contains("expected an array of"), "{e}");
+        }
+    }
+
+    #[test]
+    fn arrays_inside_untagged_and_tagged_tables_are_exact_too() {
+        let e = parse_err(&format!(
+            "{CAMERA}[[instances]]\nshape = \"box\"\nscale = [1, 2, 3, 4]\n"
+        ));
+        assert!(e.starts_with("m.toml:7: "), "{e}");
+        let e = parse_err(&format!(
+            "{CAMERA}[[instances]]\nshape = \"box\"\n[[instances.motion]]\nkind = \"rotate\"\n\
+             degrees_per_second = 1\npivot = [0, 0, 0, 0]\n"
+        ));
+        assert!(
+            e.contains("m.toml:") && e.contains("invalid length 4"),
+            "{e}"
+        );
+        let e = parse_err(&format!(
+            "{CAMERA}[[instances]]\nshape = \"box\"\n[[instances.motion]]\nkind = \"translate\"\n\
+             velocity = [1, 2]\n"
+        ));
+        assert!(
+            e.contains("m.toml:") && e.contains("invalid length 2"),
+            "{e}"
+        );
+    }
 }

@@ -457,6 +457,12 @@ pub const MAX_TRIANGLES: usize = 64 << 20;
 /// Largest number of vertices a scene may hold (64 Mi).
 pub const MAX_VERTICES: usize = 64 << 20;
 
+/// Largest magnitude of a vertex coordinate (`1e15`). Tracing squares coordinate differences
+/// (edge cross products, bounding-box diagonals, sphere radii), and `f32` overflows to
+/// infinity above about `1.8e19`; below this bound such squares stay finite with a wide
+/// margin. Real scenes are many orders of magnitude smaller.
+pub const MAX_COORDINATE: f32 = 1e15;
+
 /// A mesh as added to the builder, before validation.
 #[derive(Clone, Debug)]
 struct PendingMesh {
@@ -574,7 +580,8 @@ impl SceneBuilder {
     /// Adds a mesh: `positions` and optional per-vertex `normals` (same length), `indices`
     /// into them, and one material id for all of its triangles.
     ///
-    /// The mesh is checked at once (indices in range, finite positions, normals count, size
+    /// The mesh is checked at once (indices in range, finite positions no larger than
+    /// [`MAX_COORDINATE`], normals count, size
     /// limits [`MAX_TRIANGLES`] / [`MAX_VERTICES`] before anything is copied); the first
     /// problem is returned by [`SceneBuilder::build`] and the offending mesh is not added.
     pub fn mesh(
@@ -625,6 +632,20 @@ impl SceneBuilder {
         }
         if let Some((i, p)) = positions.iter().enumerate().find(|(_, p)| !p.is_finite()) {
             self.fail(label, format!("vertex {i} has a non-finite coordinate {p}"));
+            return self;
+        }
+        if let Some((i, p)) = positions
+            .iter()
+            .enumerate()
+            .find(|(_, p)| p.abs().max_element() > MAX_COORDINATE)
+        {
+            self.fail(
+                label,
+                format!(
+                    "vertex {i} has a coordinate beyond the supported magnitude \
+                     {MAX_COORDINATE:e}: {p}"
+                ),
+            );
             return self;
         }
         let nv = positions.len() as u32;
@@ -811,12 +832,17 @@ fn compute_normals(
     indices: &[[u32; 3]],
     warnings: &mut Vec<String>,
 ) -> Vec<Vec3> {
-    let usable = |n: Option<Vec3>| n.filter(|n| n.is_finite() && n.length_squared() > 0.0);
+    // Scaled by its largest component first, so that a huge (`1e30`) or tiny (`1e-30`)
+    // finite normal is not lost to an infinite or zero squared length.
+    let usable = |n: Option<Vec3>| {
+        n.filter(|n| n.is_finite() && n.abs().max_element() > 0.0)
+            .map(|n| (n / n.abs().max_element()).normalize())
+    };
     let mut out: Vec<Vec3> = Vec::with_capacity(positions.len());
     let mut need = false;
     for &n in supplied {
         match usable(n) {
-            Some(n) => out.push(n.normalize()),
+            Some(n) => out.push(n),
             None => {
                 out.push(Vec3::ZERO);
                 need = true;

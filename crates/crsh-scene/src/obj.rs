@@ -1,18 +1,25 @@
 //! Wavefront OBJ + MTL loading through `tobj`.
 //!
 //! The file's `v` and `f` lines are first counted while streaming it (so an absurdly large
-//! file is rejected before anything is allocated for it); it is then read into memory and parsed by `tobj` with
-//! [`tobj::GPU_LOAD_OPTIONS`] (one index per vertex, polygons triangulated as fans, points and
-//! lines ignored). Each `tobj` model (a new one starts at every `o`, `g` or material change)
-//! becomes one mesh, a contiguous triangle range.
+//! file is rejected before anything is allocated for it); it is then read into memory, every
+//! line is checked by [`diagnose`], and it is parsed by `tobj` with
+//! [`tobj::GPU_LOAD_OPTIONS`] (one index per vertex, polygons triangulated as fans). Each
+//! `tobj` model (a new one starts at every `o`, `g` or material change) becomes one mesh, a
+//! contiguous triangle range.
 //!
-//! `tobj` reports errors without a line number; when it fails, or when a non-finite
-//! coordinate is found, [`diagnose`] scans the text itself and names the first offending line
-//! (`file.obj:123: ...`).
+//! `tobj` reports errors without a line number and silently drops some data, so the first
+//! line [`diagnose`] finds wrong is an error naming it (`file.obj:123: ...`): a line that does
+//! not parse, a non-finite coordinate or one beyond [`MAX_COORDINATE`], a face with fewer
+//! than three vertices, a vertex, texture-coordinate or normal index that is zero, malformed
+//! or out of range. Line (`l`) and point (`p`) elements are checked the same way, then
+//! ignored with a warning: only faces are rendered. Normals (`vn`) that are not finite or
+//! zero are replaced by computed ones, with a warning ([`SceneBuilder`]); texture coordinates
+//! are not used.
 //!
-//! Materials: a missing or malformed MTL never fails the geometry: the meshes get a default
-//! material and a warning goes to the load report. The mapping from MTL values follows
-//! `../shared/scenes/README.md`; see [`material_from_mtl`].
+//! Materials: a missing MTL file never fails the geometry: the meshes get a default material
+//! and a warning goes to the load report. An MTL file that exists must be valid
+//! ([`crate::mtl`]): its first bad line is an error (`m.mtl:4: Kd: ...`). The mapping from
+//! MTL values follows `../shared/scenes/README.md`; see [`material_from_mtl`].
 
 use std::cell::RefCell;
 use std::collections::BTreeMap;
@@ -21,7 +28,9 @@ use std::path::Path;
 use glam::Vec3;
 
 use crate::error::SceneError;
-use crate::model::{Camera, Light, Material, SceneBuilder, MAX_TRIANGLES, MAX_VERTICES};
+use crate::model::{
+    Camera, Light, Material, SceneBuilder, MAX_COORDINATE, MAX_TRIANGLES, MAX_VERTICES,
+};
 
 /// Largest OBJ file accepted (16 GiB); anything larger is rejected before it is read (files
 /// below are counted, streaming, before they are loaded: see [`MAX_TRIANGLES`]).
@@ -50,6 +59,10 @@ struct Counts {
     normals: usize,
     /// Triangles after fan triangulation of `f` lines.
     triangles: usize,
+    /// Line (`l`) and point (`p`) elements, which are ignored.
+    ignored: usize,
+    /// Vertices given with a colour (`v x y z r g b`).
+    coloured: usize,
 }
 
 /// Calls `f(line_number, line_bytes)` for every line (1-based, without `\r\n`).
@@ -76,6 +89,7 @@ impl Counts {
             Some(b"vt") => self.texcoords += 1,
             Some(b"vn") => self.normals += 1,
             Some(b"f") => self.triangles += w.count().saturating_sub(2),
+            Some(b"l") | Some(b"p") => self.ignored += 1,
             _ => {}
         }
     }
@@ -185,11 +199,12 @@ fn check_line(line: &[u8], seen: &mut Counts, totals: &Counts, strict: bool) -> 
     match key {
         b"v" => {
             let xyz = floats(3, "vertex")?;
+            let mut w = 1.0;
             match rest.len() {
                 3 => {}
                 4 => match parse_f32(rest[3]) {
                     Some(0.0) => return Err("vertex weight w is zero".into()),
-                    Some(_) => {}
+                    Some(x) => w = x,
                     None => return Err("vertex weight w is not a number".into()),
                 },
                 6 => {
@@ -199,13 +214,37 @@ fn check_line(line: &[u8], seen: &mut Counts, totals: &Counts, strict: bool) -> 
                 }
                 n => return Err(format!("vertex has {n} values (3, 4 or 6 expected)")),
             }
-            if xyz.iter().any(|c| !c.is_finite()) {
+            // `tobj` keeps colours in a list of their own, indexed like the vertices.
+            let coloured = rest.len() == 6;
+            if seen.coloured != if coloured { seen.positions } else { 0 } {
+                return Err(format!(
+                    "vertex {} {} a colour but the vertices before it {}: give every vertex a \
+                     colour, or none",
+                    seen.positions + 1,
+                    if coloured { "has" } else { "lacks" },
+                    if coloured { "have none" } else { "have one" },
+                ));
+            }
+            seen.coloured += usize::from(coloured);
+            // `tobj` divides by the weight: check what it will store.
+            let p = Vec3::from_array([xyz[0], xyz[1], xyz[2]]) / w;
+            if !p.is_finite() {
                 return Err(format!(
                     "vertex {} has a non-finite coordinate ({} {} {})",
                     seen.positions + 1,
-                    xyz[0],
-                    xyz[1],
-                    xyz[2]
+                    p.x,
+                    p.y,
+                    p.z
+                ));
+            }
+            if p.abs().max_element() > MAX_COORDINATE {
+                return Err(format!(
+                    "vertex {} has a coordinate beyond the supported magnitude {MAX_COORDINATE:e} \
+                     ({} {} {})",
+                    seen.positions + 1,
+                    p.x,
+                    p.y,
+                    p.z
                 ));
             }
             seen.positions += 1;
@@ -218,12 +257,24 @@ fn check_line(line: &[u8], seen: &mut Counts, totals: &Counts, strict: bool) -> 
             floats(3, "normal")?;
             seen.normals += 1;
         }
-        b"f" | b"l" => {
+        b"f" | b"l" | b"p" => {
+            let (least, what) = match key {
+                b"f" => (3, "face"),
+                b"l" => (2, "line element"),
+                _ => (1, "point element"),
+            };
+            if rest.len() < least {
+                return Err(format!(
+                    "{what} has {} vertices ({least} or more needed)",
+                    rest.len()
+                ));
+            }
             for corner in &rest {
                 let parts: Vec<&[u8]> = corner.split(|&b| b == b'/').collect();
                 if parts.len() > 3 {
                     return Err(format!(
-                        "face corner '{}' has more than three indices",
+                        "face corner '{}' has more than three '/'-separated indices \
+                         (v, v/vt, v//vn or v/vt/vn expected)",
                         String::from_utf8_lossy(corner)
                     ));
                 }
@@ -241,6 +292,7 @@ fn check_line(line: &[u8], seen: &mut Counts, totals: &Counts, strict: bool) -> 
             }
         }
         b"usemtl" if rest.is_empty() => return Err("usemtl without a material name".into()),
+        b"mtllib" if rest.is_empty() => return Err("mtllib without a file name".into()),
         _ => {}
     }
     Ok(())
@@ -340,6 +392,28 @@ pub fn material_from_mtl(m: &tobj::Material) -> (Material, Vec<String>) {
     (material, notes)
 }
 
+/// Turns every `l` statement into a comment: `tobj` parses it like a face, so a polyline of
+/// three or more vertices would be rendered as a polygon. Line numbers stay the same.
+fn comment_out_line_elements(bytes: &mut [u8]) {
+    let mut start = 0;
+    while start < bytes.len() {
+        let end = bytes[start..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(bytes.len(), |i| start + i);
+        if let Some(k) = bytes[start..end]
+            .iter()
+            .position(|b| !b.is_ascii_whitespace())
+        {
+            let at = start + k;
+            if bytes[at] == b'l' && bytes.get(at + 1).is_none_or(|b| b.is_ascii_whitespace()) {
+                bytes[at] = b'#';
+            }
+        }
+        start = end + 1;
+    }
+}
+
 fn load_error(path: &Path, line: Option<(usize, String)>, fallback: String) -> SceneError {
     match line {
         Some((n, msg)) => SceneError::invalid(format!("{}:{n}", path.display()), msg),
@@ -396,40 +470,72 @@ pub fn read(path: &Path, builder: &mut SceneBuilder) -> Result<ObjInfo, SceneErr
         bytes.drain(..3); // a UTF-8 byte-order mark would hide the first keyword from tobj
     }
 
+    // Every line is checked first: `tobj` accepts faces with fewer than three vertices and
+    // texture or normal indices out of range, and drops them without a word.
+    if let Some(line) = diagnose(&bytes, false) {
+        return Err(load_error(path, Some(line), String::new()));
+    }
+    if counts.ignored > 0 {
+        comment_out_line_elements(&mut bytes);
+        builder.warn(format!(
+            "{}: {} line (l) and point (p) elements ignored: only faces are rendered",
+            path.display(),
+            counts.ignored
+        ));
+    }
+
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let mtl_warnings = RefCell::new(Vec::new());
+    let mtl_error = RefCell::new(None);
     let loaded = tobj::load_obj_buf(
         &mut std::io::Cursor::new(&bytes[..]),
         &tobj::GPU_LOAD_OPTIONS,
         |mtl: &Path| {
             let full = dir.join(mtl);
-            let r = tobj::load_mtl(&full);
-            if let Err(e) = &r {
-                let why = if full.is_file() {
-                    format!("cannot parse it ({e})")
-                } else {
-                    "file not found".to_string()
-                };
-                mtl_warnings.borrow_mut().push(format!(
-                    "{}: mtllib {}: {why}; its materials fall back to the default",
-                    path.display(),
-                    full.display()
-                ));
+            let fail = |e: SceneError| {
+                mtl_error.borrow_mut().get_or_insert(e);
+                Err(tobj::LoadError::MaterialParseError)
+            };
+            match crate::mtl::read_checked(&full) {
+                Ok(Some(text)) => {
+                    tobj::load_mtl_buf(&mut std::io::Cursor::new(text)).or_else(|e| {
+                        fail(SceneError::invalid(
+                            full.display().to_string(),
+                            format!("malformed MTL ({e})"),
+                        ))
+                    })
+                }
+                Ok(None) => {
+                    mtl_warnings.borrow_mut().push(format!(
+                        "{}: mtllib {}: file not found; its materials fall back to the default",
+                        path.display(),
+                        full.display()
+                    ));
+                    Err(tobj::LoadError::OpenFileFailed)
+                }
+                // An unreadable file (a directory, no permission): say which mtllib it is.
+                Err(SceneError::Io { source, .. }) => fail(SceneError::invalid(
+                    format!("{}: mtllib {}", path.display(), full.display()),
+                    source.to_string(),
+                )),
+                Err(e) => fail(e),
             }
-            r
         },
     );
+    if let Some(e) = mtl_error.into_inner() {
+        return Err(e);
+    }
     for w in mtl_warnings.into_inner() {
         builder.warn(w);
     }
     let (models, materials) = match loaded {
         Ok(x) => x,
         Err(e) => {
-            let line = diagnose(&bytes, false).or_else(|| diagnose(&bytes, true));
+            let line = diagnose(&bytes, true);
             return Err(load_error(path, line, format!("malformed OBJ ({e})")));
         }
     };
-    // An error here has already been reported per mtllib above.
+    // An error here is a missing MTL file, already reported per mtllib above.
     let materials = materials.unwrap_or_default();
 
     let mut info = ObjInfo::default();

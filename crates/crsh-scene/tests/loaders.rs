@@ -277,7 +277,7 @@ fn missing_files_are_named() {
 }
 
 #[test]
-fn missing_or_bad_mtl_only_warns() {
+fn a_missing_mtl_warns_and_a_bad_one_is_an_error() {
     let d = TempDir::new("nomtl");
     let p = d.write("q.obj", QUAD_OBJ);
     let (s, report) = load_with_report(p.to_str().unwrap()).unwrap();
@@ -292,17 +292,23 @@ fn missing_or_bad_mtl_only_warns() {
         "{:?}",
         report.warnings
     );
+    // A garbled line used to replace the whole file by the default material.
     d.write("m.mtl", "newmtl red\nKd 0.5 zz 0.5\n");
-    let (s, report) = load_with_report(p.to_str().unwrap()).unwrap();
-    assert_eq!(s.triangle_count(), 3);
+    let e = err_text(load_with_report(p.to_str().unwrap()));
+    assert!(e.contains("m.mtl:2: Kd: 'zz' is not a number"), "{e}");
+    // A short colour line used to panic inside tobj.
+    d.write("m.mtl", "newmtl red\nNs 10\nKd 0.5 0.5\n");
+    let e = err_text(load_with_report(p.to_str().unwrap()));
     assert!(
-        report
-            .warnings
-            .iter()
-            .any(|w| w.contains("m.mtl") && w.contains("parse")),
-        "{:?}",
-        report.warnings
+        e.contains("m.mtl:3: Kd: needs three numbers (r g b), found 2"),
+        "{e}"
     );
+    // Through a manifest too.
+    d.write("m.mtl", "newmtl red\nd -1\n");
+    d.write("q2.obj", QUAD_OBJ);
+    let m = d.write("s.toml", &MANIFEST.replace("q.obj", "q2.obj"));
+    let e = err_text(load_with_report(m.to_str().unwrap()));
+    assert!(e.contains("m.mtl:2: d: -1 is outside its meaning"), "{e}");
 }
 
 fn obj_error(tag: &str, text: &str) -> String {
@@ -346,6 +352,125 @@ fn non_finite_coordinates_name_the_line() {
     // Overflow to infinity while parsing counts as well.
     let e = obj_error("huge", "v 0 0 0\nv 1e39 0 0\nv 0 1 0\nf 1 2 3\n");
     assert!(e.contains("bad.obj:2") && e.contains("non-finite"), "{e}");
+}
+
+#[test]
+fn dropped_faces_and_bad_attribute_indices_name_the_line() {
+    const TRI: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+    for (tag, bad, want) in [
+        ("f2", "f 1 2", "face has 2 vertices (3 or more needed)"),
+        ("f1", "f 3", "face has 1 vertices (3 or more needed)"),
+        ("f0", "f", "face has 0 vertices (3 or more needed)"),
+        (
+            "vt",
+            "f 1/9 2/9 3/9",
+            "texture coordinate index 9 is out of range (0 in the file)",
+        ),
+        ("vn0", "f 1//0 2//0 3//0", "normal index 0 is invalid"),
+        ("vnx", "f 1//x 2 3", "normal index 'x' is not an integer"),
+        (
+            "slashes",
+            "f 1/// 2 3",
+            "face corner '1///' has more than three",
+        ),
+        ("l1", "l 1", "line element has 1 vertices"),
+        ("p9", "p 9", "vertex index 9 is out of range"),
+        ("mtllib", "mtllib", "mtllib without a file name"),
+    ] {
+        // The bad face sits among valid ones.
+        let e = obj_error(tag, &format!("{TRI}f 1 2 3\n{bad}\nf 3 2 1\n"));
+        assert!(e.contains("bad.obj:5: ") && e.contains(want), "{tag}: {e}");
+    }
+    // A file whose only faces are degenerate names the first of them, not "no meshes".
+    let e = obj_error("onlyshort", &format!("{TRI}f 1 2\nf 2 3\n"));
+    assert!(e.contains("bad.obj:4: face has 2 vertices"), "{e}");
+}
+
+#[test]
+fn huge_coordinates_are_not_called_non_finite() {
+    let e = obj_error("e19", "v 0 0 0\nv 1e19 0 0\nv 0 1 0\nf 1 2 3\n");
+    assert!(
+        e.contains("bad.obj:2: vertex 2 has a coordinate beyond the supported magnitude 1e15"),
+        "{e}"
+    );
+    // The weight divides: 1 / 1e-30 is huge too.
+    let e = obj_error("w", "v 0 0 0\nv 1 0 0 1e-30\nv 0 1 0\nf 1 2 3\n");
+    assert!(
+        e.contains("bad.obj:2: ") && e.contains("supported magnitude"),
+        "{e}"
+    );
+    // Right at the limit loads.
+    let d = TempDir::new("e15");
+    let p = d.write("ok.obj", "v 0 0 0\nv 1e15 0 0\nv 0 -1e15 0\nf 1 2 3\n");
+    assert_eq!(load_path(&p).unwrap().triangle_count(), 1);
+}
+
+#[test]
+fn lines_and_points_are_ignored_with_a_warning() {
+    let d = TempDir::new("lp");
+    let p = d.write(
+        "lp.obj",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nl 1 2 3\np 1\nf 1 2 3\n",
+    );
+    let (s, report) = load_with_report(p.to_str().unwrap()).unwrap();
+    assert_eq!(s.triangle_count(), 1);
+    assert!(
+        report.warnings.iter().any(
+            |w| w.contains("lp.obj") && w.contains("2 line (l) and point (p) elements ignored")
+        ),
+        "{:?}",
+        report.warnings
+    );
+}
+
+/// Found by `fuzz_inputs`: each loaded, then broke an invariant of the scene.
+#[test]
+fn fuzz_findings_stay_fixed() {
+    let d = TempDir::new("fuzzfound");
+    // A subnormal coordinate, degenerate once the instance halves it: the count follows.
+    d.write(
+        "t.obj",
+        "v 0 0 1\nv 1e-45 0 1\nv 0 1 1\nf 1 2 3\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 4 5 6\n",
+    );
+    let head = "[camera]\neye = [0, 0, 5]\ntarget = [0, 0, 0]\nvfov_deg = 40\n\
+                [[lights]]\nposition = [0, 2, 2]\n[[instances]]\nmesh = \"t.obj\"\n";
+    let m = d.write("a.toml", &format!("{head}scale = 0.5\n"));
+    let s = load_path(&m).unwrap();
+    let counted = (0..s.triangle_count())
+        .filter(|&t| s.is_degenerate(t))
+        .count();
+    assert_eq!((counted, s.degenerate_triangles), (1, 1));
+    // A scale that collapses the normals' transform.
+    let m = d.write("b.toml", &format!("{head}scale = 1e-45\n"));
+    let e = err_text(load_path(&m));
+    assert!(
+        e.contains("b.toml: instance #0") && e.contains("must lie in 1e-12..=1e12"),
+        "{e}"
+    );
+    // A subnormal fps put frame 1 at infinity.
+    let m = d.write("c.toml", &format!("{head}[animation]\nfps = 1e-45\n"));
+    let e = err_text(load_path(&m));
+    assert!(
+        e.contains("c.toml: [animation]: fps 1e-45 is outside 0.001..=1000000"),
+        "{e}"
+    );
+    // A huge supplied normal was normalized to zero.
+    let p = d.write(
+        "n.obj",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn -1e30 0 1\nvn 0 0 1e-40\nf 1//1 2//2 3//2\n",
+    );
+    let s = load_path(&p).unwrap();
+    assert!(
+        (s.normals[0] - Vec3::new(-1.0, 0.0, 1e-30)).length() < 1e-6,
+        "{}",
+        s.normals[0]
+    );
+    assert_eq!(s.normals[1], Vec3::Z);
+    // An mtllib naming a directory.
+    std::fs::create_dir_all(d.0.join("sub")).unwrap();
+    let p = d.write("m.obj", "mtllib sub\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let e = err_text(load_path(&p));
+    assert!(e.contains("m.obj: mtllib ") && e.contains("sub: "), "{e}");
 }
 
 #[test]

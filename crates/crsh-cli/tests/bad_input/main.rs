@@ -11,7 +11,6 @@
 #[path = "../common/mod.rs"]
 mod common;
 
-#[allow(dead_code)] // cases arrive with the fixes
 mod harness;
 mod outputs;
 mod scene_files;
