@@ -832,11 +832,18 @@ fn compute_normals(
     indices: &[[u32; 3]],
     warnings: &mut Vec<String>,
 ) -> Vec<Vec3> {
-    // Scaled by its largest component first, so that a huge (`1e30`) or tiny (`1e-30`)
-    // finite normal is not lost to an infinite or zero squared length.
+    // A huge (`1e30`) or tiny (`1e-30`) finite normal, whose squared length overflows or
+    // underflows, is scaled by its largest component first so that it is not lost; every
+    // other normal is normalised as it is (scaling would move it by an ulp).
     let usable = |n: Option<Vec3>| {
         n.filter(|n| n.is_finite() && n.abs().max_element() > 0.0)
-            .map(|n| (n / n.abs().max_element()).normalize())
+            .map(|n| {
+                if n.length_squared().is_normal() {
+                    n.normalize()
+                } else {
+                    (n / n.abs().max_element()).normalize()
+                }
+            })
     };
     let mut out: Vec<Vec3> = Vec::with_capacity(positions.len());
     let mut need = false;
