@@ -16,7 +16,8 @@
 //! The light index holds the highest bits, so a sort groups the shadow rays by light first
 //! ("sorted according to the light source a priori", §3.2.3); below it the direction in
 //! spherical coordinates, `θ = acos(d.z) ∈ [0, π]` over `T` bits and `φ = atan2(d.y, d.x) ∈
-//! [−π, π]` over `P` bits ([`crsh_core::quantize::spherical_cells`]). The ray origin is not
+//! [−π, π]` over `P` bits ([`crsh_core::quantize::spherical_cells`]: exact comparisons against tabulated
+//! boundaries, so the wgpu twin computes the same cells bit for bit). The ray origin is not
 //! hashed: in the thesis's convention (eq. 3.1) every shadow ray of a light starts at the light.
 //! [`ShadowLayout::new`] sizes `L` to the scene's light count and splits the rest of a total
 //! budget (32 bits in the thesis) between `θ` (the odd bit) and `φ`.
