@@ -129,14 +129,22 @@ pub fn scaled_direction(d: Vec3) -> Option<[f32; 3]> {
     }))
 }
 
-/// `x²` as the sum of exact partial products of `x`'s 12-bit halves (`h² + (2hl + l²)`): the
-/// same bits whether or not a device fuses the products into the sums. `x` comes from
-/// [`scaled_direction`] (no underflow).
+/// `a · b` as the sum of the exact products of the operands' 12-bit halves (`ah·bh + ((ah·bl +
+/// al·bh) + al·bl)`, halves by masking the bits): within a few ULPs of the product and the same
+/// bits whether or not a device fuses a product into the sum that follows it (each product is
+/// exact, so the fused and unfused sums round alike). Exact as long as no partial product is
+/// subnormal (operands above about 1e-19 in magnitude, or 0). NaN when either operand is
+/// infinite.
+pub fn product(a: f32, b: f32) -> f32 {
+    let half = |x: f32| f32::from_bits(x.to_bits() & 0xffff_f000);
+    let (ah, bh) = (half(a), half(b));
+    let (al, bl) = (a - ah, b - bh);
+    ah * bh + ((ah * bl + al * bh) + al * bl)
+}
+
+/// `x²` by [`product`]. `x` comes from [`scaled_direction`] (no underflow).
 pub fn square(x: f32) -> f32 {
-    let h = f32::from_bits(x.to_bits() & 0xffff_f000);
-    let l = x - h;
-    let hl = h * l;
-    h * h + ((hl + hl) + l * l)
+    product(x, x)
 }
 
 /// The largest bits for which the direction boundaries are tabulated (and the widest
