@@ -181,7 +181,7 @@ pub fn phi_threshold(bits: u32, k: u64) -> f32 {
     let num = (k << 3) - (o << bits);
     let n = 1u64 << bits;
     let q = std::f64::consts::FRAC_PI_4;
-    if o % 2 == 0 {
+    if o.is_multiple_of(2) {
         (q * num as f64 / n as f64).tan() as f32
     } else {
         (q * (n - num) as f64 / n as f64).tan() as f32
@@ -312,7 +312,7 @@ pub fn phi_cell(x: f32, y: f32, bits: u32) -> u64 {
             return o > ok;
         }
         let t = threshold_of(bits, k, tab, phi_threshold);
-        if o % 2 == 0 {
+        if o.is_multiple_of(2) {
             n >= t * m
         } else {
             n <= t * m
@@ -628,7 +628,7 @@ mod tests {
                 p_last
             );
             assert_eq!(spherical_cells(-Vec3::Y, tb, pb).1, (1 << pb) >> 2);
-            assert_eq!(spherical_cells(Vec3::Y, tb, pb).1, 3 * (1 << pb) >> 2);
+            assert_eq!(spherical_cells(Vec3::Y, tb, pb).1, (3 * (1 << pb)) >> 2);
             assert_eq!(spherical_cells(Vec3::ZERO, tb, pb), (0, p0));
             assert_eq!(spherical_cells(Vec3::NAN, tb, pb), (0, p0));
         }
