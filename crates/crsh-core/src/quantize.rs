@@ -573,6 +573,28 @@ mod tests {
         }
     }
 
+    /// What a device that contracts products into FMAs computes for [`product`]: the same bits.
+    #[test]
+    fn products_are_the_same_fused_or_not() {
+        let mut r = rng(13);
+        let half = |x: f32| f32::from_bits(x.to_bits() & 0xffff_f000);
+        for _ in 0..100_000 {
+            let (a, b) = (r() * 3e3, r() * 1e-3);
+            let (ah, bh) = (half(a), half(b));
+            let (al, bl) = (a - ah, b - bh);
+            let p = product(a, b);
+            let fused = [
+                ah.mul_add(bh, (ah * bl + al * bh) + al * bl),
+                ah.mul_add(bh, al.mul_add(bl, ah.mul_add(bl, al * bh))),
+                ah.mul_add(bh, al.mul_add(bl, al.mul_add(bh, ah * bl))),
+                ah * bh + al.mul_add(bl, ah * bl + al * bh),
+            ];
+            for f in fused {
+                assert_eq!(f.to_bits(), p.to_bits(), "{a} {b}");
+            }
+        }
+    }
+
     #[test]
     fn scaled_directions_are_exact_power_of_two_scalings() {
         let d = Vec3::new(3.0, -0.75, 1e-12);
