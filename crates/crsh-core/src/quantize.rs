@@ -226,6 +226,30 @@ fn last_true(max: u64, test: impl Fn(u64) -> bool) -> u64 {
     lo
 }
 
+/// [`last_true`] started from a guess: a few steps from `guess` when the answer is near it (the
+/// guess from an `f64` angle is almost always right), else the full binary search. Same result
+/// as [`last_true`] for any guess.
+fn last_true_near(max: u64, guess: f64, test: impl Fn(u64) -> bool) -> u64 {
+    let mut k = if guess.is_finite() && guess > 0.0 {
+        (guess as u64).min(max)
+    } else {
+        0
+    };
+    for _ in 0..4 {
+        if !test(k) {
+            if k == 0 {
+                break;
+            }
+            k -= 1;
+        } else if k == max || !test(k + 1) {
+            return k;
+        } else {
+            k += 1;
+        }
+    }
+    last_true(max, test)
+}
+
 /// The boundary `k` of `bits`, from the table when there is one.
 fn threshold_of(bits: u32, k: u64, tab: Option<&[f32]>, f: fn(u32, u64) -> f32) -> f32 {
     match tab {
@@ -245,7 +269,8 @@ pub fn theta_cell(x: f32, y: f32, z: f32, bits: u32) -> u64 {
     let rho2 = square(x) + square(y);
     let z2 = square(z);
     let half = 1u64 << (bits - 1);
-    last_true((1u64 << bits) - 1, |k| {
+    let guess = (rho2 as f64).sqrt().atan2(z as f64) / std::f64::consts::PI * (1u64 << bits) as f64;
+    last_true_near((1u64 << bits) - 1, guess, |k| {
         let t = threshold_of(bits, k, tab, theta_threshold);
         if k < half {
             z <= 0.0 || rho2 >= t * z2
@@ -306,7 +331,9 @@ pub fn phi_cell(x: f32, y: f32, bits: u32) -> u64 {
     } else {
         (x.abs(), y.abs())
     };
-    last_true((1u64 << bits) - 1, |k| {
+    let guess =
+        ((y as f64).atan2(x as f64) / std::f64::consts::PI + 1.0) * 0.5 * (1u64 << bits) as f64;
+    last_true_near((1u64 << bits) - 1, guess, |k| {
         let ok = phi_octant(bits, k);
         if ok != o {
             return o > ok;
@@ -372,7 +399,8 @@ fn octa_cell(num: f32, l1: f32, bits: u32) -> u64 {
     if bits == 0 {
         return 0;
     }
-    last_true((1u64 << bits) - 1, |k| {
+    let guess = ((num / l1) as f64 + 1.0) * 0.5 * (1u64 << bits) as f64;
+    last_true_near((1u64 << bits) - 1, guess, |k| {
         let b = (-1.0 + k as f64 * 2f64.powi(1 - bits as i32)) as f32;
         num >= b * l1
     })
@@ -591,6 +619,30 @@ mod tests {
             ];
             for f in fused {
                 assert_eq!(f.to_bits(), p.to_bits(), "{a} {b}");
+            }
+        }
+    }
+
+    /// The guided search finds what the plain binary search finds, from any guess.
+    #[test]
+    fn guided_search_equals_binary_search() {
+        let mut r = rng(17);
+        for max in [0u64, 1, 2, 7, 100, 65_535, u32::MAX as u64] {
+            for _ in 0..2000 {
+                let cut = ((r() + 1.0) * 0.5 * max as f32) as u64;
+                let test = |k: u64| k <= cut;
+                for guess in [
+                    cut as f64,
+                    cut as f64 + 1.0,
+                    cut as f64 - 3.0,
+                    0.0,
+                    -5.0,
+                    1e30,
+                    f64::NAN,
+                ] {
+                    assert_eq!(last_true_near(max, guess, test), cut.min(max));
+                }
+                assert_eq!(last_true(max, test), cut.min(max));
             }
         }
     }
