@@ -22,6 +22,11 @@
 //!   ([`theta_threshold`], [`phi_threshold`]), and a direction's cell is the last boundary it
 //!   passes, found by comparisons against the table.
 //!
+//! What this relies on from a device: IEEE-754 binary32 with round-to-nearest `+`, `−`, `×` (WGSL
+//! requires them correctly rounded) and no reassociation of sums (none of WGSL's targets
+//! reassociates without fast-math flags, and naga emits none); contraction into FMAs and
+//! flushing subnormals to zero are allowed and cannot change a cell.
+//!
 //! The cells are the thesis's fixed quantization (equal cells of the interval, equal angles in
 //! `θ` and `φ`, the equal-area octahedral square); only directions or coordinates within a few
 //! `f32` rounding errors of a boundary can fall on the other side of it than an exact real
