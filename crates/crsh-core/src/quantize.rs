@@ -23,8 +23,8 @@
 //!   passes, found by comparisons against the table.
 //!
 //! What this relies on from a device: IEEE-754 binary32 with round-to-nearest `+`, `−`, `×` (WGSL
-//! requires them correctly rounded) and no reassociation of sums (none of WGSL's targets
-//! reassociates without fast-math flags, and naga emits none); contraction into FMAs and
+//! requires them correctly rounded) and no reassociation of sums (an assumption about the
+//! targets' default, non-fast-math compilation, checked on lavapipe by the wgpu tests); contraction into FMAs and
 //! flushing subnormals to zero are allowed and cannot change a cell.
 //!
 //! The cells are the thesis's fixed quantization (equal cells of the interval, equal angles in
