@@ -6,7 +6,8 @@
 //! The origin is quantized in the scene bounds to `O = origin_bits` per axis (cells
 //! `x, y, z`); the direction is mapped to the octahedral square `[−1, 1]²`
 //! ([`crsh_core::quantize::octahedral`]) and quantized to `U = ⌈D/2⌉` and `V = ⌊D/2⌋` bits
-//! for `D = direction_bits` (cells `u, v`). The five fields are interleaved MSB-first, round
+//! for `D = direction_bits` (cells `u, v`, by [`crsh_core::quantize::octahedral_cells`], which
+//! compares instead of dividing: the wgpu twin computes the same cells bit for bit). The five fields are interleaved MSB-first, round
 //! robin ([`crsh_core::quantize::interleave`]):
 //!
 //! ```text
@@ -46,7 +47,7 @@ use rayon::prelude::*;
 
 use crate::backend::Cpu;
 use crate::hash::thesis_bounce::MAX_ORIGIN_BITS;
-use crsh_core::quantize::{interleave, octahedral, quantize};
+use crsh_core::quantize::{interleave, octahedral_cells, quantize};
 
 /// Default bits per origin axis.
 pub const DEFAULT_ORIGIN_BITS: u32 = 10;
@@ -133,13 +134,13 @@ impl MortonOcta {
     pub fn cells(&self, origin: Vec3, dir: Vec3) -> [u64; 5] {
         let (lo, hi) = (self.bounds.min, self.bounds.max);
         let o = self.origin_bits;
-        let e = octahedral(dir);
+        let (u, v) = octahedral_cells(dir, self.u_bits, self.v_bits);
         [
             quantize(origin.x, lo.x, hi.x, o),
             quantize(origin.y, lo.y, hi.y, o),
             quantize(origin.z, lo.z, hi.z, o),
-            quantize(e.x, -1.0, 1.0, self.u_bits),
-            quantize(e.y, -1.0, 1.0, self.v_bits),
+            u,
+            v,
         ]
     }
 

@@ -17,7 +17,8 @@
 //! Each origin coordinate is cut into `2^O` equal cells of the scene's bounding box
 //! (coordinates outside it, e.g. after the epsilon offset, clamp to the border cells; a flat
 //! axis is a single cell). The direction is `θ = acos(d.z)` over `[0, π]` and `φ = atan2(d.y,
-//! d.x)` over `[−π, π]` ([`crsh_core::quantize::spherical_cells`]); `θ` takes the odd bit
+//! d.x)` over `[−π, π]` ([`crsh_core::quantize::spherical_cells`]: exact comparisons against tabulated
+//! boundaries, so the wgpu twin computes the same cells bit for bit); `θ` takes the odd bit
 //! of the direction budget. In either order the origin stays above the direction, as the
 //! thesis lists them: the key groups rays by origin cell first, and by direction within a cell.
 //!

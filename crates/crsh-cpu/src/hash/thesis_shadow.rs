@@ -16,7 +16,8 @@
 //! The light index holds the highest bits, so a sort groups the shadow rays by light first
 //! ("sorted according to the light source a priori", §3.2.3); below it the direction in
 //! spherical coordinates, `θ = acos(d.z) ∈ [0, π]` over `T` bits and `φ = atan2(d.y, d.x) ∈
-//! [−π, π]` over `P` bits ([`crsh_core::quantize::spherical_cells`]). The ray origin is not
+//! [−π, π]` over `P` bits ([`crsh_core::quantize::spherical_cells`]: exact comparisons against tabulated
+//! boundaries, so the wgpu twin computes the same cells bit for bit). The ray origin is not
 //! hashed: in the thesis's convention (eq. 3.1) every shadow ray of a light starts at the light.
 //! [`ShadowLayout::new`] sizes `L` to the scene's light count and splits the rest of a total
 //! budget (32 bits in the thesis) between `θ` (the odd bit) and `φ`.
@@ -31,7 +32,7 @@
 use crsh_core::{CoreError, Ray, Result};
 use glam::Vec3;
 
-use crsh_core::quantize::{spherical_cells, FieldOrder};
+use crsh_core::quantize::{product, spherical_cells, FieldOrder};
 
 /// Field widths of the shadow hash.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -110,17 +111,26 @@ impl ShadowLayout {
 /// the ray starts at (nearer) the light (`shadow_origin = light`, eq. 3.1-3.2), `−ray.dir`
 /// when its far end `origin + t_max·dir` is nearer the light (`shadow_origin = surface`).
 ///
+/// The end point and the squared distances use [`crsh_core::quantize::product`] for every
+/// product, so the wgpu twin, whose compiler may fuse products into sums, decides alike.
+///
 /// # Errors
 /// [`CoreError::InvalidInput`] when the ray's segment end is not finite.
 pub fn light_to_point_direction(ray: &Ray, light: Vec3) -> Result<Vec3> {
-    let end = ray.origin + ray.dir * ray.t_max;
+    let end = Vec3::from_array(std::array::from_fn(|i| {
+        ray.origin[i] + product(ray.dir[i], ray.t_max)
+    }));
     if !end.is_finite() {
         return Err(CoreError::InvalidInput(format!(
             "shadow ray with non-finite segment (origin {}, dir {}, t_max {})",
             ray.origin, ray.dir, ray.t_max
         )));
     }
-    if ray.origin.distance_squared(light) <= end.distance_squared(light) {
+    let dist2 = |p: Vec3| {
+        let v = p - light;
+        (product(v.x, v.x) + product(v.y, v.y)) + product(v.z, v.z)
+    };
+    if dist2(ray.origin) <= dist2(end) {
         Ok(ray.dir)
     } else {
         Ok(-ray.dir)

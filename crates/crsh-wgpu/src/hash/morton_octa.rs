@@ -1,14 +1,16 @@
 //! `morton` on the wgpu backend: the 5-D Morton key of the quantized origin and the
 //! octahedral direction, one invocation per ray. The twin is
 //! [`crsh_cpu::hash::morton_octa::MortonOcta`] (same parameters and field widths, the same
-//! interleaving); like the thesis hash on the device ([`super::thesis`]) it quantizes in `f32`
-//! where the CPU uses `f64`, so a coordinate within rounding of a cell boundary can land in the
-//! neighbouring cell (the tests check that every differing key is such a case). Fields wider
-//! than [`super::thesis::MAX_FIELD_BITS`] are refused.
+//! interleaving) and, like the thesis hash on the device ([`super::thesis`]), the same keys bit
+//! for bit: origin cells by [`crsh_core::quantize::UniformCells`], direction cells by
+//! [`crsh_core::quantize::octahedral_cells`] (sums of absolute components and products that
+//! only feed comparisons, no division). Direction fields wider than
+//! [`super::thesis::MAX_FIELD_BITS`] are refused.
 
 use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
+use crsh_core::quantize::UniformCells;
 use crsh_core::{Hasher, Ray, RayKind, Registry, Result, StageSpec, Stats};
 use crsh_cpu::hash::morton_octa::MortonOcta as CpuMorton;
 
@@ -31,6 +33,8 @@ struct Params {
     a: f32,
     hi: [f32; 3],
     b: f32,
+    scale: [f32; 3],
+    c: f32,
 }
 
 struct MortonKernels {
@@ -72,8 +76,9 @@ impl MortonOcta {
     pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<MortonOcta> {
         let cpu = CpuMorton::new(&scene.scene, spec)?;
         let [o, _, _, u, v] = cpu.widths();
-        super::thesis::check_field_width("morton", &[o, u, v])?;
+        super::thesis::check_field_width("morton", &[u, v])?;
         let b = scene.scene.bounds;
+        let cells = [0, 1, 2].map(|i| UniformCells::new(b.min[i], b.max[i], o));
         Ok(MortonOcta {
             scene: Arc::clone(scene),
             params: Params {
@@ -81,10 +86,12 @@ impl MortonOcta {
                 origin_bits: o,
                 u_bits: u,
                 v_bits: v,
-                lo: b.min.to_array(),
+                lo: cells.map(|c| c.lo),
                 a: 0.0,
-                hi: b.max.to_array(),
+                hi: cells.map(|c| c.hi),
                 b: 0.0,
+                scale: cells.map(|c| c.scale),
+                c: 0.0,
             },
             key_bits: crsh_core::Hasher::<crsh_cpu::Cpu>::key_bits(&cpu),
         })

@@ -1,4 +1,4 @@
-// `morton` hashing on the device: the twin of crsh_cpu::hash::morton_octa, in f32 (see
+// `morton` hashing on the device: the twin of crsh_cpu::hash::morton_octa, bit for bit (see
 // morton_octa.rs). Prepended: common.wgsl, quantize.wgsl.
 
 struct Params {
@@ -6,10 +6,13 @@ struct Params {
     origin_bits: u32,
     u_bits: u32,
     v_bits: u32,
+    // The origin cells per axis (quantize::UniformCells).
     lo: vec3<f32>,
     _a: f32,
     hi: vec3<f32>,
     _b: f32,
+    scale: vec3<f32>,
+    _c: f32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
@@ -26,12 +29,12 @@ fn hash(@builtin(global_invocation_id) gid: vec3<u32>,
     let r = rays[i];
     let o = ray_origin(r);
     let ob = p.origin_bits;
-    let e = octahedral(ray_dir(r));
+    let e = octahedral_cells(ray_dir(r), p.u_bits, p.v_bits);
     let vals = array<u32, 5>(
-        quantize(o.x, p.lo.x, p.hi.x, ob),
-        quantize(o.y, p.lo.y, p.hi.y, ob),
-        quantize(o.z, p.lo.z, p.hi.z, ob),
-        quantize(e.x, -1.0, 1.0, p.u_bits),
-        quantize(e.y, -1.0, 1.0, p.v_bits));
+        uniform_cell(o.x, p.lo.x, p.hi.x, p.scale.x, ob),
+        uniform_cell(o.y, p.lo.y, p.hi.y, p.scale.y, ob),
+        uniform_cell(o.z, p.lo.z, p.hi.z, p.scale.z, ob),
+        e.x,
+        e.y);
     keys[i] = combine(vals, array<u32, 5>(ob, ob, ob, p.u_bits, p.v_bits), 5u, true);
 }

@@ -1,8 +1,10 @@
 // Quantization and key packing shared by the hashes: the twins of crsh_core::quantize
-// (quantize, spherical_cells, octahedral, FieldOrder::combine / interleave) in f32, keys as
-// vec2<u32> (x = low word). Prepended after common.wgsl.
-
-const PI: f32 = 3.14159265358979;
+// (UniformCells::cell, scaled_direction, square, octahedral_cells, FieldOrder::combine /
+// interleave), bit for bit: only +, -, *, comparisons, floor, min/max and bit operations, every
+// product either exact or feeding only a comparison or a floor (so FMA contraction cannot change
+// a result), inputs screened by their bits (NaN, infinities, subnormals) before any arithmetic.
+// No division, sqrt, acos or atan2 (not correctly rounded in WGSL). Keys as vec2<u32> (x = low
+// word). Prepended after common.wgsl.
 
 fn shl64(v: vec2<u32>, s: u32) -> vec2<u32> {
     if (s == 0u) { return v; }
@@ -38,44 +40,92 @@ fn combine(vals: array<u32, 5>, widths: array<u32, 5>, count: u32, interleave: b
     return out;
 }
 
-fn quantize(x: f32, lo: f32, hi: f32, bits: u32) -> u32 {
-    if (bits == 0u) { return 0u; }
-    let cells = exp2(f32(bits));
-    let span = hi - lo;
-    if (!(span > 0.0 && span < inf())) { return 0u; }
-    let f = floor((x - lo) / span * cells);
-    if (!(f >= 0.0)) { return 0u; }
-    if (f >= cells) {
+// 2^bits as an f32 (exact).
+fn pow2f(bits: u32) -> f32 {
+    return bitcast<f32>((127u + bits) << 23u);
+}
+
+// quantize::UniformCells::cell: floor((clamp(x, lo, hi) - lo) * scale), clamped to
+// 0 ..= 2^bits - 1 (scale = 2^bits / (hi - lo) rounded to f32 on the host; 0 when degenerate).
+fn uniform_cell(x: f32, lo: f32, hi: f32, scale: f32, bits: u32) -> u32 {
+    let b = bitcast<u32>(x);
+    let e = b & 0x7f800000u;
+    var v = 0.0;
+    if (e == 0x7f800000u) {
+        if ((b & 0x007fffffu) != 0u) { return 0u; }
+        v = select(hi, lo, (b >> 31u) == 1u);
+    } else if (e != 0u) {
+        v = min(max(x, lo), hi);
+    }
+    let f = floor((v - lo) * scale);
+    if (f >= pow2f(bits)) {
         if (bits >= 32u) { return 0xffffffffu; }
         return (1u << bits) - 1u;
     }
     return u32(f);
 }
 
-fn spherical_cells(d: vec3<f32>, tb: u32, pb: u32) -> vec2<u32> {
-    let l = length(d);
-    if (!(l > 0.0 && l < inf())) {
-        return vec2<u32>(quantize(0.0, 0.0, PI, tb), quantize(0.0, -PI, PI, pb));
+// quantize::scaled_direction: d scaled by a power of two (exponent arithmetic) so that its
+// largest component is in [1, 2), components 2^32 times smaller than it (or subnormal) set to
+// 0; w = 0 for a zero, subnormal-only or non-finite direction, else 1.
+fn scaled_direction(d: vec3<f32>) -> vec4<f32> {
+    let b = vec3<u32>(bitcast<u32>(d.x), bitcast<u32>(d.y), bitcast<u32>(d.z));
+    let e = (b >> vec3<u32>(23u)) & vec3<u32>(0xffu);
+    let top = max(e.x, max(e.y, e.z));
+    if (top == 0u || top == 0xffu) {
+        return vec4<f32>(0.0);
     }
-    let n = d / l;
-    // θ = acos(n.z) as Kahan's 2·atan2(|n − z|, |n + z|), accurate at both poles.
-    let below = vec3<f32>(n.x, n.y, n.z - 1.0);
-    let above = vec3<f32>(n.x, n.y, n.z + 1.0);
-    let theta = 2.0 * atan2_accurate(length(below), length(above));
-    let phi = atan2_accurate(n.y, n.x);
-    return vec2<u32>(quantize(theta, 0.0, PI, tb), quantize(phi, -PI, PI, pb));
+    var out = vec4<f32>(0.0, 0.0, 0.0, 1.0);
+    for (var i = 0u; i < 3u; i++) {
+        if (e[i] != 0u && e[i] + 32u >= top) {
+            out[i] = bitcast<f32>((b[i] & 0x807fffffu) | ((e[i] + 127u - top) << 23u));
+        }
+    }
+    return out;
 }
 
-// quantize::octahedral: the octahedral map of a direction into [-1, 1]².
-fn octahedral(d: vec3<f32>) -> vec2<f32> {
-    let l1 = abs(d.x) + abs(d.y) + abs(d.z);
-    if (!(l1 > 0.0 && l1 < inf())) {
-        return vec2<f32>(0.0);
+// quantize::product: a * b as the sum of the exact products of the 12-bit halves.
+fn product_exact(a: f32, b: f32) -> f32 {
+    let ah = bitcast<f32>(bitcast<u32>(a) & 0xfffff000u);
+    let bh = bitcast<f32>(bitcast<u32>(b) & 0xfffff000u);
+    let al = a - ah;
+    let bl = b - bh;
+    return ah * bh + ((ah * bl + al * bh) + al * bl);
+}
+
+// quantize::square.
+fn square_exact(x: f32) -> f32 {
+    return product_exact(x, x);
+}
+
+// quantize::octa_cell: the last k in 0 ..= 2^bits - 1 with num >= b_k * l1,
+// b_k = -1 + k * 2^(1 - bits) (exact: k * 2^(1 - bits) is a power-of-two scaling).
+fn octa_cell(num: f32, l1: f32, bits: u32) -> u32 {
+    if (bits == 0u) { return 0u; }
+    let step = bitcast<f32>((128u - bits) << 23u);
+    var lo = 0u;
+    var hi = (1u << bits) - 1u;
+    while (lo < hi) {
+        let mid = lo + (hi - lo + 1u) / 2u;
+        let b = f32(mid) * step - 1.0;
+        if (num >= b * l1) { lo = mid; } else { hi = mid - 1u; }
     }
-    let p = d / l1;
-    if (p.z >= 0.0) {
-        return p.xy;
+    return lo;
+}
+
+// quantize::octahedral_cells: the octahedral square's cells without dividing by |x|+|y|+|z|.
+fn octahedral_cells(d: vec3<f32>, ub: u32, vb: u32) -> vec2<u32> {
+    var s = scaled_direction(d);
+    if (s.w == 0.0) {
+        s = vec4<f32>(0.0, 0.0, 1.0, 1.0);
     }
-    return vec2<f32>((1.0 - abs(p.y)) * select(-1.0, 1.0, p.x >= 0.0),
-                     (1.0 - abs(p.x)) * select(-1.0, 1.0, p.y >= 0.0));
+    let a = abs(s.xyz);
+    let l1 = (a.x + a.y) + a.z;
+    var nu = s.x;
+    var nv = s.y;
+    if (s.z < 0.0) {
+        nu = (a.x + a.z) * select(-1.0, 1.0, s.x >= 0.0);
+        nv = (a.y + a.z) * select(-1.0, 1.0, s.y >= 0.0);
+    }
+    return vec2<u32>(octa_cell(nu, l1, ub), octa_cell(nv, l1, vb));
 }

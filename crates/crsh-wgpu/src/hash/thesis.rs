@@ -6,22 +6,22 @@
 //! the light; reflection / refraction keys = origin cells in the scene bounds, then θ and φ;
 //! fields interleaved or concatenated, the same 64-bit key layout).
 //!
-//! **Not bit-identical.** The CPU quantizes in `f64` with correctly rounded `acos` and `atan2`;
-//! WGSL has no portable `f64`, and its `acos`, `atan2` and division need not be correctly
-//! rounded, so the device quantizes in `f32`: a ray whose angle or coordinate lies within
-//! rounding (about 1e-6 of the field's range) of a cell boundary can land in the neighbouring
-//! cell. The tests measure it: on the built-in scenes nearly every key is identical and every
-//! differing key differs in one field by one cell. Such a ray is still traced exactly (the
-//! hierarchy bounds whatever rays it is given); only its place in the sort order, hence the
-//! hierarchy's tightness, can change, so counts can differ slightly from the CPU's while the
-//! hits do not. Layouts with a field wider than [`MAX_FIELD_BITS`] (f32's significand) are
-//! refused. A bit-identical hash needs integer quantization on both sides (threshold tables
-//! for θ and φ, exact rational floors for the origin), which is the planned next step.
+//! **Bit-identical.** Both sides quantize with [`crsh_core::quantize`]'s exact scheme: origin
+//! cells as `floor((x − lo) · scale)` with the host's `f32` scale (a subtraction and a product,
+//! correctly rounded in WGSL, nothing an FMA can fuse), and `θ`, `φ` cells by comparisons of the
+//! scaled direction against boundary tables the host computes once
+//! ([`crsh_core::quantize::theta_table`], [`crsh_core::quantize::phi_table`], uploaded with the
+//! hasher); every product that feeds a sum is a sum of exact partial products
+//! ([`crsh_core::quantize::product`]), so contraction cannot change a bit, and NaN, infinities
+//! and subnormals are screened by their bits. No division, `sqrt`, `acos` or `atan2` runs on the
+//! device (WGSL does not round them correctly). The shadow rays' light→point convention is
+//! decided with the same products. The tests compare every key with the CPU's. Direction fields
+//! wider than [`MAX_FIELD_BITS`] (the tables' limit) are refused.
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use bytemuck::{Pod, Zeroable};
-use crsh_core::quantize::FieldOrder;
+use crsh_core::quantize::{phi_table, theta_table, FieldOrder, UniformCells};
 use crsh_core::{CoreError, Hasher, Ray, RayKind, Registry, Result, StageSpec, Stats};
 use crsh_cpu::hash::thesis::ThesisHasher as CpuThesis;
 
@@ -34,11 +34,10 @@ use crate::scene::GpuScene;
 const SHADER: &str = include_str!("thesis.wgsl");
 
 /// The quantization helpers shared by the hashes (`quantize.wgsl`).
-pub(crate) const QUANTIZE_WGSL: &str = concat!(
-    include_str!("quantize.wgsl"),
-    "\n",
-    include_str!("../kernels/trig.wgsl")
-);
+pub(crate) const QUANTIZE_WGSL: &str = include_str!("quantize.wgsl");
+
+/// The spherical direction cells (`spherical.wgsl`), over the boundary tables.
+const SPHERICAL_WGSL: &str = include_str!("spherical.wgsl");
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
@@ -53,11 +52,17 @@ struct Params {
     bounce_theta_bits: u32,
     bounce_phi_bits: u32,
     first: u32,
+    shadow_theta_base: u32,
+    shadow_phi_base: u32,
+    bounce_theta_base: u32,
+    bounce_phi_base: u32,
     pad: [u32; 2],
     lo: [f32; 3],
     c: f32,
     hi: [f32; 3],
     d: f32,
+    scale: [f32; 3],
+    e: f32,
 }
 
 struct ThesisKernels {
@@ -70,7 +75,7 @@ impl ThesisKernels {
             kernel: Kernel::new(
                 ctx,
                 "crsh thesis hash",
-                &format!("{QUANTIZE_WGSL}\n{SHADER}"),
+                &format!("{QUANTIZE_WGSL}\n{SPHERICAL_WGSL}\n{SHADER}"),
                 &["hash"],
                 &[
                     Slot::Uniform,
@@ -78,25 +83,26 @@ impl ThesisKernels {
                     Slot::Read,
                     Slot::ReadWrite,
                     Slot::ReadWrite,
+                    Slot::Read,
                 ],
             )?,
         })
     }
 }
 
-/// The widest field the device quantizes (f32 has a 24-bit significand: wider cells would be
-/// decided by rounding, not by the ray; 20 bits keep that error below a tenth of a cell).
-pub const MAX_FIELD_BITS: u32 = 20;
+/// The widest direction field the device quantizes: the boundary tables travel to the device
+/// ([`crsh_core::quantize::MAX_TABLE_BITS`], `2^20` entries).
+pub const MAX_FIELD_BITS: u32 = crsh_core::quantize::MAX_TABLE_BITS;
 
-/// Refuses a layout with a field wider than [`MAX_FIELD_BITS`].
+/// Refuses a layout with a direction field wider than [`MAX_FIELD_BITS`].
 pub(crate) fn check_field_width(variant: &str, widths: &[u32]) -> Result<()> {
     match widths.iter().find(|&&w| w > MAX_FIELD_BITS) {
         Some(w) => Err(CoreError::Unsupported {
             stage: "hash",
             variant: variant.into(),
             what: format!(
-                "a {w}-bit field on the wgpu backend (it quantizes in f32: at most \
-                 {MAX_FIELD_BITS} bits per field; use fewer bits or --backend cpu)"
+                "a {w}-bit direction field on the wgpu backend (its boundary tables hold at \
+                 most {MAX_FIELD_BITS} bits per field; use fewer bits or --backend cpu)"
             ),
         }),
         None => Ok(()),
@@ -108,6 +114,10 @@ pub struct ThesisHasher {
     scene: Arc<GpuScene>,
     params: Params,
     key_bits: u32,
+    /// The four boundary tables, concatenated (offsets in `params`).
+    tables: Vec<f32>,
+    /// `tables` on the device, uploaded on first use.
+    tables_on_device: OnceLock<GpuBuffer<f32>>,
 }
 
 /// Registers the wgpu `thesis` under its CPU twin's catalogue entry (same name, parameters,
@@ -128,15 +138,21 @@ impl ThesisHasher {
         let b = cpu.bounce_layout();
         check_field_width(
             "thesis",
-            &[
-                s.theta_bits,
-                s.phi_bits,
-                b.origin_bits,
-                b.theta_bits,
-                b.phi_bits,
-            ],
+            &[s.theta_bits, s.phi_bits, b.theta_bits, b.phi_bits],
         )?;
         let interleave = u32::from(s.order == FieldOrder::Interleaved);
+        let mut tables = Vec::new();
+        let mut base = |t: &[f32]| {
+            let at = tables.len() as u32;
+            tables.extend_from_slice(t);
+            at
+        };
+        let shadow_theta_base = base(theta_table(s.theta_bits));
+        let shadow_phi_base = base(phi_table(s.phi_bits));
+        let bounce_theta_base = base(theta_table(b.theta_bits));
+        let bounce_phi_base = base(phi_table(b.phi_bits));
+        let cells =
+            [0, 1, 2].map(|i| UniformCells::new(b.bounds.min[i], b.bounds.max[i], b.origin_bits));
         Ok(ThesisHasher {
             scene: Arc::clone(scene),
             params: Params {
@@ -150,13 +166,21 @@ impl ThesisHasher {
                 bounce_theta_bits: b.theta_bits,
                 bounce_phi_bits: b.phi_bits,
                 first: 0,
+                shadow_theta_base,
+                shadow_phi_base,
+                bounce_theta_base,
+                bounce_phi_base,
                 pad: [0; 2],
-                lo: b.bounds.min.to_array(),
+                lo: cells.map(|c| c.lo),
                 c: 0.0,
-                hi: b.bounds.max.to_array(),
+                hi: cells.map(|c| c.hi),
                 d: 0.0,
+                scale: cells.map(|c| c.scale),
+                e: 0.0,
             },
             key_bits: crsh_core::Hasher::<crsh_cpu::Cpu>::key_bits(&cpu),
+            tables,
+            tables_on_device: OnceLock::new(),
         })
     }
 }
@@ -185,6 +209,11 @@ impl Hasher<Wgpu> for ThesisHasher {
         }
         let k = ctx.kernel(ThesisKernels::new)?;
         let report = GpuBuffer::<u32>::zeroed(ctx, "crsh hash report", 4)?;
+        if self.tables_on_device.get().is_none() {
+            let t = GpuBuffer::from_slice(ctx, "crsh thesis boundary tables", &self.tables)?;
+            let _ = self.tables_on_device.set(t);
+        }
+        let tables = self.tables_on_device.get().expect("uploaded above");
         let mut groups = Vec::new();
         for range in chunks::<Ray>(ctx, n) {
             let params = Params {
@@ -201,6 +230,7 @@ impl Hasher<Wgpu> for ThesisHasher {
                     self.scene.lights.binding(),
                     keys.slice_binding(range.clone()),
                     report.binding(),
+                    tables.binding(),
                 ],
             );
             groups.push((bg, range.len() as u32));
