@@ -682,10 +682,8 @@ impl Dual {
                 .peak_candidate_bytes
                 .max((held + pairs.capacity() as u64) * PAIR_BYTES);
             drop(results);
-            let before = active.len();
             active.retain(|t| !t.stack.is_empty());
             report.suspensions += active.len();
-            debug_assert!(active.len() <= before);
             if !pairs.is_empty() {
                 report.batches += 1;
                 report.candidates += pairs.len() as u64;
