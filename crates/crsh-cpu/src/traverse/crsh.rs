@@ -283,20 +283,26 @@ impl NodeBound {
         self.axis.dot(v) >= self.cos_a * (d2 - rho2).sqrt() - self.sin_a * rho
     }
 
-    /// How wide the node's rays spread at `point`: `r + D·sin α` with `D` the distance from
-    /// the node's centre to `point` (`r + D` when the cone is a hemisphere or wider), the
-    /// radius of a ball around the cone's axis point at distance `D` that every ray of the
-    /// node crossing that distance passes through. A size measure only (margins included,
-    /// not a bound the traversal relies on): [`super::dual`] compares it with an object
-    /// node's radius to choose which side of a pair to descend.
+    /// Whether the node's rays spread wider at `sphere`'s centre than `sphere`'s radius `R`:
+    /// `r + D·sin α > R` with `D` the distance from the node's centre to the sphere's centre
+    /// (`r + D > R` when the cone is a hemisphere or wider), evaluated without a square root.
+    /// `r + D·sin α` is the radius of a ball around the axis point at distance `D` that every
+    /// ray of the node crossing that distance passes through. A size comparison only (margins
+    /// included, not a bound the traversal relies on): [`super::dual`] uses it to choose which
+    /// side of a (ray node, object node) pair to descend.
     #[inline]
-    pub fn spread_at(&self, point: DVec3) -> f64 {
-        let d = (point - self.center).length();
-        if self.all || self.cos_a <= 0.0 {
-            self.radius + d
-        } else {
-            self.radius + d * self.sin_a
+    pub fn spreads_wider_than(&self, sphere: &Sphere) -> bool {
+        let room = sphere.radius as f64 - self.radius;
+        if room < 0.0 {
+            return true;
         }
+        let d2 = (sphere.center.as_dvec3() - self.center).length_squared();
+        let sin2 = if self.all || self.cos_a <= 0.0 {
+            1.0
+        } else {
+            self.sin_a * self.sin_a
+        };
+        d2 * sin2 > room * room
     }
 }
 

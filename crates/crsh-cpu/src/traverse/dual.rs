@@ -47,7 +47,7 @@
 //! - split on the object side when the ray node is in the lowest level, on the ray side when
 //!   the object node is a triangle;
 //! - otherwise split on the **larger side**: the ray side when the node's rays spread wider
-//!   at the object node than the object node's radius ([`NodeBound::spread_at`]:
+//!   at the object node than the object node's radius ([`NodeBound::spreads_wider_than`]:
 //!   `r + D·sin α` against `R`), else the object side.
 //!
 //! Splitting the ray side pairs each existing child (`n·s .. (n+1)·s` of the level below)
@@ -514,7 +514,7 @@ impl Task {
                 }
                 (true, false) => false,
                 (false, true) => true,
-                (false, false) => nb.spread_at(sphere.center.as_dvec3()) > sphere.radius as f64,
+                (false, false) => nb.spreads_wider_than(sphere),
             };
             if split_rays {
                 let below = &ctx.nodes[p.level as usize - 1];
@@ -539,7 +539,8 @@ impl Task {
                 }
             }
         }
-        out.sort_unstable();
+        // (node, triangle) order, as one 64-bit key (the same order as `Candidate`'s `Ord`).
+        out.sort_unstable_by_key(|c| (c.node as u64) << 32 | c.tri as u64);
         (out, counts)
     }
 }
