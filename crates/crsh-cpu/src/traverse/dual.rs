@@ -96,6 +96,22 @@
 //! Each side's rows sum to the bounds tests (there is no mesh culling with `lbvh`), and
 //! `tests = hits + misses` in every row.
 //!
+//! # Measured
+//!
+//! Sponza (262,205 triangles, 381 meshes), `crsh` preset, shadow rays, release build, one
+//! run each side by side on a shared 2-core machine (times are noisy), identical images and
+//! hits (agreement 1.000000 against `bvh`):
+//!
+//! | 1024², depth 3 | bounds/ray | triangle/ray | total/ray | traversal ms | final ms | Mrays/s |
+//! |---|---:|---:|---:|---:|---:|---:|
+//! | `crsh` | 613 | 173 | 786 | 2535 | 1662 | 0.28 |
+//! | `dual` (`lbvh`) | 53 | 173 | 226 | 706 | 538 | 0.81 |
+//! | `bvh` (obvhs CWBVH, whole scene) | 93 | 3.8 | 97 | – | 341 | 3.61 |
+//!
+//! The bounds tests drop 11×; the final tests (candidates × the 8 rays of a lowest node) are
+//! the same as `crsh`'s and now dominate. The object hierarchy's build is part of the stage's
+//! construction (tens of ms for Sponza).
+//!
 //! # Errors
 //!
 //! As [`super::crsh`]: [`CoreError::InvalidParam`] for a budget that is not a finite positive
