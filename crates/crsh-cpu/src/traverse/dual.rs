@@ -110,7 +110,7 @@
 //!
 //! The bounds tests drop 11×; the final tests (candidates × the 8 rays of a lowest node) are
 //! the same as `crsh`'s and now dominate. The object hierarchy's build is part of the stage's
-//! construction (tens of ms for Sponza).
+//! construction: about 27 ms for Sponza (stage builds 79 ms against `crsh`'s 53 ms).
 //!
 //! # Errors
 //!
