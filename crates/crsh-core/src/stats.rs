@@ -364,6 +364,14 @@ pub struct Stats {
     /// With [`Stats::levels`] they account for every bounding test of a hierarchy traversal.
     #[serde(default)]
     pub mesh_culling: BTreeMap<String, CullStats>,
+    /// Object-hierarchy counters of a dual traversal (ray hierarchy and object hierarchy
+    /// descended together, seed 000 §5.1): per ray kind and object node depth (`level` is the
+    /// depth below the object root, 0 the root), the ray-node tests against object nodes of
+    /// that depth and how many passed. The same tests, counted by the ray node's level, are in
+    /// [`Stats::levels`]; each table sums to the traversal's bounds tests. Empty unless a dual
+    /// traversal ran.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub object_levels: Vec<LevelStats>,
     /// Wall time per stage in milliseconds, plus `total`. The stage keys do not overlap (a
     /// stage's own sub-stages are subtracted from it), in pipeline order: `primary`,
     /// `ray_creation`, `trimming`, `hashing`, `compression`, `sorting`, `decompression`,
@@ -442,25 +450,13 @@ impl Stats {
 
     /// Adds level counters, merging with an existing entry of the same kind and level.
     pub fn add_level(&mut self, kind: RayKind, level: u32, tests: u64, hits: u64) {
-        let name = kind.name();
-        let misses = tests - hits.min(tests);
-        if let Some(l) = self
-            .levels
-            .iter_mut()
-            .find(|l| l.ray_kind == name && l.level == level)
-        {
-            l.tests += tests;
-            l.hits += hits;
-            l.misses += misses;
-        } else {
-            self.levels.push(LevelStats {
-                ray_kind: name.to_string(),
-                level,
-                tests,
-                hits,
-                misses,
-            });
-        }
+        add_row(&mut self.levels, kind, level, tests, hits);
+    }
+
+    /// Adds object-hierarchy counters at object node depth `depth` ([`Stats::object_levels`]),
+    /// merging with an existing entry of the same kind and depth.
+    pub fn add_object_level(&mut self, kind: RayKind, depth: u32, tests: u64, hits: u64) {
+        add_row(&mut self.object_levels, kind, depth, tests, hits);
     }
 
     /// Adds whole-mesh culling counters: `tests` node-mesh tests of which `kept` passed.
@@ -501,6 +497,28 @@ impl Stats {
     }
 }
 
+/// Adds `tests` and `hits` to the row of `kind` and `level` of `rows` (a new row if none).
+fn add_row(rows: &mut Vec<LevelStats>, kind: RayKind, level: u32, tests: u64, hits: u64) {
+    let name = kind.name();
+    let misses = tests - hits.min(tests);
+    if let Some(l) = rows
+        .iter_mut()
+        .find(|l| l.ray_kind == name && l.level == level)
+    {
+        l.tests += tests;
+        l.hits += hits;
+        l.misses += misses;
+    } else {
+        rows.push(LevelStats {
+            ray_kind: name.to_string(),
+            level,
+            tests,
+            hits,
+            misses,
+        });
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -517,6 +535,18 @@ mod tests {
         assert_eq!(s.levels[0].misses, 10);
         s.rays.add(RayKind::Reflection, 5);
         assert_eq!(s.rays.total(), 5);
+        // Object rows stay apart from the ray levels, and out of JSON while empty.
+        assert!(!serde_json::to_string(&s).unwrap().contains("object_levels"));
+        s.add_object_level(RayKind::Shadow, 2, 7, 3);
+        s.add_object_level(RayKind::Shadow, 2, 1, 1);
+        assert_eq!(s.levels.len(), 1);
+        assert_eq!(s.object_levels.len(), 1);
+        assert_eq!(
+            (s.object_levels[0].tests, s.object_levels[0].misses),
+            (8, 4)
+        );
+        let back: Stats = serde_json::from_str(&serde_json::to_string(&s).unwrap()).unwrap();
+        assert_eq!(back, s);
     }
 
     #[test]

@@ -34,6 +34,7 @@ impl BuiltinVariants for Cpu {
         crate::hierarchy::sphere_cone::register(registry)?;
         crate::hierarchy::tile_cone::register(registry)?;
         crate::traverse::crsh::register(registry)?;
+        crate::traverse::dual::register(registry)?;
         crate::intersect::brute::register(registry)?;
         crate::intersect::brute64::register(registry)?;
         crate::intersect::bvh::register(registry)?;

@@ -204,6 +204,10 @@ pub struct StatsReport {
     pub levels: Vec<LevelStats>,
     /// Whole-mesh culling counters per ray kind (empty without mesh culling).
     pub mesh_culling: BTreeMap<String, crsh_core::CullStats>,
+    /// Object-hierarchy counters of the `dual` traverser per ray kind and object node depth
+    /// ([`crsh_core::Stats::object_levels`]; absent unless it ran with `objects = lbvh`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub object_levels: Vec<LevelStats>,
     /// Seed 003's coherent kd-tree traversal counters per ray kind: packets, nodes and
     /// packet-triangle tests (the paper's `N` and `I` per packet), culled packet-leaf tests
     /// (empty unless a coherent traversal ran).
@@ -336,6 +340,7 @@ impl StatsReport {
             per_kind: stats.per_kind.clone(),
             levels: stats.levels.clone(),
             mesh_culling: stats.mesh_culling.clone(),
+            object_levels: stats.object_levels.clone(),
             packets: stats.packets.clone(),
             peak_candidate_bytes: stats.peak_candidate_bytes,
             generations: stats.generations.clone(),
@@ -421,6 +426,26 @@ impl StatsReport {
                 group(t.leaves),
                 t.inner_nodes_per_ray,
                 t.leaves_per_ray,
+            );
+        }
+        for kind in RayKind::ALL {
+            let rows: Vec<&LevelStats> = self
+                .object_levels
+                .iter()
+                .filter(|l| l.ray_kind == kind.name())
+                .collect();
+            if rows.is_empty() {
+                continue;
+            }
+            let tests: u64 = rows.iter().map(|l| l.tests).sum();
+            let hits: u64 = rows.iter().map(|l| l.hits).sum();
+            let deepest = rows.iter().map(|l| l.level).max().unwrap_or(0);
+            let _ = writeln!(
+                s,
+                "objects   {}: {} object-node tests at depths 0-{deepest}, {:.1} % passed",
+                kind.name(),
+                group(tests),
+                100.0 * ratio(hits as f64, tests as f64),
             );
         }
         for (kind, p) in &self.packets {
@@ -687,6 +712,8 @@ mod tests {
         g.ray_triangle = 4;
         g.add_half_angles([0.01, 0.03]);
         s.generation_mut(2, RayKind::Shadow).rays = 4;
+        s.add_object_level(RayKind::Shadow, 0, 5, 4);
+        s.add_object_level(RayKind::Shadow, 3, 15, 6);
         s.timings_ms.insert("total".into(), 10.0);
         s.timings_ms.insert("primary".into(), 1.0);
         s.timings_ms.insert("intersection".into(), 2.5);
@@ -837,6 +864,7 @@ mod tests {
             "Mrays/s",
             "gen 1     shadow 6 (0.0 tests/ray) | reflection 4 (3.5 tests/ray, 2 cones, mean 1.15° max 1.7°)",
             "gen 2     shadow 4 (0.0 tests/ray)",
+            "objects   shadow: 20 object-node tests at depths 0-3, 50.0 % passed",
         ] {
             assert!(s.contains(needle), "summary lacks `{needle}`:\n{s}");
         }

@@ -520,6 +520,20 @@ fn add_stats(sum: &mut Stats, s: &Stats) {
             None => sum.levels.push(l.clone()),
         }
     }
+    for l in &s.object_levels {
+        match sum
+            .object_levels
+            .iter_mut()
+            .find(|x| x.ray_kind == l.ray_kind && x.level == l.level)
+        {
+            Some(x) => {
+                x.tests += l.tests;
+                x.hits += l.hits;
+                x.misses += l.misses;
+            }
+            None => sum.object_levels.push(l.clone()),
+        }
+    }
     for (kind, c) in &s.mesh_culling {
         let e = sum.mesh_culling.entry(kind.clone()).or_default();
         e.tests += c.tests;

@@ -282,6 +282,28 @@ impl NodeBound {
         }
         self.axis.dot(v) >= self.cos_a * (d2 - rho2).sqrt() - self.sin_a * rho
     }
+
+    /// Whether the node's rays spread wider at `sphere`'s centre than `sphere`'s radius `R`:
+    /// `r + D·sin α > R` with `D` the distance from the node's centre to the sphere's centre
+    /// (`r + D > R` when the cone is a hemisphere or wider), evaluated without a square root.
+    /// `r + D·sin α` is the radius of a ball around the axis point at distance `D` that every
+    /// ray of the node crossing that distance passes through. A size comparison only (margins
+    /// included, not a bound the traversal relies on): [`super::dual`] uses it to choose which
+    /// side of a (ray node, object node) pair to descend.
+    #[inline]
+    pub fn spreads_wider_than(&self, sphere: &Sphere) -> bool {
+        let room = sphere.radius as f64 - self.radius;
+        if room < 0.0 {
+            return true;
+        }
+        let d2 = (sphere.center.as_dvec3() - self.center).length_squared();
+        let sin2 = if self.all || self.cos_a <= 0.0 {
+            1.0
+        } else {
+            self.sin_a * self.sin_a
+        };
+        d2 * sin2 > room * room
+    }
 }
 
 /// Checks a hierarchy's shape for a traversal of `n_rays` rays (shared by the backends): at
@@ -342,6 +364,54 @@ pub fn check_shape(
     Ok(())
 }
 
+/// The candidate budget `candidate_budget_mb` (MiB, 2²⁰ bytes) in bytes; an error unless it is
+/// a finite positive number. Shared by the traversers of this module and [`super::dual`].
+pub fn budget_bytes(budget_mb: f64) -> Result<u64> {
+    if !(budget_mb.is_finite() && budget_mb > 0.0) {
+        return Err(CoreError::InvalidParam {
+            key: "traverse.candidate_budget_mb".into(),
+            reason: format!("{budget_mb} is not a positive number of MiB"),
+        });
+    }
+    Ok((budget_mb * (1u64 << 20) as f64).min(u64::MAX as f64) as u64)
+}
+
+/// Checks a hierarchy's shape for a traversal of `n_rays` rays ([`check_shape`],
+/// [`crsh_core::check_leaf_offsets`]) and prepares its nodes for [`NodeBound::may_hit`],
+/// lowest level first, with their reach bounds where the hierarchy has them. Shared by `crsh`
+/// and [`super::dual`].
+pub fn prepare_nodes(n_rays: usize, h: &RayHierarchy<Cpu>) -> Result<Vec<Vec<NodeBound>>> {
+    let level_lens: Vec<usize> = h.levels.iter().map(Vec::len).collect();
+    let reach_lens: Vec<usize> = h.reach.iter().map(Vec::len).collect();
+    check_shape(
+        n_rays,
+        h.subdivision,
+        h.order.len(),
+        &level_lens,
+        &reach_lens,
+        h.leaf_offsets.as_ref().map(Vec::len),
+    )?;
+    if let Some(offsets) = &h.leaf_offsets {
+        check_leaf_offsets(offsets, level_lens[0], n_rays)?;
+    }
+    h.levels
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            l.par_iter()
+                .enumerate()
+                .map(|(n, node)| {
+                    let b = NodeBound::new(node)?;
+                    Ok(match h.reach.get(i) {
+                        Some(r) => b.with_reach(r[n]),
+                        None => b,
+                    })
+                })
+                .collect()
+        })
+        .collect()
+}
+
 /// What one traversal did, for tests and tuning.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct TraversalReport {
@@ -390,16 +460,10 @@ impl Crsh {
 
     /// The traverser with explicit options (`budget_mb` in MiB, finite and > 0).
     pub fn with_options(scene: &Arc<Scene>, mesh_culling: bool, budget_mb: f64) -> Result<Crsh> {
-        if !(budget_mb.is_finite() && budget_mb > 0.0) {
-            return Err(CoreError::InvalidParam {
-                key: "traverse.candidate_budget_mb".into(),
-                reason: format!("{budget_mb} is not a positive number of MiB"),
-            });
-        }
         Ok(Crsh {
             scene: Arc::clone(scene),
             mesh_culling,
-            budget_bytes: (budget_mb * (1u64 << 20) as f64).min(u64::MAX as f64) as u64,
+            budget_bytes: budget_bytes(budget_mb)?,
         })
     }
 
@@ -423,39 +487,6 @@ impl Crsh {
         (n.min(self.scene.triangle_count().max(1) as u64)) as usize
     }
 
-    /// Checks the hierarchy's shape and prepares its nodes, lowest level first.
-    fn prepare(&self, n_rays: usize, h: &RayHierarchy<Cpu>) -> Result<Vec<Vec<NodeBound>>> {
-        let level_lens: Vec<usize> = h.levels.iter().map(Vec::len).collect();
-        let reach_lens: Vec<usize> = h.reach.iter().map(Vec::len).collect();
-        check_shape(
-            n_rays,
-            h.subdivision,
-            h.order.len(),
-            &level_lens,
-            &reach_lens,
-            h.leaf_offsets.as_ref().map(Vec::len),
-        )?;
-        if let Some(offsets) = &h.leaf_offsets {
-            check_leaf_offsets(offsets, level_lens[0], n_rays)?;
-        }
-        h.levels
-            .iter()
-            .enumerate()
-            .map(|(i, l)| {
-                l.par_iter()
-                    .enumerate()
-                    .map(|(n, node)| {
-                        let b = NodeBound::new(node)?;
-                        Ok(match h.reach.get(i) {
-                            Some(r) => b.with_reach(r[n]),
-                            None => b,
-                        })
-                    })
-                    .collect()
-            })
-            .collect()
-    }
-
     /// [`Traverser::traverse`], returning what it did (batch size, peak candidate bytes).
     pub fn traverse_with_report(
         &self,
@@ -474,7 +505,7 @@ impl Crsh {
         if n_rays == 0 {
             return Ok(report);
         }
-        let nodes = self.prepare(n_rays, hierarchy)?;
+        let nodes = prepare_nodes(n_rays, hierarchy)?;
         if n_tris == 0 {
             return Ok(report);
         }
@@ -751,7 +782,7 @@ impl Traverser<Cpu> for Crsh {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::intersect::brute::tests::{random_rays, soup, test_ray};
     use crate::intersect::brute::BruteForce;
@@ -764,7 +795,7 @@ mod tests {
 
     /// `meshes` clusters of random triangles, one mesh each, spread over `[-4, 4]³`, so that
     /// mesh culling has something to cull.
-    fn clustered(seed: u64, meshes: usize, per_mesh: usize) -> Scene {
+    pub(crate) fn clustered(seed: u64, meshes: usize, per_mesh: usize) -> Scene {
         let mut rng = TestRng(seed);
         let mut b = SceneBuilder::new("clusters");
         let m = b.material(Material::default());
@@ -796,7 +827,7 @@ mod tests {
 
     /// The brute-force test rays (outside, on surfaces, grazing, segments) plus coherent
     /// bundles: origins in a small ball, directions in a narrow cone, towards the scene.
-    fn test_rays(scene: &Scene, seed: u64, n: usize) -> Vec<Ray> {
+    pub(crate) fn test_rays(scene: &Scene, seed: u64, n: usize) -> Vec<Ray> {
         let mut rays = random_rays(scene, seed, n / 2);
         let mut rng = TestRng(seed ^ 0x9e37);
         let target = scene.bounds.center();
@@ -819,7 +850,7 @@ mod tests {
 
     /// A correct (not tight) sphere-cone of some rays: the minimal sphere of the origins
     /// (rounded up) and a cone about the mean direction with the largest angle.
-    fn bound(rays: &[Ray]) -> SphereCone {
+    pub(crate) fn bound(rays: &[Ray]) -> SphereCone {
         let origins: Vec<Vec3> = rays.iter().map(|r| r.origin).collect();
         let s = min_sphere(&origins);
         let c = s.center.as_dvec3();
@@ -850,7 +881,12 @@ mod tests {
 
     /// A test-only bottom-up builder: node `n` of level `i` bounds the rays of leaves
     /// `n·s^(i+1) .. (n+1)·s^(i+1)` of `order`, computed directly from the rays.
-    fn build(rays: &[Ray], order: Vec<u32>, sub: u32, levels: usize) -> RayHierarchy<Cpu> {
+    pub(crate) fn build(
+        rays: &[Ray],
+        order: Vec<u32>,
+        sub: u32,
+        levels: usize,
+    ) -> RayHierarchy<Cpu> {
         let s = sub as usize;
         let mut out = Vec::new();
         let mut span = s;
@@ -876,7 +912,7 @@ mod tests {
         }
     }
 
-    fn shuffled(n: usize, seed: u64) -> Vec<u32> {
+    pub(crate) fn shuffled(n: usize, seed: u64) -> Vec<u32> {
         let mut rng = TestRng(seed);
         let mut order: Vec<u32> = (0..n as u32).collect();
         for i in (1..n).rev() {
@@ -922,7 +958,7 @@ mod tests {
         (hits, batches, stats, report)
     }
 
-    fn reference(brute: &BruteForce, rays: &Vec<Ray>, mode: HitMode) -> Vec<Hit> {
+    pub(crate) fn reference(brute: &BruteForce, rays: &Vec<Ray>, mode: HitMode) -> Vec<Hit> {
         let mut hits = vec![Hit::MISS; rays.len()];
         brute
             .intersect(
@@ -937,7 +973,7 @@ mod tests {
         hits
     }
 
-    fn assert_same(got: &[Hit], want: &[Hit], mode: HitMode, what: &str) {
+    pub(crate) fn assert_same(got: &[Hit], want: &[Hit], mode: HitMode, what: &str) {
         for (i, (g, w)) in got.iter().zip(want).enumerate() {
             match mode {
                 HitMode::Closest => assert_eq!(g, w, "{what}: ray {i}"),

@@ -1,0 +1,1192 @@
+//! `dual`: simultaneous top-down traversal of the ray-space hierarchy and an object hierarchy
+//! over the triangles (seed 000 §3.2.8 with §5.1's future work: "combine our coherent ray
+//! hierarchy with a deeper object hierarchy").
+//!
+//! The `crsh` traverser ([`super::crsh`], §3.2.8) tests, below the mesh level, every node
+//! that reaches a mesh against every triangle sphere of that mesh, so a big mesh costs brute
+//! force over its triangles. `dual` puts a binary hierarchy of bounding spheres over the
+//! triangles and descends both trees together, so a ray node meets a triangle's sphere only
+//! when it reached every object node above it.
+//!
+//! # Parameter `objects`
+//!
+//! - `lbvh` (default): the object side is an [`Lbvh`] built when the stage is constructed,
+//!   i.e. once per frame (a moving scene rebuilds its stages every frame,
+//!   [`crsh_core::Registry::rebuild`], and the build time is the stage's row in
+//!   [`crsh_core::Pipeline::builds`]).
+//! - `meshes`: the thesis's mesh-sphere traversal, i.e. [`super::crsh::Crsh`] with mesh
+//!   culling (whole-mesh spheres at the top level, then every triangle sphere of the kept
+//!   meshes, level by level, §3.2.8). Same candidates, counters and batches as the `crsh`
+//!   traverser with `mesh_culling = true`.
+//!
+//! # The object hierarchy (`lbvh`)
+//!
+//! A binary radix tree over the triangles sorted by the 63-bit Morton code (21 bits per axis)
+//! of their bounding-sphere centres ([`crsh_scene::Scene::tri_spheres`]) within the centres'
+//! bounding box, ties broken by triangle id (a total order: the tree does not depend on the
+//! thread count of the parallel sort). A range of sorted leaves is split where its first and
+//! last codes first differ (the highest differing bit), and in the middle when all its codes
+//! are equal; internal nodes are numbered as in Karras 2012 (the root is 0, the left child of
+//! a split after position `γ` is `γ`, the right child `γ + 1`), leaves are the sorted
+//! positions. Leaves are single triangles whose bound is the triangle's sphere.
+//!
+//! Each internal node gets a sphere that contains the sphere of every triangle below it: the
+//! smaller of the minimal sphere around its children's spheres and the circumscribed sphere
+//! of the box around its triangles' spheres (a box is bounded by its circumscribed sphere, so
+//! the node test stays the ray-node-against-sphere test), computed in `f64`, rounded outwards
+//! to `f32` (radius enlarged by `1e-6` relative plus the centre's rounding).
+//!
+//! # Traversal
+//!
+//! Work starts from every (top-level ray node, object root) pair. A pair is tested with
+//! [`NodeBound::may_hit`] (the ray node against the object node's sphere); a pair that
+//! passes is
+//!
+//! - a candidate when the ray node is in the lowest level (`levels[0]`) and the object node
+//!   is a triangle: the `(node, triangle)` pair handed to the intersector, as `crsh` does;
+//! - split on the object side when the ray node is in the lowest level, on the ray side when
+//!   the object node is a triangle;
+//! - otherwise split on the **larger side**: the ray side when the node's rays spread wider
+//!   at the object node than the object node's radius ([`NodeBound::spreads_wider_than`]:
+//!   `r + D·sin α` against `R`), else the object side.
+//!
+//! Splitting the ray side pairs each existing child (`n·s .. (n+1)·s` of the level below)
+//! with the object node; splitting the object side pairs the ray node with both children.
+//! Each pair is reached along one path from its root pair (the split decision is a function
+//! of the pair), so no candidate is emitted twice.
+//!
+//! **No intersecting pair is culled.** The tests are the ones `crsh` proves conservative
+//! (module doc of [`super::crsh`], a conservative eq. 3.16): if a ray of lowest node `N` hits
+//! triangle `T`, every ancestor `A` of `N` passes `may_hit` against `T`'s sphere. Every
+//! object node `O` above `T` has a sphere containing `T`'s, and `may_hit` is monotone under
+//! sphere inclusion (the half-lines from the node's apex that meet a ball also meet every
+//! ball containing it, and the margins only grow with the radius: with `S ⊆ S'`,
+//! `|P| − |P'| ≤ R' − R`, so the relative margin `1e-4·(R' − R)` covers the absolute one's
+//! `1e-5·(R' − R)` change). So `(A, O)` passes for every pair on the path to `(N, T)`, and
+//! the final tests see every pair brute force would hit. The exactness tests below check it
+//! against brute force and `crsh`.
+//!
+//! # Memory bound and determinism
+//!
+//! Each top-level ray node is a task: a depth-first traversal with an explicit stack of
+//! untested pairs. Tasks run in rounds of up to `G` tasks in parallel (rayon); in a round each
+//! task runs until its stack is empty or it holds `C` candidates, then stops (a stopped task
+//! resumes in the next round from its stack). A round's candidates (each task's sorted by
+//! `(node, triangle)`, tasks in top-node order, so the batch is strictly increasing, the
+//! order the intersector uses in place) go to the sink as one [`CandidateBatch`]; new tasks
+//! join the next round in top-node order. `G` and `C` come from the budget alone:
+//! with `P = candidate_budget_mb · 2²⁰ / 16` pairs, `G = clamp(P / 1024, 1, 256)` and
+//! `C = max(1, P / G)`, and a task's array never grows past `C`, so the candidate arrays
+//! alive at once (the tasks' arrays and the batch they are copied into) stay within
+//! `2·G·C·8 ≤` the budget (at least one pair's worth). [`DualReport::peak_candidate_bytes`]
+//! reports the peak reached. Nothing depends on the thread count: the rounds, the batches and
+//! the counters are functions of the hierarchy, the scene and the budget.
+//!
+//! # Counters
+//!
+//! Every pair test counts in [`Stats::add_bounds`], and in two rows, one per side:
+//!
+//! - the ray side's [`Stats::levels`] with the thesis's numbering (`levels[i]` is level
+//!   `i + 1`, the top is `levels.len()`, level 0 the final ray-triangle tests that the
+//!   intersector records): the tests of ray nodes of that level against any object node, and
+//!   how many passed;
+//! - the object side's [`Stats::object_levels`], by the object node's depth (0 the root): the
+//!   tests against object nodes at that depth, and how many passed.
+//!
+//! Each side's rows sum to the bounds tests (there is no mesh culling with `lbvh`), and
+//! `tests = hits + misses` in every row.
+//!
+//! # Measured
+//!
+//! Sponza (262,205 triangles, 381 meshes), `crsh` preset, shadow rays, release build, one
+//! run each side by side on a shared 2-core machine (times are noisy), identical images and
+//! hits (agreement 1.000000 against `bvh`):
+//!
+//! | 1024², depth 3 | bounds/ray | triangle/ray | total/ray | traversal ms | final ms | Mrays/s |
+//! |---|---:|---:|---:|---:|---:|---:|
+//! | `crsh` | 613 | 173 | 786 | 2535 | 1662 | 0.28 |
+//! | `dual` (`lbvh`) | 53 | 173 | 226 | 706 | 538 | 0.81 |
+//! | `bvh` (obvhs CWBVH, whole scene) | 93 | 3.8 | 97 | – | 341 | 3.61 |
+//!
+//! The bounds tests drop 11×; the final tests (candidates × the 8 rays of a lowest node) are
+//! the same as `crsh`'s and now dominate. The object hierarchy's build is part of the stage's
+//! construction: about 27 ms for Sponza (stage builds 79 ms against `crsh`'s 53 ms).
+//!
+//! # Errors
+//!
+//! As [`super::crsh`]: [`CoreError::InvalidParam`] for a budget that is not a finite positive
+//! number or an unknown `objects`; [`CoreError::InvalidInput`] for an inconsistent hierarchy
+//! ([`super::crsh::prepare_nodes`]) or a scene with 2³¹ triangles or more.
+
+use std::sync::Arc;
+
+use crsh_core::glam::{DVec3, Vec3};
+use crsh_core::{
+    Candidate, CandidateBatch, CoreError, ParamInfo, Ray, RayHierarchy, RayKind, Registry, Result,
+    Sphere, StageKind, StageSpec, StageVariantInfo, Stats, Traverser,
+};
+use crsh_scene::Scene;
+use rayon::prelude::*;
+
+use super::crsh::{budget_bytes, prepare_nodes, Crsh, NodeBound};
+use crate::backend::Cpu;
+
+/// The choices of parameter `objects`.
+pub const OBJECTS: [&str; 2] = ["lbvh", "meshes"];
+/// Most tasks (top-level ray nodes) traversed in one round.
+const ROUND_TASKS: usize = 256;
+/// Fewest candidates a task may hold before it stops, unless the budget is smaller.
+const MIN_PIECE: u64 = 1024;
+/// Bytes per candidate pair.
+const PAIR_BYTES: u64 = std::mem::size_of::<Candidate>() as u64;
+/// Marks a leaf (a sorted triangle position) in an object node reference.
+const LEAF: u32 = 1 << 31;
+
+/// The catalogue entry of the `dual` traverser.
+pub fn info() -> StageVariantInfo {
+    StageVariantInfo::new(
+        StageKind::Traverse,
+        "dual",
+        "simultaneous top-down traversal of the ray hierarchy and an object hierarchy over the \
+         triangles, descending the larger side of each (ray node, object node) pair with the \
+         conservative eq. 3.16 node test, seed 000 §3.2.8 and §5.1 (deeper object hierarchy)",
+    )
+    .param(ParamInfo::choice(
+        "objects",
+        "lbvh",
+        &OBJECTS,
+        "object side: `lbvh` a binary sphere hierarchy over the triangles by Morton codes, \
+         rebuilt per frame; `meshes` the thesis's mesh spheres then triangle spheres (the \
+         `crsh` traverser with mesh culling)",
+    ))
+    .param(
+        ParamInfo::float(
+            "candidate_budget_mb",
+            64.0,
+            "memory bound of the candidate arrays in MiB (> 0): rounds of ray-node tasks \
+             stop at a share of it and hand their candidates on",
+        )
+        .range(1.0 / 1024.0, 1024.0 * 1024.0),
+    )
+}
+
+/// Registers `dual` ([`info`], [`Dual::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_traverser(info(), |ctx, spec| {
+        Ok(Box::new(Dual::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
+}
+
+/// An internal node of an [`Lbvh`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Inner {
+    /// Contains the sphere of every triangle below.
+    sphere: Sphere,
+    /// Child references: an internal node index, or [`LEAF`] | a sorted position.
+    children: [u32; 2],
+}
+
+/// A binary bounding-sphere hierarchy over a scene's triangles, built from the Morton codes
+/// of their sphere centres (see the module doc).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Lbvh {
+    /// Internal nodes (`triangles − 1`, Karras numbering: 0 is the root).
+    inner: Vec<Inner>,
+    /// Triangle id of each sorted position.
+    leaf_tris: Vec<u32>,
+    /// Sphere of each sorted position's triangle.
+    leaf_spheres: Vec<Sphere>,
+    /// Deepest node (0: a single triangle or none).
+    max_depth: usize,
+}
+
+/// Spreads the low 21 bits of `v` to every third bit.
+fn spread3(v: u64) -> u64 {
+    let mut x = v & 0x1f_ffff;
+    x = (x | x << 32) & 0x1f_0000_0000_ffff;
+    x = (x | x << 16) & 0x1f_0000_ff00_00ff;
+    x = (x | x << 8) & 0x100f_00f0_0f00_f00f;
+    x = (x | x << 4) & 0x10c3_0c30_c30c_30c3;
+    x = (x | x << 2) & 0x1249_2492_4924_9249;
+    x
+}
+
+/// A sphere around `center`/`radius` (`f64`) rounded outwards to `f32`.
+fn round_out(center: DVec3, radius: f64) -> Sphere {
+    let c = center.as_vec3();
+    let err = (c.as_dvec3() - center).length();
+    let scale = center.abs().max_element().max(1.0);
+    let r = (radius + err) * (1.0 + 1e-6) + 16.0 * f64::EPSILON * scale;
+    Sphere::new(c, r as f32 * (1.0 + f32::EPSILON))
+}
+
+/// The smaller of the minimal sphere around `a` and `b` and the circumscribed sphere of
+/// `bounds` (a box containing both), rounded outwards.
+fn enclose(a: &Sphere, b: &Sphere, bounds: (DVec3, DVec3)) -> Sphere {
+    let (ca, ra) = (a.center.as_dvec3(), a.radius as f64);
+    let (cb, rb) = (b.center.as_dvec3(), b.radius as f64);
+    let d = (cb - ca).length();
+    let merged = if d + rb <= ra {
+        (ca, ra)
+    } else if d + ra <= rb {
+        (cb, rb)
+    } else {
+        let r = (d + ra + rb) / 2.0;
+        (ca + (cb - ca) * ((r - ra) / d), r)
+    };
+    let boxed = (
+        (bounds.0 + bounds.1) / 2.0,
+        (bounds.1 - bounds.0).length() / 2.0,
+    );
+    let (c, r) = if boxed.1 < merged.1 { boxed } else { merged };
+    round_out(c, r)
+}
+
+/// The box around a sphere, `f64`.
+fn sphere_box(s: &Sphere) -> (DVec3, DVec3) {
+    let c = s.center.as_dvec3();
+    let r = DVec3::splat(s.radius as f64);
+    (c - r, c + r)
+}
+
+impl Lbvh {
+    /// Builds the hierarchy over `scene`'s triangle spheres. Errors on 2³¹ triangles or more.
+    pub fn build(scene: &Scene) -> Result<Lbvh> {
+        let spheres = &scene.tri_spheres;
+        let n = spheres.len();
+        if n >= LEAF as usize {
+            return Err(CoreError::InvalidInput(format!(
+                "{n} triangles: the object hierarchy holds fewer than 2^31"
+            )));
+        }
+        let (lo, hi) = spheres.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), s| {
+                let c = s.center.as_dvec3();
+                (lo.min(c), hi.max(c))
+            },
+        );
+        let extent = (hi - lo).max(DVec3::splat(f64::MIN_POSITIVE));
+        let cells = ((1u64 << 21) - 1) as f64;
+        let mut keys: Vec<(u64, u32)> = spheres
+            .par_iter()
+            .enumerate()
+            .map(|(i, s)| {
+                let q = ((s.center.as_dvec3() - lo) / extent * cells)
+                    .clamp(DVec3::ZERO, DVec3::splat(cells));
+                let code =
+                    spread3(q.x as u64) << 2 | spread3(q.y as u64) << 1 | spread3(q.z as u64);
+                (code, i as u32)
+            })
+            .collect();
+        keys.par_sort_unstable();
+        let codes: Vec<u64> = keys.iter().map(|k| k.0).collect();
+        let leaf_tris: Vec<u32> = keys.iter().map(|k| k.1).collect();
+        let leaf_spheres: Vec<Sphere> = leaf_tris.iter().map(|&t| spheres[t as usize]).collect();
+        let mut inner = vec![
+            Inner {
+                sphere: Sphere::new(Vec3::ZERO, 0.0),
+                children: [0, 0],
+            };
+            n.saturating_sub(1)
+        ];
+        // Top-down splits (pre-order), then bounds in reverse pre-order (children first).
+        let mut preorder: Vec<u32> = Vec::with_capacity(inner.len());
+        let mut max_depth = 0usize;
+        let mut stack: Vec<(usize, usize, u32, usize)> = Vec::new();
+        if n > 1 {
+            stack.push((0, n - 1, 0, 0));
+        }
+        while let Some((a, b, index, depth)) = stack.pop() {
+            preorder.push(index);
+            max_depth = max_depth.max(depth + 1);
+            let split = if codes[a] == codes[b] {
+                (a + b) / 2
+            } else {
+                let prefix = (codes[a] ^ codes[b]).leading_zeros();
+                let same =
+                    codes[a..=b].partition_point(|&c| (codes[a] ^ c).leading_zeros() > prefix);
+                a + same - 1
+            };
+            let child = |lo: usize, hi: usize, index: usize| -> u32 {
+                if lo == hi {
+                    LEAF | lo as u32
+                } else {
+                    index as u32
+                }
+            };
+            let left = child(a, split, split);
+            let right = child(split + 1, b, split + 1);
+            inner[index as usize].children = [left, right];
+            if left & LEAF == 0 {
+                stack.push((a, split, left, depth + 1));
+            }
+            if right & LEAF == 0 {
+                stack.push((split + 1, b, right, depth + 1));
+            }
+        }
+        let mut boxes = vec![(DVec3::ZERO, DVec3::ZERO); inner.len()];
+        for &i in preorder.iter().rev() {
+            let [l, r] = inner[i as usize].children;
+            let part = |c: u32| -> (Sphere, (DVec3, DVec3)) {
+                if c & LEAF != 0 {
+                    let s = leaf_spheres[(c & !LEAF) as usize];
+                    (s, sphere_box(&s))
+                } else {
+                    (inner[c as usize].sphere, boxes[c as usize])
+                }
+            };
+            let (sl, bl) = part(l);
+            let (sr, br) = part(r);
+            let bounds = (bl.0.min(br.0), bl.1.max(br.1));
+            inner[i as usize].sphere = enclose(&sl, &sr, bounds);
+            boxes[i as usize] = bounds;
+        }
+        Ok(Lbvh {
+            inner,
+            leaf_tris,
+            leaf_spheres,
+            max_depth,
+        })
+    }
+
+    /// Triangles (leaves).
+    pub fn triangles(&self) -> usize {
+        self.leaf_tris.len()
+    }
+
+    /// Depth of the deepest leaf (0 for one triangle or none).
+    pub fn max_depth(&self) -> usize {
+        self.max_depth
+    }
+
+    /// The root reference (`None` without triangles).
+    fn root(&self) -> Option<u32> {
+        match self.leaf_tris.len() {
+            0 => None,
+            1 => Some(LEAF),
+            _ => Some(0),
+        }
+    }
+
+    /// The sphere of a node reference.
+    #[inline]
+    fn sphere(&self, node: u32) -> &Sphere {
+        if node & LEAF != 0 {
+            &self.leaf_spheres[(node & !LEAF) as usize]
+        } else {
+            &self.inner[node as usize].sphere
+        }
+    }
+
+    /// Every triangle id below `node`, for tests.
+    #[cfg(test)]
+    fn triangles_below(&self, node: u32, out: &mut Vec<u32>) {
+        if node & LEAF != 0 {
+            out.push(self.leaf_tris[(node & !LEAF) as usize]);
+        } else {
+            for c in self.inner[node as usize].children {
+                self.triangles_below(c, out);
+            }
+        }
+    }
+}
+
+/// What one `dual` traversal did, for tests and tuning.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DualReport {
+    /// Rounds run (each hands its candidates, if any, to the sink).
+    pub rounds: usize,
+    /// Batches handed to the sink.
+    pub batches: usize,
+    /// Times a task stopped with a full candidate array and resumed in a later round.
+    pub suspensions: usize,
+    /// Most tasks in one round (`G`).
+    pub round_tasks: usize,
+    /// Most candidates a task holds before it stops (`C`).
+    pub task_candidates: usize,
+    /// The budget in bytes.
+    pub budget_bytes: u64,
+    /// Largest total size, in bytes, of the candidate arrays alive at once (the tasks' arrays
+    /// and the batch they are concatenated into).
+    pub peak_candidate_bytes: u64,
+    /// Candidate pairs handed to the sink, over all batches.
+    pub candidates: u64,
+}
+
+/// The `dual` traverser (see the module doc).
+#[derive(Clone, Debug)]
+pub struct Dual {
+    objects: Objects,
+}
+
+/// The object side.
+#[derive(Clone, Debug)]
+enum Objects {
+    /// A per-frame [`Lbvh`].
+    Lbvh { tree: Box<Lbvh>, budget_bytes: u64 },
+    /// The thesis's mesh spheres ([`Crsh`] with mesh culling).
+    Meshes(Crsh),
+}
+
+/// One (ray node, object node) pair waiting for its test.
+#[derive(Clone, Copy, Debug)]
+struct Pair {
+    /// Node index within its ray level.
+    node: u32,
+    /// Object node reference.
+    obj: u32,
+    /// Ray level index (0: `levels[0]`).
+    level: u16,
+    /// Object node depth (0: the root).
+    depth: u16,
+}
+
+/// Tests and passes per ray level and per object depth.
+#[derive(Clone, Debug, Default)]
+struct Counters {
+    ray: Vec<[u64; 2]>,
+    obj: Vec<[u64; 2]>,
+}
+
+impl Counters {
+    fn new(levels: usize, depths: usize) -> Counters {
+        Counters {
+            ray: vec![[0; 2]; levels],
+            obj: vec![[0; 2]; depths],
+        }
+    }
+
+    /// Adds the tests to `stats`: bounds, ray-level rows and object-depth rows.
+    fn record(&self, kind: RayKind, stats: &mut Stats) {
+        stats.add_bounds(self.ray.iter().map(|c| c[0]).sum());
+        for (li, c) in self.ray.iter().enumerate() {
+            stats.add_level(kind, li as u32 + 1, c[0], c[1]);
+        }
+        for (depth, c) in self.obj.iter().enumerate() {
+            stats.add_object_level(kind, depth as u32, c[0], c[1]);
+        }
+    }
+
+    fn add(&mut self, o: &Counters) {
+        for (a, b) in self.ray.iter_mut().zip(&o.ray) {
+            a[0] += b[0];
+            a[1] += b[1];
+        }
+        for (a, b) in self.obj.iter_mut().zip(&o.obj) {
+            a[0] += b[0];
+            a[1] += b[1];
+        }
+    }
+}
+
+/// A top-level ray node's depth-first traversal, resumable.
+struct Task {
+    stack: Vec<Pair>,
+}
+
+/// What the tasks share.
+struct Ctx<'a> {
+    nodes: &'a [Vec<NodeBound>],
+    sub: usize,
+    tree: &'a Lbvh,
+}
+
+impl Task {
+    /// Runs until the stack is empty or `cap` candidates are held; returns them sorted, and
+    /// the counters.
+    fn run(&mut self, ctx: &Ctx<'_>, cap: usize) -> (Vec<Candidate>, Counters) {
+        let tree = ctx.tree;
+        let mut out: Vec<Candidate> = Vec::new();
+        let mut counts = Counters::new(ctx.nodes.len(), tree.max_depth + 1);
+        while let Some(p) = self.stack.pop() {
+            if out.len() >= cap {
+                self.stack.push(p);
+                break;
+            }
+            let nb = &ctx.nodes[p.level as usize][p.node as usize];
+            let sphere = tree.sphere(p.obj);
+            counts.ray[p.level as usize][0] += 1;
+            counts.obj[p.depth as usize][0] += 1;
+            if !nb.may_hit(sphere) {
+                continue;
+            }
+            counts.ray[p.level as usize][1] += 1;
+            counts.obj[p.depth as usize][1] += 1;
+            let leaf = p.obj & LEAF != 0;
+            let lowest = p.level == 0;
+            let split_rays = match (lowest, leaf) {
+                (true, true) => {
+                    if out.len() == out.capacity() {
+                        let more = out.capacity().max(256).min(cap - out.len());
+                        out.reserve_exact(more);
+                    }
+                    out.push(Candidate {
+                        node: p.node,
+                        tri: tree.leaf_tris[(p.obj & !LEAF) as usize],
+                    });
+                    continue;
+                }
+                (true, false) => false,
+                (false, true) => true,
+                (false, false) => nb.spreads_wider_than(sphere),
+            };
+            if split_rays {
+                let below = &ctx.nodes[p.level as usize - 1];
+                let first = (p.node as usize * ctx.sub).min(below.len());
+                let last = ((p.node as usize + 1) * ctx.sub).min(below.len());
+                // Reversed, so that the lowest child is popped first.
+                for c in (first..last).rev() {
+                    self.stack.push(Pair {
+                        node: c as u32,
+                        level: p.level - 1,
+                        ..p
+                    });
+                }
+            } else {
+                let children = tree.inner[p.obj as usize].children;
+                for &c in children.iter().rev() {
+                    self.stack.push(Pair {
+                        obj: c,
+                        depth: p.depth + 1,
+                        ..p
+                    });
+                }
+            }
+        }
+        // (node, triangle) order, as one 64-bit key (the same order as `Candidate`'s `Ord`).
+        out.sort_unstable_by_key(|c| (c.node as u64) << 32 | c.tri as u64);
+        (out, counts)
+    }
+}
+
+impl Dual {
+    /// The traverser over `scene` with `spec`'s `objects` and `candidate_budget_mb`; with
+    /// `objects = lbvh` it builds the object hierarchy now.
+    pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<Dual> {
+        let objects = spec.str("objects")?;
+        let mb = spec.f64("candidate_budget_mb")?;
+        Dual::with_options(scene, objects, mb)
+    }
+
+    /// The traverser with explicit options: `objects` one of [`OBJECTS`], `budget_mb` in MiB
+    /// (finite and > 0).
+    pub fn with_options(scene: &Arc<Scene>, objects: &str, budget_mb: f64) -> Result<Dual> {
+        let objects = match objects {
+            "lbvh" => Objects::Lbvh {
+                budget_bytes: budget_bytes(budget_mb)?,
+                tree: Box::new(Lbvh::build(scene)?),
+            },
+            "meshes" => Objects::Meshes(Crsh::with_options(scene, true, budget_mb)?),
+            other => {
+                return Err(CoreError::InvalidParam {
+                    key: "traverse.objects".into(),
+                    reason: format!("`{other}` is not one of {}", OBJECTS.join(", ")),
+                })
+            }
+        };
+        Ok(Dual { objects })
+    }
+
+    /// The object side (`lbvh` or `meshes`).
+    pub fn objects(&self) -> &'static str {
+        match self.objects {
+            Objects::Lbvh { .. } => "lbvh",
+            Objects::Meshes(_) => "meshes",
+        }
+    }
+
+    /// The candidate-array budget in bytes.
+    pub fn budget_bytes(&self) -> u64 {
+        match &self.objects {
+            Objects::Lbvh { budget_bytes, .. } => *budget_bytes,
+            Objects::Meshes(c) => c.budget_bytes(),
+        }
+    }
+
+    /// The object hierarchy (`objects = lbvh`).
+    pub fn lbvh(&self) -> Option<&Lbvh> {
+        match &self.objects {
+            Objects::Lbvh { tree, .. } => Some(tree),
+            Objects::Meshes(_) => None,
+        }
+    }
+
+    /// The round shape for the budget: (tasks per round `G`, candidates per task `C`).
+    pub fn round_shape(&self) -> (usize, usize) {
+        let pairs = (self.budget_bytes() / (2 * PAIR_BYTES)).max(1);
+        let g = (pairs / MIN_PIECE).clamp(1, ROUND_TASKS as u64);
+        (g as usize, (pairs / g).max(1) as usize)
+    }
+
+    /// [`Traverser::traverse`], returning what it did. With `objects = meshes` the report
+    /// carries [`super::crsh::TraversalReport`]'s batches, peak and candidates.
+    pub fn traverse_with_report(
+        &self,
+        rays: &[Ray],
+        kind: RayKind,
+        hierarchy: &RayHierarchy<Cpu>,
+        sink: &mut dyn FnMut(CandidateBatch<Cpu>, &mut Stats) -> Result<()>,
+        stats: &mut Stats,
+    ) -> Result<DualReport> {
+        let (tree, budget) = match &self.objects {
+            Objects::Meshes(crsh) => {
+                let r = crsh.traverse_with_report(rays, kind, hierarchy, sink, stats)?;
+                return Ok(DualReport {
+                    rounds: r.batches,
+                    batches: r.batches,
+                    budget_bytes: r.budget_bytes,
+                    peak_candidate_bytes: r.peak_candidate_bytes,
+                    candidates: r.candidates,
+                    ..DualReport::default()
+                });
+            }
+            Objects::Lbvh { tree, budget_bytes } => (tree, *budget_bytes),
+        };
+        let (g, cap) = self.round_shape();
+        let mut report = DualReport {
+            budget_bytes: budget,
+            round_tasks: g,
+            task_candidates: cap,
+            ..DualReport::default()
+        };
+        if rays.is_empty() {
+            return Ok(report);
+        }
+        let nodes = prepare_nodes(rays.len(), hierarchy)?;
+        let Some(root) = tree.root() else {
+            return Ok(report);
+        };
+        let top_level = nodes.len() - 1;
+        let n_top = nodes[top_level].len();
+        let ctx = Ctx {
+            nodes: &nodes,
+            sub: hierarchy.subdivision as usize,
+            tree,
+        };
+        let mut active: Vec<Task> = Vec::new();
+        let mut next_top = 0usize;
+        loop {
+            while active.len() < g && next_top < n_top {
+                active.push(Task {
+                    stack: vec![Pair {
+                        node: next_top as u32,
+                        obj: root,
+                        level: top_level as u16,
+                        depth: 0,
+                    }],
+                });
+                next_top += 1;
+            }
+            if active.is_empty() {
+                break;
+            }
+            let results: Vec<(Vec<Candidate>, Counters)> =
+                active.par_iter_mut().map(|t| t.run(&ctx, cap)).collect();
+            report.rounds += 1;
+            let n_pairs: usize = results.iter().map(|r| r.0.len()).sum();
+            let held: u64 = results.iter().map(|r| r.0.capacity() as u64).sum::<u64>();
+            let mut pairs = Vec::with_capacity(n_pairs);
+            let mut counts = Counters::new(nodes.len(), tree.max_depth + 1);
+            for (piece, c) in &results {
+                pairs.extend_from_slice(piece);
+                counts.add(c);
+            }
+            // Counted before the sink runs, as `crsh` does per batch.
+            counts.record(kind, stats);
+            report.peak_candidate_bytes = report
+                .peak_candidate_bytes
+                .max((held + pairs.capacity() as u64) * PAIR_BYTES);
+            drop(results);
+            active.retain(|t| !t.stack.is_empty());
+            report.suspensions += active.len();
+            if !pairs.is_empty() {
+                report.batches += 1;
+                report.candidates += pairs.len() as u64;
+                sink(CandidateBatch { pairs }, stats)?;
+            }
+        }
+        Ok(report)
+    }
+}
+
+impl Traverser<Cpu> for Dual {
+    fn name(&self) -> &str {
+        "dual"
+    }
+
+    fn traverse(
+        &self,
+        _backend: &Cpu,
+        rays: &Vec<Ray>,
+        kind: RayKind,
+        hierarchy: &RayHierarchy<Cpu>,
+        sink: &mut dyn FnMut(CandidateBatch<Cpu>, &mut Stats) -> Result<()>,
+        stats: &mut Stats,
+    ) -> Result<()> {
+        let report = self.traverse_with_report(rays, kind, hierarchy, sink, stats)?;
+        stats.peak_candidate_bytes = stats.peak_candidate_bytes.max(report.peak_candidate_bytes);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::intersect::brute::tests::{random_rays, soup};
+    use crate::intersect::brute::BruteForce;
+    use crate::traverse::crsh::tests::{
+        assert_same, build, clustered, reference, shuffled, test_rays,
+    };
+    use crsh_core::{
+        render_frame, Frame, FrameOptions, FrameSize, Hit, HitMode, Intersector, ParamValue,
+        PipelineConfig, Query, StageContext,
+    };
+
+    /// Traverses and intersects with brute-force candidate tests; returns the hits, the
+    /// batches' pairs, the stats and the report.
+    fn trace(
+        trav: &Dual,
+        brute: &BruteForce,
+        rays: &Vec<Ray>,
+        h: &RayHierarchy<Cpu>,
+        mode: HitMode,
+    ) -> (Vec<Hit>, Vec<Vec<Candidate>>, Stats, DualReport) {
+        let kind = if mode == HitMode::Any {
+            RayKind::Shadow
+        } else {
+            RayKind::Reflection
+        };
+        let mut hits = vec![Hit::MISS; rays.len()];
+        let mut batches = Vec::new();
+        let mut stats = Stats::default();
+        let report = trav
+            .traverse_with_report(
+                rays,
+                kind,
+                h,
+                &mut |batch, stats| {
+                    let q = Query::Candidates {
+                        hierarchy: h,
+                        batch: &batch,
+                    };
+                    brute.intersect(&Cpu, rays, q, mode, &mut hits, stats)?;
+                    batches.push(batch.pairs);
+                    Ok(())
+                },
+                &mut stats,
+            )
+            .unwrap();
+        (hits, batches, stats, report)
+    }
+
+    /// The candidates of `crsh` (with or without mesh culling) for the same input, sorted.
+    fn crsh_pairs(scene: &Arc<Scene>, rays: &[Ray], h: &RayHierarchy<Cpu>) -> Vec<Candidate> {
+        let crsh = Crsh::with_options(scene, false, 64.0).unwrap();
+        let mut all = Vec::new();
+        crsh.traverse_with_report(
+            rays,
+            RayKind::Reflection,
+            h,
+            &mut |b, _| {
+                all.extend(b.pairs);
+                Ok(())
+            },
+            &mut Stats::default(),
+        )
+        .unwrap();
+        all.sort_unstable();
+        all
+    }
+
+    #[test]
+    fn lbvh_spheres_contain_the_spheres_of_their_triangles() {
+        let scenes = [
+            Arc::new(soup(1, 200)),
+            Arc::new(clustered(2, 6, 40)),
+            Arc::new(crsh_scene::builtin::build("office-boxes").unwrap()),
+        ];
+        for scene in &scenes {
+            let tree = crate::with_threads(1, || Lbvh::build(scene))
+                .unwrap()
+                .unwrap();
+            let again = crate::with_threads(3, || Lbvh::build(scene))
+                .unwrap()
+                .unwrap();
+            assert_eq!(
+                tree, again,
+                "{}: the build depends on the threads",
+                scene.name
+            );
+            let n = scene.triangle_count();
+            assert_eq!(tree.triangles(), n);
+            // The leaves are every triangle once.
+            let mut all = Vec::new();
+            tree.triangles_below(tree.root().unwrap(), &mut all);
+            all.sort_unstable();
+            assert_eq!(all, (0..n as u32).collect::<Vec<_>>());
+            assert!(tree.max_depth() >= (n as f64).log2().floor() as usize);
+            assert!(tree.max_depth() < 64 + 32);
+            // Every internal node's sphere contains its triangles' spheres (in f64, exactly).
+            for (i, node) in tree.inner.iter().enumerate() {
+                let mut below = Vec::new();
+                tree.triangles_below(i as u32, &mut below);
+                assert!(below.len() >= 2);
+                let c = node.sphere.center.as_dvec3();
+                for &t in &below {
+                    let s = &scene.tri_spheres[t as usize];
+                    let d = s.center.as_dvec3().distance(c) + s.radius as f64;
+                    assert!(d <= node.sphere.radius as f64, "node {i}, triangle {t}");
+                }
+            }
+        }
+        // Equal codes (all centres at one point) split in the middle: a balanced tree.
+        let mut same = soup(3, 64);
+        for s in &mut same.tri_spheres {
+            s.center = Vec3::splat(0.5);
+        }
+        let tree = Lbvh::build(&same).unwrap();
+        let n = same.triangle_count();
+        assert!(n > 64);
+        assert_eq!(tree.max_depth(), (n as f64).log2().ceil() as usize);
+        // One triangle: the root is the leaf.
+        let mut one = soup(4, 1);
+        one.tri_spheres.truncate(1);
+        let tree = Lbvh::build(&one).unwrap();
+        assert_eq!((tree.root(), tree.max_depth()), (Some(LEAF), 0));
+    }
+
+    #[test]
+    fn dual_traversal_gives_the_brute_force_hits() {
+        let scenes = [
+            (Arc::new(soup(3, 150)), "soup"),
+            (Arc::new(clustered(4, 6, 30)), "clusters"),
+        ];
+        for (si, (scene, name)) in scenes.iter().enumerate() {
+            let brute = BruteForce::from_scene(scene);
+            let rays = test_rays(scene, 10 + si as u64, 230);
+            let refs = [HitMode::Closest, HitMode::Any].map(|m| reference(&brute, &rays, m));
+            for (sub, levels) in [(2u32, 3usize), (4, 1), (4, 2), (8, 2), (8, 3)] {
+                for (oi, order) in [(0..rays.len() as u32).collect(), shuffled(rays.len(), 5)]
+                    .into_iter()
+                    .enumerate()
+                {
+                    let h = build(&rays, order, sub, levels);
+                    let crsh = crsh_pairs(scene, &rays, &h);
+                    for objects in OBJECTS {
+                        let trav = Dual::with_options(scene, objects, 64.0).unwrap();
+                        for (mode, want) in [HitMode::Closest, HitMode::Any].iter().zip(&refs) {
+                            let what = format!(
+                                "{name} sub {sub} levels {levels} order {oi} {objects} {mode:?}"
+                            );
+                            let run = || trace(&trav, &brute, &rays, &h, *mode);
+                            let (hits, batches, stats, report) =
+                                crate::with_threads(1, run).unwrap();
+                            assert_same(&hits, want, *mode, &what);
+                            let got3 = crate::with_threads(3, run).unwrap();
+                            assert_eq!(got3.0, hits, "{what}");
+                            assert_eq!(got3.1, batches, "{what}");
+                            assert_eq!(got3.2, stats, "{what}");
+                            assert_eq!(got3.3, report, "{what}");
+                            if objects == "lbvh" {
+                                // Strictly increasing batches, in increasing node order.
+                                let all = batches.concat();
+                                assert!(all.windows(2).all(|w| w[0] < w[1]), "{what}");
+                                // Every pair crsh keeps (the exact set needs no more), and
+                                // only pairs whose node reaches the triangle's sphere.
+                                let mut at = 0;
+                                for p in &crsh {
+                                    at += all[at..].partition_point(|q| q < p);
+                                    assert_eq!(all.get(at), Some(p), "{what}");
+                                }
+                                for p in &all {
+                                    let nb = NodeBound::new(&h.levels[0][p.node as usize]);
+                                    let s = &scene.tri_spheres[p.tri as usize];
+                                    assert!(nb.unwrap().may_hit(s), "{what}: {p:?}");
+                                }
+                                assert_eq!(report.candidates as usize, all.len());
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn counters_account_for_every_test() {
+        let scene = Arc::new(clustered(31, 5, 20));
+        let brute = BruteForce::from_scene(&scene);
+        let rays = test_rays(&scene, 32, 203);
+        let h = build(&rays, shuffled(rays.len(), 33), 4, 3);
+        let trav = Dual::with_options(&scene, "lbvh", 64.0).unwrap();
+        let (_, batches, stats, report) = trace(&trav, &brute, &rays, &h, HitMode::Closest);
+        let depth = trav.lbvh().unwrap().max_depth();
+        let ray_rows: Vec<&crsh_core::LevelStats> =
+            stats.levels.iter().filter(|l| l.level > 0).collect();
+        assert_eq!(ray_rows.len(), 3);
+        assert_eq!(stats.object_levels.len(), depth + 1);
+        for l in ray_rows.iter().copied().chain(&stats.object_levels) {
+            assert_eq!(l.tests, l.hits + l.misses, "{l:?}");
+            assert_eq!(l.ray_kind, "reflection");
+        }
+        let ray_sum: u64 = ray_rows.iter().map(|l| l.tests).sum();
+        let obj_sum: u64 = stats.object_levels.iter().map(|l| l.tests).sum();
+        assert_eq!(ray_sum, stats.tests.bounds);
+        assert_eq!(obj_sum, stats.tests.bounds);
+        assert!(stats.mesh_culling.is_empty());
+        // Every top node meets the root first (and children of a top node split on the ray
+        // side meet it too).
+        let root = &stats.object_levels[0];
+        assert!(root.tests >= h.levels[2].len() as u64);
+        // The final tests are level 0 (recorded by the intersector).
+        let r0 = stats.levels.iter().find(|l| l.level == 0).unwrap();
+        assert_eq!(r0.tests, stats.tests.ray_triangle);
+        let n: usize = batches.iter().map(Vec::len).sum();
+        assert_eq!(n as u64, report.candidates);
+        assert!(n > 0 && n < h.levels[0].len() * scene.triangle_count());
+    }
+
+    #[test]
+    fn small_budgets_split_rounds_and_stay_within_budget() {
+        let scene = Arc::new(clustered(8, 4, 25));
+        let brute = BruteForce::from_scene(&scene);
+        let rays = test_rays(&scene, 9, 300);
+        let h = build(&rays, shuffled(rays.len(), 3), 2, 2);
+        let big = Dual::with_options(&scene, "lbvh", 64.0).unwrap();
+        let mib = (1u64 << 20) as f64;
+        for mode in [HitMode::Closest, HitMode::Any] {
+            let want = reference(&brute, &rays, mode);
+            let (h_big, b_big, s_big, r_big) = trace(&big, &brute, &rays, &h, mode);
+            assert_eq!((r_big.batches, r_big.suspensions), (1, 0), "{r_big:?}");
+            assert_same(&h_big, &want, mode, "big");
+            let all_big: Vec<Candidate> = b_big.concat();
+            for bytes in [64.0, 1000.0, 2400.0] {
+                let trav = Dual::with_options(&scene, "lbvh", bytes / mib).unwrap();
+                let run = || trace(&trav, &brute, &rays, &h, mode);
+                let (hits, batches, stats, report) = crate::with_threads(3, run).unwrap();
+                assert!(report.batches > 1 && report.suspensions > 0, "{report:?}");
+                assert!(
+                    report.peak_candidate_bytes <= trav.budget_bytes(),
+                    "{report:?}"
+                );
+                assert!(batches
+                    .iter()
+                    .all(|b| b.len() <= report.round_tasks * report.task_candidates));
+                assert_same(&hits, &want, mode, "small budget");
+                // The same candidates and tests overall, only split into more batches.
+                let mut all: Vec<Candidate> = batches.concat();
+                all.sort_unstable();
+                assert_eq!(all, all_big);
+                assert_eq!(stats.tests.bounds, s_big.tests.bounds);
+                assert_eq!(stats.object_levels, s_big.object_levels);
+                assert_eq!(crate::with_threads(1, run).unwrap().1, batches);
+            }
+        }
+    }
+
+    #[test]
+    fn objects_meshes_is_the_crsh_traversal_with_mesh_culling() {
+        let scene = Arc::new(clustered(41, 5, 30));
+        let brute = BruteForce::from_scene(&scene);
+        let rays = test_rays(&scene, 42, 200);
+        let h = build(&rays, shuffled(rays.len(), 43), 4, 2);
+        let dual = Dual::with_options(&scene, "meshes", 0.01).unwrap();
+        assert!(dual.lbvh().is_none());
+        let crsh = Crsh::with_options(&scene, true, 0.01).unwrap();
+        let (hits, batches, stats, report) = trace(&dual, &brute, &rays, &h, HitMode::Closest);
+        let mut want_hits = vec![Hit::MISS; rays.len()];
+        let mut want_batches = Vec::new();
+        let mut want_stats = Stats::default();
+        let r = crsh
+            .traverse_with_report(
+                &rays,
+                RayKind::Reflection,
+                &h,
+                &mut |b, s| {
+                    let q = Query::Candidates {
+                        hierarchy: &h,
+                        batch: &b,
+                    };
+                    brute.intersect(&Cpu, &rays, q, HitMode::Closest, &mut want_hits, s)?;
+                    want_batches.push(b.pairs);
+                    Ok(())
+                },
+                &mut want_stats,
+            )
+            .unwrap();
+        assert_eq!(hits, want_hits);
+        assert_eq!(batches, want_batches);
+        assert_eq!(stats, want_stats);
+        assert!(stats.object_levels.is_empty() && !stats.mesh_culling.is_empty());
+        assert_eq!(
+            (report.batches, report.candidates),
+            (r.batches, r.candidates)
+        );
+    }
+
+    #[test]
+    fn constructor_reads_the_resolved_spec() {
+        let scene = Arc::new(soup(51, 10));
+        let info = info();
+        assert_eq!((info.stage, info.name), (StageKind::Traverse, "dual"));
+        let registry = Registry::<Cpu>::builtin();
+        assert!(registry.variant(StageKind::Traverse, "dual").is_some());
+        let mut spec = StageSpec::new("dual");
+        for p in &info.params {
+            spec.params.insert(p.name.to_string(), p.default.clone());
+        }
+        let t = Dual::new(&scene, &spec).unwrap();
+        assert_eq!((t.objects(), t.budget_bytes()), ("lbvh", 64 << 20));
+        assert_eq!(t.name(), "dual");
+        assert_eq!(t.round_shape(), (256, (64 << 20) / 16 / 256));
+        spec.params
+            .insert("objects".into(), ParamValue::Str("meshes".into()));
+        spec.params
+            .insert("candidate_budget_mb".into(), ParamValue::Int(2));
+        let t = Dual::new(&scene, &spec).unwrap();
+        assert_eq!((t.objects(), t.budget_bytes()), ("meshes", 2 << 20));
+        for mb in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            for objects in OBJECTS {
+                assert!(matches!(
+                    Dual::with_options(&scene, objects, mb),
+                    Err(CoreError::InvalidParam { .. })
+                ));
+            }
+        }
+        assert!(matches!(
+            Dual::with_options(&scene, "bvh", 1.0),
+            Err(CoreError::InvalidParam { .. })
+        ));
+        spec.params.remove("objects");
+        assert!(Dual::new(&scene, &spec).is_err());
+    }
+
+    #[test]
+    fn bad_hierarchies_are_errors_and_empty_rays_call_no_sink() {
+        let scene = Arc::new(soup(61, 20));
+        let rays = random_rays(&scene, 62, 20);
+        let trav = Dual::with_options(&scene, "lbvh", 1.0).unwrap();
+        let mut nan = build(&rays, (0..20).collect(), 4, 2);
+        nan.levels[1][0].sphere.radius = f32::NAN;
+        let short = RayHierarchy {
+            order: (0..19).collect(),
+            ..build(&rays, (0..20).collect(), 4, 1)
+        };
+        for h in [nan, short] {
+            let r = trav.traverse(
+                &Cpu,
+                &rays,
+                RayKind::Shadow,
+                &h,
+                &mut |_, _| Ok(()),
+                &mut Stats::default(),
+            );
+            assert!(matches!(r, Err(CoreError::InvalidInput(_))), "{r:?}");
+        }
+        let empty = RayHierarchy::<Cpu> {
+            leaf_offsets: None,
+            order: vec![],
+            levels: vec![vec![]],
+            subdivision: 4,
+            reach: vec![],
+        };
+        let mut calls = 0;
+        trav.traverse(
+            &Cpu,
+            &Vec::new(),
+            RayKind::Shadow,
+            &empty,
+            &mut |_, _| {
+                calls += 1;
+                Ok(())
+            },
+            &mut Stats::default(),
+        )
+        .unwrap();
+        assert_eq!(calls, 0);
+    }
+
+    /// One frame of built-in `scene` with the `crsh` preset and `sets`, on `threads` threads,
+    /// checked against brute force on every batch.
+    fn frame(scene: &Arc<Scene>, sets: &[String], threads: usize) -> Frame<Cpu> {
+        let registry = Registry::<Cpu>::builtin();
+        let mut cfg = registry.preset("crsh").unwrap();
+        for s in sets {
+            cfg.set(s).unwrap();
+        }
+        let ctx = StageContext::new(&Cpu, scene, FrameSize::new(40, 30).unwrap());
+        let opts = FrameOptions::default().with_max_depth(2);
+        let reference = BruteForce::from_scene(scene);
+        crate::with_threads(threads, || {
+            let pipeline = registry.build(&ctx, &cfg).unwrap();
+            render_frame(&Cpu, &pipeline, &opts, Some(&reference), &mut |_| {}).unwrap()
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn frames_with_dual_traversal_equal_brute_force_frames() {
+        let registry = Registry::<Cpu>::builtin();
+        for name in ["office-boxes", "cornell-mirrors"] {
+            let scene = Arc::new(crsh_scene::builtin::build(name).unwrap());
+            let ctx = StageContext::new(&Cpu, &scene, FrameSize::new(40, 30).unwrap());
+            let plain = registry
+                .build(&ctx, &PipelineConfig::whitted("brute", "brute"))
+                .unwrap();
+            let opts = FrameOptions::default().with_max_depth(2);
+            let want = render_frame(&Cpu, &plain, &opts, None, &mut |_| {}).unwrap();
+            for (sub, depth) in [(8, 2), (4, 3), (16, 1)] {
+                for objects in OBJECTS {
+                    let sets = vec![
+                        "traverse.kind=dual".to_string(),
+                        format!("traverse.objects={objects}"),
+                        format!("hierarchy.subdivision={sub}"),
+                        format!("hierarchy.depth={depth}"),
+                    ];
+                    let what = format!("{name} {sets:?}");
+                    let got = frame(&scene, &sets, 1);
+                    assert_eq!(got.stats.stages["traverse"], "dual", "{what}");
+                    assert_eq!(got.image, want.image, "{what}");
+                    let acc = got.stats.accuracy.clone().unwrap();
+                    assert!(acc.rays > 0);
+                    assert_eq!(acc.agreeing, acc.rays, "{what}: {acc:?}");
+                    let s = &got.stats;
+                    assert!(s.tests.ray_triangle < s.tests.brute_force, "{what}");
+                    assert_eq!(s.object_levels.is_empty(), objects == "meshes", "{what}");
+                    let three = frame(&scene, &sets, 3);
+                    assert_eq!(three.image, got.image, "{what}");
+                    assert_eq!(three.stats.tests, got.stats.tests, "{what}");
+                    assert_eq!(three.stats.levels, got.stats.levels, "{what}");
+                    assert_eq!(three.stats.object_levels, got.stats.object_levels, "{what}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn fewer_tests_than_crsh_on_a_scene_with_a_big_mesh() {
+        // glass-sphere: a 5000-triangle sphere mesh, which crsh tests triangle by triangle.
+        let scene = Arc::new(crsh_scene::builtin::build("glass-sphere").unwrap());
+        let crsh = frame(&scene, &[], 2);
+        let dual = frame(&scene, &["traverse.kind=dual".to_string()], 2);
+        assert_eq!(dual.image, crsh.image);
+        for f in [&crsh, &dual] {
+            let acc = f.stats.accuracy.clone().unwrap();
+            assert_eq!(acc.agreeing, acc.rays, "{acc:?}");
+        }
+        let (c, d) = (&crsh.stats.tests, &dual.stats.tests);
+        assert_eq!(crsh.stats.traced_rays, dual.stats.traced_rays);
+        // The same final tests (the candidates crsh keeps are the exact set's cover either
+        // way), a third of the bounds tests or fewer.
+        assert!(
+            d.ray_triangle <= c.ray_triangle,
+            "dual {d:?} against crsh {c:?}"
+        );
+        assert!(
+            d.bounds * 3 < c.bounds && d.total < c.total,
+            "dual {d:?} against crsh {c:?}"
+        );
+    }
+}
