@@ -506,34 +506,8 @@ fn add_stats(sum: &mut Stats, s: &Stats) {
         e.leaves += k.leaves;
         e.offset_ended += k.offset_ended;
     }
-    for l in &s.levels {
-        match sum
-            .levels
-            .iter_mut()
-            .find(|x| x.ray_kind == l.ray_kind && x.level == l.level)
-        {
-            Some(x) => {
-                x.tests += l.tests;
-                x.hits += l.hits;
-                x.misses += l.misses;
-            }
-            None => sum.levels.push(l.clone()),
-        }
-    }
-    for l in &s.object_levels {
-        match sum
-            .object_levels
-            .iter_mut()
-            .find(|x| x.ray_kind == l.ray_kind && x.level == l.level)
-        {
-            Some(x) => {
-                x.tests += l.tests;
-                x.hits += l.hits;
-                x.misses += l.misses;
-            }
-            None => sum.object_levels.push(l.clone()),
-        }
-    }
+    add_level_rows(&mut sum.levels, &s.levels);
+    add_level_rows(&mut sum.object_levels, &s.object_levels);
     for (kind, c) in &s.mesh_culling {
         let e = sum.mesh_culling.entry(kind.clone()).or_default();
         e.tests += c.tests;
@@ -759,6 +733,23 @@ fn progress_bar(len: u64, quiet: bool) -> ProgressBar {
         bar.enable_steady_tick(Duration::from_millis(500));
     }
     bar
+}
+
+/// Adds `rows` to `sum`, row by row matched on (ray kind, level).
+fn add_level_rows(sum: &mut Vec<crsh_core::LevelStats>, rows: &[crsh_core::LevelStats]) {
+    for l in rows {
+        match sum
+            .iter_mut()
+            .find(|x| x.ray_kind == l.ray_kind && x.level == l.level)
+        {
+            Some(x) => {
+                x.tests += l.tests;
+                x.hits += l.hits;
+                x.misses += l.misses;
+            }
+            None => sum.push(l.clone()),
+        }
+    }
 }
 
 #[cfg(test)]

@@ -921,15 +921,21 @@ pub(crate) mod tests {
         order
     }
 
-    /// Traverses and intersects with brute-force candidate tests; returns the hits, the
-    /// batches' pairs, the stats and the report.
-    fn trace(
-        trav: &Crsh,
+    /// Runs `traverse` (a traversal of `rays` over `h` for the ray kind it is given, handing
+    /// its batches to the sink it is given) with brute-force candidate tests in `mode`;
+    /// returns the hits, the batches' pairs, the stats and what `traverse` returned. Shared
+    /// by the tests of every traverser.
+    pub(crate) fn trace_with<R>(
         brute: &BruteForce,
         rays: &Vec<Ray>,
         h: &RayHierarchy<Cpu>,
         mode: HitMode,
-    ) -> (Vec<Hit>, Vec<Vec<Candidate>>, Stats, TraversalReport) {
+        traverse: impl FnOnce(
+            RayKind,
+            &mut dyn FnMut(CandidateBatch<Cpu>, &mut Stats) -> Result<()>,
+            &mut Stats,
+        ) -> Result<R>,
+    ) -> (Vec<Hit>, Vec<Vec<Candidate>>, Stats, R) {
         let kind = if mode == HitMode::Any {
             RayKind::Shadow
         } else {
@@ -938,24 +944,34 @@ pub(crate) mod tests {
         let mut hits = vec![Hit::MISS; rays.len()];
         let mut batches = Vec::new();
         let mut stats = Stats::default();
-        let report = trav
-            .traverse_with_report(
-                rays,
-                kind,
-                h,
-                &mut |batch, stats| {
-                    let q = Query::Candidates {
-                        hierarchy: h,
-                        batch: &batch,
-                    };
-                    brute.intersect(&Cpu, rays, q, mode, &mut hits, stats)?;
-                    batches.push(batch.pairs);
-                    Ok(())
-                },
-                &mut stats,
-            )
-            .unwrap();
+        let report = traverse(
+            kind,
+            &mut |batch, stats| {
+                let q = Query::Candidates {
+                    hierarchy: h,
+                    batch: &batch,
+                };
+                brute.intersect(&Cpu, rays, q, mode, &mut hits, stats)?;
+                batches.push(batch.pairs);
+                Ok(())
+            },
+            &mut stats,
+        )
+        .unwrap();
         (hits, batches, stats, report)
+    }
+
+    /// [`trace_with`] for the `crsh` traverser `trav`.
+    fn trace(
+        trav: &Crsh,
+        brute: &BruteForce,
+        rays: &Vec<Ray>,
+        h: &RayHierarchy<Cpu>,
+        mode: HitMode,
+    ) -> (Vec<Hit>, Vec<Vec<Candidate>>, Stats, TraversalReport) {
+        trace_with(brute, rays, h, mode, |kind, sink, stats| {
+            trav.traverse_with_report(rays, kind, h, sink, stats)
+        })
     }
 
     pub(crate) fn reference(brute: &BruteForce, rays: &Vec<Ray>, mode: HitMode) -> Vec<Hit> {

@@ -737,15 +737,14 @@ mod tests {
     use crate::intersect::brute::tests::{random_rays, soup};
     use crate::intersect::brute::BruteForce;
     use crate::traverse::crsh::tests::{
-        assert_same, build, clustered, reference, shuffled, test_rays,
+        assert_same, build, clustered, reference, shuffled, test_rays, trace_with,
     };
     use crsh_core::{
         render_frame, Frame, FrameOptions, FrameSize, Hit, HitMode, Intersector, ParamValue,
         PipelineConfig, Query, StageContext,
     };
 
-    /// Traverses and intersects with brute-force candidate tests; returns the hits, the
-    /// batches' pairs, the stats and the report.
+    /// [`trace_with`] for the `dual` traverser `trav`.
     fn trace(
         trav: &Dual,
         brute: &BruteForce,
@@ -753,32 +752,9 @@ mod tests {
         h: &RayHierarchy<Cpu>,
         mode: HitMode,
     ) -> (Vec<Hit>, Vec<Vec<Candidate>>, Stats, DualReport) {
-        let kind = if mode == HitMode::Any {
-            RayKind::Shadow
-        } else {
-            RayKind::Reflection
-        };
-        let mut hits = vec![Hit::MISS; rays.len()];
-        let mut batches = Vec::new();
-        let mut stats = Stats::default();
-        let report = trav
-            .traverse_with_report(
-                rays,
-                kind,
-                h,
-                &mut |batch, stats| {
-                    let q = Query::Candidates {
-                        hierarchy: h,
-                        batch: &batch,
-                    };
-                    brute.intersect(&Cpu, rays, q, mode, &mut hits, stats)?;
-                    batches.push(batch.pairs);
-                    Ok(())
-                },
-                &mut stats,
-            )
-            .unwrap();
-        (hits, batches, stats, report)
+        trace_with(brute, rays, h, mode, |kind, sink, stats| {
+            trav.traverse_with_report(rays, kind, h, sink, stats)
+        })
     }
 
     /// The candidates of `crsh` (with or without mesh culling) for the same input, sorted.
