@@ -241,6 +241,35 @@ pub fn chunks<T>(ctx: &GpuContext, len: usize) -> Vec<Range<usize>> {
         .collect()
 }
 
+/// Runs `kernel`'s `entry` with one invocation per element of a batch of `len` elements of
+/// `T`, cut into [`chunks`] (each chunk's bind group made by `bind` from its range), every
+/// chunk dispatched in one compute pass and submitted: the per-ray shape of the hashes and of
+/// the whole-scene intersectors. Nothing is recorded for `len == 0`.
+pub fn dispatch_chunks<T>(
+    ctx: &GpuContext,
+    kernel: &Kernel,
+    label: &str,
+    entry: &str,
+    len: usize,
+    mut bind: impl FnMut(Range<usize>) -> wgpu::BindGroup,
+) -> GpuResult<()> {
+    let groups: Vec<(wgpu::BindGroup, u32)> = chunks::<T>(ctx, len)
+        .into_iter()
+        .map(|range| {
+            let n = range.len() as u32;
+            (bind(range), n)
+        })
+        .collect();
+    let mut enc = encoder(ctx, label);
+    {
+        let mut pass = ctx.compute_pass(&mut enc, label);
+        for (bg, n) in &groups {
+            kernel.dispatch(ctx, &mut pass, entry, bg, *n)?;
+        }
+    }
+    submit(ctx, label, enc)
+}
+
 impl<T: bytemuck::Pod> GpuBuffer<T> {
     /// Elements `range` as a storage binding. `range.start` must be a multiple of
     /// [`chunk_elems::<T>`] (or 0), as the ranges of [`chunks`] are; an empty range binds the

@@ -11,7 +11,7 @@ use crsh_core::{Ray, Result};
 
 use crate::adapter::GpuContext;
 use crate::backend::GpuBuffer;
-use crate::kernel::{chunks, encoder, submit, uniform, Kernel};
+use crate::kernel::{dispatch_chunks, uniform, Kernel};
 
 /// One key per ray of `rays` by `kernel`'s `hash` entry, whose bindings are a uniform, the
 /// rays and the keys (`morton`, `tile`): the batch in binding-sized chunks, each chunk's
@@ -28,26 +28,16 @@ pub(crate) fn per_ray_keys<P: Pod>(
     if n == 0 {
         return Ok(keys);
     }
-    let mut groups = Vec::new();
-    for range in chunks::<Ray>(ctx, n) {
+    dispatch_chunks::<Ray>(ctx, kernel, label, "hash", n, |range| {
         let u = uniform(ctx, label, &params(range.clone()));
-        let bg = kernel.bind_group(
+        kernel.bind_group(
             ctx,
             &[
                 u.as_entire_binding(),
                 rays.slice_binding(range.clone()),
                 keys.slice_binding(range.clone()),
             ],
-        );
-        groups.push((bg, range.len() as u32));
-    }
-    let mut enc = encoder(ctx, label);
-    {
-        let mut pass = ctx.compute_pass(&mut enc, label);
-        for (bg, n) in &groups {
-            kernel.dispatch(ctx, &mut pass, "hash", bg, *n)?;
-        }
-    }
-    submit(ctx, label, enc)?;
+        )
+    })?;
     Ok(keys)
 }

@@ -28,7 +28,7 @@ use crsh_cpu::hash::thesis::ThesisHasher as CpuThesis;
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::error::GpuResult;
-use crate::kernel::{chunks, encoder, submit, uniform, Kernel, Slot};
+use crate::kernel::{dispatch_chunks, uniform, Kernel, Slot};
 use crate::scene::GpuScene;
 
 const SHADER: &str = include_str!("thesis.wgsl");
@@ -214,15 +214,14 @@ impl Hasher<Wgpu> for ThesisHasher {
             let _ = self.tables_on_device.set(t);
         }
         let tables = self.tables_on_device.get().expect("uploaded above");
-        let mut groups = Vec::new();
-        for range in chunks::<Ray>(ctx, n) {
+        dispatch_chunks::<Ray>(ctx, &k.kernel, "crsh thesis hash", "hash", n, |range| {
             let params = Params {
                 n: range.len() as u32,
                 first: range.start as u32,
                 ..self.params
             };
             let u = uniform(ctx, "crsh thesis params", &params);
-            let bg = k.kernel.bind_group(
+            k.kernel.bind_group(
                 ctx,
                 &[
                     u.as_entire_binding(),
@@ -232,17 +231,8 @@ impl Hasher<Wgpu> for ThesisHasher {
                     report.binding(),
                     tables.binding(),
                 ],
-            );
-            groups.push((bg, range.len() as u32));
-        }
-        let mut enc = encoder(ctx, "crsh thesis hash");
-        {
-            let mut pass = ctx.compute_pass(&mut enc, "crsh thesis hash");
-            for (bg, n) in &groups {
-                k.kernel.dispatch(ctx, &mut pass, "hash", bg, *n)?;
-            }
-        }
-        submit(ctx, "crsh thesis hash", enc)?;
+            )
+        })?;
         let bad = report.to_vec(ctx)?[0];
         if bad != 0 {
             let i = (u32::MAX - bad) as usize;

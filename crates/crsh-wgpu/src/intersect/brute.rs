@@ -48,7 +48,7 @@ use crsh_cpu::triangle::{PreparedTriangle, TriangleSet};
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::error::GpuResult;
-use crate::kernel::{chunks, encoder, submit, uniform, Kernel, Slot};
+use crate::kernel::{dispatch_chunks, encoder, submit, uniform, Kernel, Slot};
 use crate::scene::GpuScene;
 
 const SHADER: &str = include_str!("brute.wgsl");
@@ -146,44 +146,41 @@ impl BruteForce {
         let k = self.kernels()?;
         let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh brute counters", 6)?;
         let dummy = GpuBuffer::<u32>::zeroed(ctx, "crsh brute unused", 4)?;
-        let mut enc = encoder(ctx, "crsh brute scene query");
-        let mut groups = Vec::new();
-        for range in chunks::<Ray>(ctx, rays.len()) {
-            let params = Params {
-                n: range.len() as u32,
-                n_tris: self.n_tris,
-                any_hit: u32::from(any_hit),
-                n_pairs: 0,
-                subdivision: 1,
-                first: range.start as u32,
-                has_offsets: 0,
-                n_nodes: 0,
-                n_leaves: 0,
-                pad: [0; 3],
-            };
-            let u = uniform(ctx, "crsh brute params", &params);
-            let bg = k.kernel.bind_group(
-                ctx,
-                &[
-                    u.as_entire_binding(),
-                    rays.slice_binding(range.clone()),
-                    self.tris.binding(),
-                    hits.slice_binding(range.clone()),
-                    counters.binding(),
-                    dummy.binding(),
-                    dummy.binding(),
-                    dummy.binding(),
-                ],
-            );
-            groups.push((bg, range.len() as u32));
-        }
-        {
-            let mut pass = ctx.compute_pass(&mut enc, "crsh brute scene query");
-            for (bg, n) in &groups {
-                k.kernel.dispatch(ctx, &mut pass, "scene_query", bg, *n)?;
-            }
-        }
-        submit(ctx, "crsh brute scene query", enc)?;
+        dispatch_chunks::<Ray>(
+            ctx,
+            &k.kernel,
+            "crsh brute scene query",
+            "scene_query",
+            rays.len(),
+            |range| {
+                let params = Params {
+                    n: range.len() as u32,
+                    n_tris: self.n_tris,
+                    any_hit: u32::from(any_hit),
+                    n_pairs: 0,
+                    subdivision: 1,
+                    first: range.start as u32,
+                    has_offsets: 0,
+                    n_nodes: 0,
+                    n_leaves: 0,
+                    pad: [0; 3],
+                };
+                let u = uniform(ctx, "crsh brute params", &params);
+                k.kernel.bind_group(
+                    ctx,
+                    &[
+                        u.as_entire_binding(),
+                        rays.slice_binding(range.clone()),
+                        self.tris.binding(),
+                        hits.slice_binding(range.clone()),
+                        counters.binding(),
+                        dummy.binding(),
+                        dummy.binding(),
+                        dummy.binding(),
+                    ],
+                )
+            },
+        )?;
         let c = counters.to_vec(ctx)?;
         check_invalid(c[5])?;
         Ok(u64::from(c[0]) | (u64::from(c[1]) << 32))

@@ -30,7 +30,7 @@ use crsh_cpu::triangle::PreparedTriangle;
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::error::GpuResult;
-use crate::kernel::{chunks, encoder, submit, uniform, Kernel, Slot};
+use crate::kernel::{dispatch_chunks, uniform, Kernel, Slot};
 use crate::scene::GpuScene;
 
 const SHADER: &str = include_str!("bvh.wgsl");
@@ -160,37 +160,34 @@ impl Intersector<Wgpu> for CwBvh {
         let ctx = backend.context();
         let k = ctx.kernel(BvhKernels::new)?;
         let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh bvh counters", 10)?;
-        let mut groups = Vec::new();
-        for range in chunks::<Ray>(ctx, rays.len()) {
-            let params = Params {
-                n: range.len() as u32,
-                n_nodes: self.nodes.len() as u32,
-                any_hit: u32::from(mode == HitMode::Any),
-                first: range.start as u32,
-            };
-            let u = uniform(ctx, "crsh bvh params", &params);
-            let bg = k.kernel.bind_group(
-                ctx,
-                &[
-                    u.as_entire_binding(),
-                    rays.slice_binding(range.clone()),
-                    self.nodes.binding(),
-                    self.leaf_tris.binding(),
-                    self.leaf_ids.binding(),
-                    hits.slice_binding(range.clone()),
-                    counters.binding(),
-                ],
-            );
-            groups.push((bg, range.len() as u32));
-        }
-        let mut enc = encoder(ctx, "crsh bvh");
-        {
-            let mut pass = ctx.compute_pass(&mut enc, "crsh bvh traversal");
-            for (bg, n) in &groups {
-                k.kernel.dispatch(ctx, &mut pass, "traverse", bg, *n)?;
-            }
-        }
-        submit(ctx, "crsh bvh", enc)?;
+        dispatch_chunks::<Ray>(
+            ctx,
+            &k.kernel,
+            "crsh bvh",
+            "traverse",
+            rays.len(),
+            |range| {
+                let params = Params {
+                    n: range.len() as u32,
+                    n_nodes: self.nodes.len() as u32,
+                    any_hit: u32::from(mode == HitMode::Any),
+                    first: range.start as u32,
+                };
+                let u = uniform(ctx, "crsh bvh params", &params);
+                k.kernel.bind_group(
+                    ctx,
+                    &[
+                        u.as_entire_binding(),
+                        rays.slice_binding(range.clone()),
+                        self.nodes.binding(),
+                        self.leaf_tris.binding(),
+                        self.leaf_ids.binding(),
+                        hits.slice_binding(range.clone()),
+                        counters.binding(),
+                    ],
+                )
+            },
+        )?;
         let c = counters.to_vec(ctx)?;
         super::brute::check_invalid(c[4])?;
         if c[5] != 0 {

@@ -32,7 +32,7 @@ use crsh_cpu::triangle::{MollerTrumbore, PreparedTriangle, TestKind, TriangleSet
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::error::GpuResult;
-use crate::kernel::{chunks, encoder, submit, uniform, Kernel, Slot};
+use crate::kernel::{dispatch_chunks, encoder, submit, uniform, Kernel, Slot};
 use crate::scene::GpuScene;
 
 const BUILD_SHADER: &str = include_str!("grid_build.wgsl");
@@ -447,43 +447,40 @@ impl Intersector<Wgpu> for UniformGrid {
         let k = ctx.kernel(GridKernels::new)?;
         let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh grid counters", 5)?;
         let g = &self.grid.geometry;
-        let mut groups = Vec::new();
-        for range in chunks::<Ray>(ctx, rays.len()) {
-            let params = Params {
-                n: range.len() as u32,
-                any_hit: u32::from(mode == HitMode::Any),
-                first: range.start as u32,
-                n_tris: self.grid.pairs,
-                dims: [g.dims[0], g.dims[1], g.dims[2], 0],
-                lo: g.bounds.min.extend(0.0).to_array(),
-                hi: g.bounds.max.extend(0.0).to_array(),
-                margin: g.margin,
-                pad: [0.0; 3],
-            };
-            let u = uniform(ctx, "crsh grid params", &params);
-            let bg = k.traverse.bind_group(
-                ctx,
-                &[
-                    u.as_entire_binding(),
-                    rays.slice_binding(range.clone()),
-                    self.grid.planes.binding(),
-                    self.grid.ranges.binding(),
-                    self.grid.cell_tris.binding(),
-                    self.tris.binding(),
-                    hits.slice_binding(range.clone()),
-                    counters.binding(),
-                ],
-            );
-            groups.push((bg, range.len() as u32));
-        }
-        let mut enc = encoder(ctx, "crsh grid");
-        {
-            let mut pass = ctx.compute_pass(&mut enc, "crsh grid traversal");
-            for (bg, n) in &groups {
-                k.traverse.dispatch(ctx, &mut pass, "traverse", bg, *n)?;
-            }
-        }
-        submit(ctx, "crsh grid", enc)?;
+        dispatch_chunks::<Ray>(
+            ctx,
+            &k.traverse,
+            "crsh grid",
+            "traverse",
+            rays.len(),
+            |range| {
+                let params = Params {
+                    n: range.len() as u32,
+                    any_hit: u32::from(mode == HitMode::Any),
+                    first: range.start as u32,
+                    n_tris: self.grid.pairs,
+                    dims: [g.dims[0], g.dims[1], g.dims[2], 0],
+                    lo: g.bounds.min.extend(0.0).to_array(),
+                    hi: g.bounds.max.extend(0.0).to_array(),
+                    margin: g.margin,
+                    pad: [0.0; 3],
+                };
+                let u = uniform(ctx, "crsh grid params", &params);
+                k.traverse.bind_group(
+                    ctx,
+                    &[
+                        u.as_entire_binding(),
+                        rays.slice_binding(range.clone()),
+                        self.grid.planes.binding(),
+                        self.grid.ranges.binding(),
+                        self.grid.cell_tris.binding(),
+                        self.tris.binding(),
+                        hits.slice_binding(range.clone()),
+                        counters.binding(),
+                    ],
+                )
+            },
+        )?;
         let c = counters.to_vec(ctx)?;
         super::brute::check_invalid(c[4])?;
         stats.add_bounds(u64::from(c[0]) | (u64::from(c[1]) << 32));

@@ -52,7 +52,7 @@ use crsh_scene::Scene;
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
 use crate::error::GpuResult;
-use crate::kernel::{chunks, encoder, submit, uniform, Kernel, Slot};
+use crate::kernel::{dispatch_chunks, uniform, Kernel, Slot};
 use crate::kernels::{compose, f32_const};
 use crate::scene::GpuScene;
 
@@ -297,42 +297,39 @@ impl Intersector<Wgpu> for KdIntersector {
         let k = ctx.kernel(KdKernels::new)?;
         let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh kdtree counters", 8)?;
         let b = &self.tree.bounds;
-        let mut groups = Vec::new();
-        for range in chunks::<Ray>(ctx, rays.len()) {
-            let params = Params {
-                n: range.len() as u32,
-                any_hit: u32::from(any_hit),
-                first: range.start as u32,
-                n_nodes: self.tree.nodes.len() as u32,
-                lo: b.min.extend(0.0).to_array(),
-                hi: b.max.extend(0.0).to_array(),
-                zero: 0,
-                pad: [0; 3],
-            };
-            let u = uniform(ctx, "crsh kdtree params", &params);
-            let bg = k.kernel.bind_group(
-                ctx,
-                &[
-                    u.as_entire_binding(),
-                    rays.slice_binding(range.clone()),
-                    self.nodes.binding(),
-                    self.leaves.binding(),
-                    self.leaf_tris.binding(),
-                    self.tris.binding(),
-                    hits.slice_binding(range.clone()),
-                    counters.binding(),
-                ],
-            );
-            groups.push((bg, range.len() as u32));
-        }
-        let mut enc = encoder(ctx, "crsh kdtree");
-        {
-            let mut pass = ctx.compute_pass(&mut enc, "crsh kdtree traversal");
-            for (bg, n) in &groups {
-                k.kernel.dispatch(ctx, &mut pass, "traverse", bg, *n)?;
-            }
-        }
-        submit(ctx, "crsh kdtree", enc)?;
+        dispatch_chunks::<Ray>(
+            ctx,
+            &k.kernel,
+            "crsh kdtree",
+            "traverse",
+            rays.len(),
+            |range| {
+                let params = Params {
+                    n: range.len() as u32,
+                    any_hit: u32::from(any_hit),
+                    first: range.start as u32,
+                    n_nodes: self.tree.nodes.len() as u32,
+                    lo: b.min.extend(0.0).to_array(),
+                    hi: b.max.extend(0.0).to_array(),
+                    zero: 0,
+                    pad: [0; 3],
+                };
+                let u = uniform(ctx, "crsh kdtree params", &params);
+                k.kernel.bind_group(
+                    ctx,
+                    &[
+                        u.as_entire_binding(),
+                        rays.slice_binding(range.clone()),
+                        self.nodes.binding(),
+                        self.leaves.binding(),
+                        self.leaf_tris.binding(),
+                        self.tris.binding(),
+                        hits.slice_binding(range.clone()),
+                        counters.binding(),
+                    ],
+                )
+            },
+        )?;
         let c = counters.to_vec(ctx)?;
         super::brute::check_invalid(c[6])?;
         if c[7] & 1 != 0 {
