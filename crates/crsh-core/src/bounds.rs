@@ -131,11 +131,31 @@ impl Aabb {
     pub fn contains(&self, p: Vec3) -> bool {
         p.cmpge(self.min).all() && p.cmple(self.max).all()
     }
+
+    /// Whether the boxes share a point (touching counts). False when either is empty, except
+    /// that an empty box still "overlaps" a box that is infinite on every side it is empty on
+    /// (no culling test relies on that case).
+    #[inline]
+    pub fn overlaps(&self, o: &Aabb) -> bool {
+        self.min.cmple(o.max).all() && o.min.cmple(self.max).all()
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn overlap_counts_touching_boxes_and_not_empty_ones() {
+        let a = Aabb::from_points([Vec3::ZERO, Vec3::ONE]);
+        let touching = Aabb::from_points([Vec3::ONE, Vec3::splat(2.0)]);
+        let apart = Aabb::from_points([Vec3::new(1.5, 0.0, 0.0), Vec3::new(2.0, 1.0, 1.0)]);
+        let inside = Aabb::from_points([Vec3::splat(0.25), Vec3::splat(0.5)]);
+        assert!(a.overlaps(&touching) && touching.overlaps(&a));
+        assert!(a.overlaps(&inside) && inside.overlaps(&a));
+        assert!(!a.overlaps(&apart) && !apart.overlaps(&a));
+        assert!(!a.overlaps(&Aabb::EMPTY) && !Aabb::EMPTY.overlaps(&a));
+    }
 
     #[test]
     fn aabb_union_and_contains() {

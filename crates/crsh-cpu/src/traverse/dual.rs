@@ -39,8 +39,9 @@
 //! # Traversal
 //!
 //! Work starts from every (top-level ray node, object root) pair. A pair is tested with
+//! the box test (below, parameter `box_test`, on by default) and then
 //! [`NodeBound::may_hit`] (the ray node against the object node's sphere); a pair that
-//! passes is
+//! passes both is
 //!
 //! - a candidate when the ray node is in the lowest level (`levels[0]`) and the object node
 //!   is a triangle: the `(node, triangle)` pair handed to the intersector, as `crsh` does;
@@ -65,6 +66,34 @@
 //! `1e-5·(R' − R)` change). So `(A, O)` passes for every pair on the path to `(N, T)`, and
 //! the final tests see every pair brute force would hit. The exactness tests below check it
 //! against brute force and `crsh`.
+//!
+//! # The box test
+//!
+//! Cones and spheres are loose around the shapes real scenes are made of: long thin
+//! triangles, floors and walls along the axes, shadow rays that all start on one floor. So
+//! each pair is first tested by boxes:
+//!
+//! - **Object side**: each triangle's box ([`triangle_box`]) is its vertices' box widened on
+//!   every side by the margins the sphere test uses for the triangle's size
+//!   (`REL_MARGIN` × half its diagonal + `ABS_MARGIN` × `max(1, |v|∞)`), rounded outwards to
+//!   `f32`; an internal node's box is the union of its children's.
+//! - **Ray side**: each ray's *segment box* ([`segment_box`]) holds every point
+//!   `o + t·d` with `t` in the ray's interval, clipped (in `f64`, with a relative `1e-9` of
+//!   slack on the slab distances) to the box of all triangles; a ray whose interval misses it
+//!   has the empty box and one that is not [`Ray::is_valid`] the whole space (the intersector
+//!   refuses it). A lowest node's box is the union of its rays', a higher node's the union of
+//!   its children's; they are computed per traversal, O(rays).
+//! - A pair passes when the boxes overlap (touching counts). The pair test (boxes, then
+//!   cone and sphere) counts **once** in the counters below, as one node test of a BVH does.
+//!
+//! **No intersecting pair is culled**: if the `f32` ray-triangle test reports a hit of ray
+//! `r` on triangle `T` at `t*` in `r`'s interval, the point `o + t*·d` is on `r`'s segment,
+//! within the scene's box, so inside `r`'s segment box, and within the margin of `T` (the
+//! test reports hits a hair outside a triangle and off its plane, never farther than the
+//! margin the sphere test already relies on), so inside `T`'s box. Both boxes only grow up
+//! the trees, so every pair on the path to `(N, T)` passes. The margin is needed: a shadow
+//! segment that ends within rounding above a floor can be reported as hitting it (the tests
+//! search such rays out and fail without the margin).
 //!
 //! # Memory bound and determinism
 //!
@@ -105,11 +134,13 @@
 //! | 1024², depth 3 | bounds/ray | triangle/ray | total/ray | traversal ms | final ms | Mrays/s |
 //! |---|---:|---:|---:|---:|---:|---:|
 //! | `crsh` | 613 | 173 | 786 | 2535 | 1662 | 0.28 |
-//! | `dual` (`lbvh`) | 53 | 173 | 226 | 706 | 538 | 0.81 |
-//! | `bvh` (obvhs CWBVH, whole scene) | 93 | 3.8 | 97 | – | 341 | 3.61 |
+//! | `dual`, `box_test = false` | 53 | 173 | 226 | 702 | 513 | 0.82 |
+//! | `dual` (box test) | 19 | 29 | 48 | 389 | 182 | 1.45 |
+//! | `bvh` (obvhs CWBVH, whole scene) | 93 | 3.8 | 97 | – | 354 | 3.48 |
 //!
-//! The bounds tests drop 11×; the final tests (candidates × the 8 rays of a lowest node) are
-//! the same as `crsh`'s and now dominate. The object hierarchy's build is part of the stage's
+//! Without boxes the bounds tests drop 11× against `crsh`, but the final tests (candidates ×
+//! the 8 rays of a lowest node) stay `crsh`'s; the box test cuts them 6× (most of a shadow
+//! node's sphere candidates are floor and wall triangles its segments never reach). The object hierarchy's build is part of the stage's
 //! construction: about 27 ms for Sponza (stage builds 79 ms against `crsh`'s 53 ms).
 //!
 //! # Errors
@@ -122,13 +153,13 @@ use std::sync::Arc;
 
 use crsh_core::glam::{DVec3, Vec3};
 use crsh_core::{
-    Candidate, CandidateBatch, CoreError, ParamInfo, Ray, RayHierarchy, RayKind, Registry, Result,
-    Sphere, StageKind, StageSpec, StageVariantInfo, Stats, Traverser,
+    lowest_node_leaves, Aabb, Candidate, CandidateBatch, CoreError, ParamInfo, Ray, RayHierarchy,
+    RayKind, Registry, Result, Sphere, StageKind, StageSpec, StageVariantInfo, Stats, Traverser,
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
 
-use super::crsh::{budget_bytes, prepare_nodes, Crsh, NodeBound};
+use super::crsh::{budget_bytes, prepare_nodes, Crsh, NodeBound, ABS_MARGIN, REL_MARGIN};
 use crate::backend::Cpu;
 
 /// The choices of parameter `objects`.
@@ -158,6 +189,13 @@ pub fn info() -> StageVariantInfo {
         "object side: `lbvh` a binary sphere hierarchy over the triangles by Morton codes, \
          rebuilt per frame; `meshes` the thesis's mesh spheres then triangle spheres (the \
          `crsh` traverser with mesh culling)",
+    ))
+    .param(ParamInfo::bool(
+        "box_test",
+        true,
+        "with `objects = lbvh`, test a pair's boxes before the cone-sphere test: the box of \
+         the ray node's segments (clipped to the scene) against the object node's box; \
+         false: the cone-sphere test alone",
     ))
     .param(
         ParamInfo::float(
@@ -197,6 +235,11 @@ pub struct Lbvh {
     leaf_tris: Vec<u32>,
     /// Sphere of each sorted position's triangle.
     leaf_spheres: Vec<Sphere>,
+    /// Box of each internal node: the union of its leaves' boxes.
+    inner_boxes: Vec<Aabb>,
+    /// Box of each sorted position's triangle: its vertices' box widened by the margin
+    /// ([`triangle_box`]).
+    leaf_boxes: Vec<Aabb>,
     /// Deepest node (0: a single triangle or none).
     max_depth: usize,
 }
@@ -241,6 +284,121 @@ fn enclose(a: &Sphere, b: &Sphere, bounds: (DVec3, DVec3)) -> Sphere {
     );
     let (c, r) = if boxed.1 < merged.1 { boxed } else { merged };
     round_out(c, r)
+}
+
+/// The largest `f32` not above `x` (`x` finite or infinite, not NaN).
+fn f32_down(x: f64) -> f32 {
+    let f = x as f32;
+    if (f as f64) <= x {
+        f
+    } else if f == 0.0 {
+        -f32::from_bits(1)
+    } else if f > 0.0 {
+        f32::from_bits(f.to_bits() - 1)
+    } else {
+        f32::from_bits(f.to_bits() + 1)
+    }
+}
+
+/// The smallest `f32` not below `x`.
+fn f32_up(x: f64) -> f32 {
+    -f32_down(-x)
+}
+
+/// The `f32` box around `[lo, hi]` (`f64`), each side widened by `pad` and rounded outwards.
+fn round_box(lo: DVec3, hi: DVec3, pad: f64) -> Aabb {
+    let (lo, hi) = (lo - DVec3::splat(pad), hi + DVec3::splat(pad));
+    Aabb {
+        min: Vec3::new(f32_down(lo.x), f32_down(lo.y), f32_down(lo.z)),
+        max: Vec3::new(f32_up(hi.x), f32_up(hi.y), f32_up(hi.z)),
+    }
+}
+
+/// The box a hit on triangle `[a, b, c]` can be reported in: the vertices' box widened on
+/// every side by the margins of [`NodeBound::may_hit`] for the triangle's size (`REL_MARGIN`
+/// × half its box diagonal + `ABS_MARGIN` × `max(1, |v|∞)`), so that a hit the `f32`
+/// ray-triangle test reports a hair outside the triangle stays inside (module doc, *The box
+/// test*).
+pub fn triangle_box(tri: [Vec3; 3]) -> Aabb {
+    let [a, b, c] = tri.map(|v| v.as_dvec3());
+    let (lo, hi) = (a.min(b).min(c), a.max(b).max(c));
+    let scale = lo.abs().max(hi.abs()).max_element().max(1.0);
+    let pad = REL_MARGIN * (hi - lo).length() / 2.0 + ABS_MARGIN * scale;
+    round_box(lo, hi, pad)
+}
+
+/// The box of the points `origin + t·dir` a ray can report a hit at: `t` in its interval
+/// clipped to `bounds` (the box of every triangle, margins included), the empty box when the
+/// interval misses `bounds` or is empty, and the whole space for a ray that is not
+/// [`Ray::is_valid`] (it is then the intersector's to refuse).
+pub fn segment_box(ray: &Ray, bounds: &Aabb) -> Aabb {
+    if !ray.is_valid() {
+        return Aabb {
+            min: Vec3::NEG_INFINITY,
+            max: Vec3::INFINITY,
+        };
+    }
+    if bounds.is_empty() {
+        return Aabb::EMPTY;
+    }
+    let o = ray.origin.as_dvec3();
+    let d = ray.dir.as_dvec3();
+    let (lo, hi) = (bounds.min.as_dvec3(), bounds.max.as_dvec3());
+    let (mut t0, mut t1) = (ray.t_min as f64, ray.t_max as f64);
+    for axis in 0..3 {
+        if d[axis] == 0.0 {
+            if o[axis] < lo[axis] || o[axis] > hi[axis] {
+                return Aabb::EMPTY;
+            }
+            continue;
+        }
+        let a = (lo[axis] - o[axis]) / d[axis];
+        let b = (hi[axis] - o[axis]) / d[axis];
+        // Widened by a relative 1e-9 for the rounding of the division (the slab is already
+        // padded by the triangle margins).
+        let (near, far) = (a.min(b), a.max(b));
+        t0 = t0.max(near - 1e-9 * near.abs());
+        t1 = t1.min(far + 1e-9 * far.abs());
+    }
+    if t0 > t1 {
+        return Aabb::EMPTY;
+    }
+    let (p0, p1) = (o + d * t0, o + d * t1);
+    let (plo, phi) = (p0.min(p1), p0.max(p1));
+    let scale = plo.abs().max(phi.abs()).max_element().max(1.0);
+    round_box(plo, phi, 1e-9 * scale)
+}
+
+/// The segment box ([`segment_box`]) of every ray node, by level as the hierarchy's
+/// `levels`: a lowest node's is the union of its rays', a higher node's the union of its
+/// children's. The hierarchy's shape must have been checked ([`prepare_nodes`]).
+fn ray_node_boxes(rays: &[Ray], h: &RayHierarchy<Cpu>, bounds: &Aabb) -> Vec<Vec<Aabb>> {
+    let offsets = h.leaf_offsets.as_deref();
+    let lowest: Vec<Aabb> = (0..h.levels[0].len())
+        .into_par_iter()
+        .map(|n| {
+            lowest_node_leaves(n, h.subdivision, offsets, rays.len())
+                .map(|l| segment_box(&rays[h.order[l] as usize], bounds))
+                .fold(Aabb::EMPTY, Aabb::union)
+        })
+        .collect();
+    let sub = h.subdivision as usize;
+    let mut out = vec![lowest];
+    for level in &h.levels[1..] {
+        let below = out.last().expect("the lowest level");
+        let next: Vec<Aabb> = (0..level.len())
+            .into_par_iter()
+            .map(|n| {
+                let first = (n * sub).min(below.len());
+                let last = ((n + 1) * sub).min(below.len());
+                below[first..last]
+                    .iter()
+                    .fold(Aabb::EMPTY, |a, b| a.union(*b))
+            })
+            .collect();
+        out.push(next);
+    }
+    out
 }
 
 /// The box around a sphere, `f64`.
@@ -326,6 +484,11 @@ impl Lbvh {
                 stack.push((split + 1, b, right, depth + 1));
             }
         }
+        let leaf_boxes: Vec<Aabb> = leaf_tris
+            .par_iter()
+            .map(|&t| triangle_box(scene.triangle(t as usize)))
+            .collect();
+        let mut inner_boxes = vec![Aabb::EMPTY; inner.len()];
         let mut boxes = vec![(DVec3::ZERO, DVec3::ZERO); inner.len()];
         for &i in preorder.iter().rev() {
             let [l, r] = inner[i as usize].children;
@@ -342,11 +505,21 @@ impl Lbvh {
             let bounds = (bl.0.min(br.0), bl.1.max(br.1));
             inner[i as usize].sphere = enclose(&sl, &sr, bounds);
             boxes[i as usize] = bounds;
+            let child_box = |c: u32| {
+                if c & LEAF != 0 {
+                    leaf_boxes[(c & !LEAF) as usize]
+                } else {
+                    inner_boxes[c as usize]
+                }
+            };
+            inner_boxes[i as usize] = child_box(l).union(child_box(r));
         }
         Ok(Lbvh {
             inner,
             leaf_tris,
             leaf_spheres,
+            inner_boxes,
+            leaf_boxes,
             max_depth,
         })
     }
@@ -377,6 +550,24 @@ impl Lbvh {
             &self.leaf_spheres[(node & !LEAF) as usize]
         } else {
             &self.inner[node as usize].sphere
+        }
+    }
+
+    /// The box of a node reference.
+    #[inline]
+    fn bx(&self, node: u32) -> &Aabb {
+        if node & LEAF != 0 {
+            &self.leaf_boxes[(node & !LEAF) as usize]
+        } else {
+            &self.inner_boxes[node as usize]
+        }
+    }
+
+    /// The box around every triangle (with margins), the empty box without triangles.
+    pub fn bounds(&self) -> Aabb {
+        match self.root() {
+            Some(r) => *self.bx(r),
+            None => Aabb::EMPTY,
         }
     }
 
@@ -424,8 +615,12 @@ pub struct Dual {
 /// The object side.
 #[derive(Clone, Debug)]
 enum Objects {
-    /// A per-frame [`Lbvh`].
-    Lbvh { tree: Box<Lbvh>, budget_bytes: u64 },
+    /// A per-frame [`Lbvh`]; `box_test`: the pair test starts with the boxes.
+    Lbvh {
+        tree: Box<Lbvh>,
+        budget_bytes: u64,
+        box_test: bool,
+    },
     /// The thesis's mesh spheres ([`Crsh`] with mesh culling).
     Meshes(Crsh),
 }
@@ -489,6 +684,8 @@ struct Task {
 /// What the tasks share.
 struct Ctx<'a> {
     nodes: &'a [Vec<NodeBound>],
+    /// The ray nodes' segment boxes, by level as `nodes` (`None`: no box test).
+    boxes: Option<&'a [Vec<Aabb>]>,
     sub: usize,
     tree: &'a Lbvh,
 }
@@ -509,6 +706,11 @@ impl Task {
             let sphere = tree.sphere(p.obj);
             counts.ray[p.level as usize][0] += 1;
             counts.obj[p.depth as usize][0] += 1;
+            if let Some(boxes) = ctx.boxes {
+                if !boxes[p.level as usize][p.node as usize].overlaps(tree.bx(p.obj)) {
+                    continue;
+                }
+            }
             if !nb.may_hit(sphere) {
                 continue;
             }
@@ -567,16 +769,19 @@ impl Dual {
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<Dual> {
         let objects = spec.str("objects")?;
         let mb = spec.f64("candidate_budget_mb")?;
-        Dual::with_options(scene, objects, mb)
+        let mut dual = Dual::with_options(scene, objects, mb)?;
+        dual.set_box_test(spec.bool("box_test")?);
+        Ok(dual)
     }
 
     /// The traverser with explicit options: `objects` one of [`OBJECTS`], `budget_mb` in MiB
-    /// (finite and > 0).
+    /// (finite and > 0); the box test on ([`Dual::set_box_test`]).
     pub fn with_options(scene: &Arc<Scene>, objects: &str, budget_mb: f64) -> Result<Dual> {
         let objects = match objects {
             "lbvh" => Objects::Lbvh {
                 budget_bytes: budget_bytes(budget_mb)?,
                 tree: Box::new(Lbvh::build(scene)?),
+                box_test: true,
             },
             "meshes" => Objects::Meshes(Crsh::with_options(scene, true, budget_mb)?),
             other => {
@@ -595,6 +800,18 @@ impl Dual {
             Objects::Lbvh { .. } => "lbvh",
             Objects::Meshes(_) => "meshes",
         }
+    }
+
+    /// Turns the box test of `objects = lbvh` on or off (no effect with `meshes`).
+    pub fn set_box_test(&mut self, on: bool) {
+        if let Objects::Lbvh { box_test, .. } = &mut self.objects {
+            *box_test = on;
+        }
+    }
+
+    /// Whether pairs are box-tested first (`objects = lbvh` with `box_test`).
+    pub fn box_test(&self) -> bool {
+        matches!(self.objects, Objects::Lbvh { box_test: true, .. })
     }
 
     /// The candidate-array budget in bytes.
@@ -630,7 +847,7 @@ impl Dual {
         sink: &mut dyn FnMut(CandidateBatch<Cpu>, &mut Stats) -> Result<()>,
         stats: &mut Stats,
     ) -> Result<DualReport> {
-        let (tree, budget) = match &self.objects {
+        let (tree, budget, box_test) = match &self.objects {
             Objects::Meshes(crsh) => {
                 let r = crsh.traverse_with_report(rays, kind, hierarchy, sink, stats)?;
                 return Ok(DualReport {
@@ -642,7 +859,11 @@ impl Dual {
                     ..DualReport::default()
                 });
             }
-            Objects::Lbvh { tree, budget_bytes } => (tree, *budget_bytes),
+            Objects::Lbvh {
+                tree,
+                budget_bytes,
+                box_test,
+            } => (tree, *budget_bytes, *box_test),
         };
         let (g, cap) = self.round_shape();
         let mut report = DualReport {
@@ -660,8 +881,10 @@ impl Dual {
         };
         let top_level = nodes.len() - 1;
         let n_top = nodes[top_level].len();
+        let boxes = box_test.then(|| ray_node_boxes(rays, hierarchy, &tree.bounds()));
         let ctx = Ctx {
             nodes: &nodes,
+            boxes: boxes.as_deref(),
             sub: hierarchy.subdivision as usize,
             tree,
         };
@@ -734,11 +957,12 @@ impl Traverser<Cpu> for Dual {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::intersect::brute::tests::{random_rays, soup};
+    use crate::intersect::brute::tests::{random_rays, soup, test_ray};
     use crate::intersect::brute::BruteForce;
     use crate::traverse::crsh::tests::{
         assert_same, build, clustered, reference, shuffled, test_rays, trace_with,
     };
+    use crate::triangle::tests::TestRng;
     use crsh_core::{
         render_frame, Frame, FrameOptions, FrameSize, Hit, HitMode, Intersector, ParamValue,
         PipelineConfig, Query, StageContext,
@@ -755,6 +979,11 @@ mod tests {
         trace_with(brute, rays, h, mode, |kind, sink, stats| {
             trav.traverse_with_report(rays, kind, h, sink, stats)
         })
+    }
+
+    /// The box around the triangles of `trav`'s object hierarchy.
+    fn trav_bounds(trav: &Dual) -> Aabb {
+        trav.lbvh().unwrap().bounds()
     }
 
     /// The candidates of `crsh` (with or without mesh culling) for the same input, sorted.
@@ -869,10 +1098,16 @@ mod tests {
                                 // Strictly increasing batches, in increasing node order.
                                 let all = batches.concat();
                                 assert!(all.windows(2).all(|w| w[0] < w[1]), "{what}");
-                                // Every pair crsh keeps (the exact set needs no more), and
-                                // only pairs whose node reaches the triangle's sphere.
+                                // Every pair crsh keeps whose boxes overlap (the exact set
+                                // needs no more), and only pairs whose node reaches the
+                                // triangle's sphere and box.
+                                let boxes = ray_node_boxes(&rays, &h, &trav_bounds(&trav));
+                                let tri_box = |t: u32| triangle_box(scene.triangle(t as usize));
                                 let mut at = 0;
                                 for p in &crsh {
+                                    if !boxes[0][p.node as usize].overlaps(&tri_box(p.tri)) {
+                                        continue;
+                                    }
                                     at += all[at..].partition_point(|q| q < p);
                                     assert_eq!(all.get(at), Some(p), "{what}");
                                 }
@@ -880,8 +1115,23 @@ mod tests {
                                     let nb = NodeBound::new(&h.levels[0][p.node as usize]);
                                     let s = &scene.tri_spheres[p.tri as usize];
                                     assert!(nb.unwrap().may_hit(s), "{what}: {p:?}");
+                                    let b = &boxes[0][p.node as usize];
+                                    assert!(b.overlaps(&tri_box(p.tri)), "{what}: {p:?}");
                                 }
                                 assert_eq!(report.candidates as usize, all.len());
+                                // Without the box test: every pair crsh keeps.
+                                let mut plain = trav.clone();
+                                plain.set_box_test(false);
+                                let (h2, b2, s2, _) = trace(&plain, &brute, &rays, &h, *mode);
+                                assert_same(&h2, want, *mode, &what);
+                                let all2 = b2.concat();
+                                let mut at = 0;
+                                for p in &crsh {
+                                    at += all2[at..].partition_point(|q| q < p);
+                                    assert_eq!(all2.get(at), Some(p), "{what}");
+                                }
+                                assert!(all.len() <= all2.len(), "{what}");
+                                assert!(stats.tests.bounds <= s2.tests.bounds, "{what}");
                             }
                         }
                     }
@@ -1164,5 +1414,233 @@ mod tests {
             d.bounds * 3 < c.bounds && d.total < c.total,
             "dual {d:?} against crsh {c:?}"
         );
+    }
+
+    #[test]
+    fn outward_rounding_and_boxes_contain_what_they_must() {
+        let mut rng = TestRng(71);
+        for _ in 0..20_000 {
+            let x = (rng.f32() as f64 - 0.5) * 10f64.powi((rng.next_u64() % 40) as i32 - 20);
+            let (lo, hi) = (f32_down(x), f32_up(x));
+            assert!(lo as f64 <= x && hi as f64 >= x && lo <= hi, "{x}");
+            assert!(hi == lo || f32_up(lo as f64) == lo, "{x}");
+        }
+        assert_eq!(f32_down(f64::INFINITY), f32::INFINITY);
+        assert_eq!(f32_up(f64::NEG_INFINITY), f32::NEG_INFINITY);
+        assert!(f32_down(1e-50) == 0.0 && f32_down(-1e-50) < 0.0 && f32_up(1e-50) > 0.0);
+        // A triangle's box holds its vertices with room to spare on every side.
+        let scene = soup(72, 300);
+        for t in 0..scene.triangle_count() {
+            let tri = scene.triangle(t);
+            let b = triangle_box(tri);
+            for v in tri {
+                assert!(v.cmpgt(b.min).all() && v.cmplt(b.max).all(), "{t}");
+            }
+        }
+        // A segment box holds every point of the interval inside the bounds.
+        let bounds = Aabb::from_points([Vec3::splat(-1.0), Vec3::splat(1.0)]);
+        let rays = random_rays(&scene, 73, 400);
+        let (mut empty, mut full) = (0, 0);
+        for r in &rays {
+            let b = segment_box(r, &bounds);
+            if b.is_empty() {
+                empty += 1;
+            } else {
+                full += 1;
+            }
+            let (t0, t1) = (r.t_min as f64, (r.t_max as f64).min(1e3));
+            for k in 0..=64 {
+                let t = t0 + (t1 - t0) * k as f64 / 64.0;
+                let p = r.origin.as_dvec3() + r.dir.as_dvec3() * t;
+                let (lo, hi) = (bounds.min.as_dvec3(), bounds.max.as_dvec3());
+                if p.cmpge(lo).all() && p.cmple(hi).all() {
+                    assert!(
+                        p.cmpge(b.min.as_dvec3()).all() && p.cmple(b.max.as_dvec3()).all(),
+                        "{r:?} t {t}: {b:?}"
+                    );
+                }
+            }
+        }
+        assert!(empty > 0 && full > empty, "{empty} {full}");
+        // Rays that miss the bounds, empty intervals, and invalid rays.
+        let away = test_ray(Vec3::splat(2.0), Vec3::X, 0.0, f32::INFINITY, 0);
+        assert!(segment_box(&away, &bounds).is_empty());
+        let behind = test_ray(Vec3::new(-2.0, 0.0, 0.0), -Vec3::X, 0.0, f32::INFINITY, 0);
+        assert!(segment_box(&behind, &bounds).is_empty());
+        let short = test_ray(Vec3::new(-2.0, 0.0, 0.0), Vec3::X, 0.0, 0.5, 0);
+        assert!(segment_box(&short, &bounds).is_empty());
+        let reversed = test_ray(Vec3::ZERO, Vec3::X, 0.5, 0.25, 0);
+        assert!(segment_box(&reversed, &bounds).is_empty());
+        let parallel = test_ray(Vec3::new(0.0, 0.5, -3.0), Vec3::Z, 0.0, f32::INFINITY, 0);
+        let b = segment_box(&parallel, &bounds);
+        assert!(b.min.z <= -1.0 && b.max.z >= 1.0 && b.min.y <= 0.5 && b.max.y >= 0.5);
+        assert!(b.max.y - b.min.y < 1e-6, "{b:?}");
+        let mut nan = parallel;
+        nan.origin.x = f32::NAN;
+        let all = segment_box(&nan, &bounds);
+        assert!(all.min.cmpeq(Vec3::NEG_INFINITY).all() && all.max.cmpeq(Vec3::INFINITY).all());
+        assert!(segment_box(&parallel, &Aabb::EMPTY).is_empty());
+    }
+
+    /// Axis-aligned floors and walls (flat boxes) made of grids of triangles, plus a few
+    /// random ones, moved by `offset`.
+    fn rooms(seed: u64, offset: Vec3) -> Scene {
+        let mut rng = TestRng(seed);
+        let mut positions = Vec::new();
+        let mut indices = Vec::new();
+        let mut quad = |p: [Vec3; 4], positions: &mut Vec<Vec3>| {
+            let base = positions.len() as u32;
+            positions.extend(p.map(|v| v + offset));
+            indices.push([base, base + 1, base + 2]);
+            indices.push([base, base + 2, base + 3]);
+        };
+        let n = 8;
+        for i in 0..n {
+            for j in 0..n {
+                let (x, z) = (i as f32 - 4.0, j as f32 - 4.0);
+                // Floor at y = 0, a wall at x = 2 and a ceiling at y = 3.
+                let floor = [0.0, 3.0].map(|y| {
+                    [
+                        Vec3::new(x, y, z),
+                        Vec3::new(x + 1.0, y, z),
+                        Vec3::new(x + 1.0, y, z + 1.0),
+                        Vec3::new(x, y, z + 1.0),
+                    ]
+                });
+                for q in floor {
+                    quad(q, &mut positions);
+                }
+                let (y, z) = (i as f32 * 3.0 / n as f32, j as f32 - 4.0);
+                let h = 3.0 / n as f32;
+                quad(
+                    [
+                        Vec3::new(2.0, y, z),
+                        Vec3::new(2.0, y + h, z),
+                        Vec3::new(2.0, y + h, z + 1.0),
+                        Vec3::new(2.0, y, z + 1.0),
+                    ],
+                    &mut positions,
+                );
+            }
+        }
+        for _ in 0..40 {
+            let a = rng.vec3(-3.0, 2.0).max(Vec3::new(-4.0, 0.1, -4.0));
+            quad(
+                [a, a + rng.vec3(-0.5, 0.5), a + rng.vec3(-0.5, 0.5), a],
+                &mut positions,
+            );
+        }
+        let normals = vec![Vec3::Y; positions.len()];
+        crate::surface::tests::raw_scene(positions, normals, indices)
+    }
+
+    /// Rays where a box test could fail: leaving the floor (origin on it, a tiny `t_min`),
+    /// grazing along the floor and the wall in their planes, shadow segments ending a hair
+    /// above the floor, and rays along the axes (zero direction components).
+    fn room_rays(scene: &Scene, seed: u64, n: usize, offset: Vec3) -> Vec<Ray> {
+        let mut rng = TestRng(seed);
+        let light = Vec3::new(0.3, 2.7, 0.2) + offset;
+        (0..n)
+            .map(|i| {
+                let on = Vec3::new(rng.range(-3.9, 1.9), 0.0, rng.range(-3.9, 3.9)) + offset;
+                let (o, d, t0, t1) = match i % 5 {
+                    0 => (on, (rng.unit() + Vec3::Y).normalize(), 1e-5, f32::INFINITY),
+                    1 => {
+                        let d = Vec3::new(rng.range(-1.0, 1.0), 0.0, rng.range(-1.0, 1.0));
+                        (on, d.normalize_or(Vec3::X), 0.0, f32::INFINITY)
+                    }
+                    2 => {
+                        let end = on + Vec3::Y * 1e-4;
+                        let d = end - light;
+                        (light, d.normalize(), 1e-4, d.length() * (1.0 - 1e-6))
+                    }
+                    3 => {
+                        let o = Vec3::new(2.0, rng.range(0.0, 3.0), -3.9) + offset;
+                        (o, Vec3::Z, 0.0, f32::INFINITY)
+                    }
+                    _ => {
+                        let o = Vec3::new(rng.range(-3.0, 1.0), rng.range(0.5, 2.5), -6.0);
+                        (o + offset, Vec3::new(0.0, 0.0, 1.0), 0.0, f32::INFINITY)
+                    }
+                };
+                let _ = scene;
+                test_ray(o, d, t0, t1, i)
+            })
+            .collect()
+    }
+
+    /// Shadow segments from a light that end within rounding above the floor and that the
+    /// `f32` test still reports as hitting it: the exact segment stops short of the floor's
+    /// box, so only the triangle boxes' margin keeps these pairs. Up to `n`, searched among
+    /// `tries` random ones.
+    fn beyond_segment_rays(
+        scene: &Scene,
+        brute: &BruteForce,
+        offset: Vec3,
+        n: usize,
+        tries: usize,
+    ) -> Vec<Ray> {
+        let mut rng = TestRng(84);
+        let light = Vec3::new(0.3, 2.7, 0.2) + offset;
+        let scale = offset.abs().max_element().max(4.0);
+        let mut out = Vec::new();
+        for i in 0..tries {
+            let on = Vec3::new(rng.range(-3.9, 1.9), 0.0, rng.range(-3.9, 3.9)) + offset;
+            let end = on + Vec3::Y * (rng.range(0.0, 3e-8) * scale);
+            let d = end - light;
+            let ray = test_ray(light, d.normalize(), 1e-4, d.length(), i);
+            let exact_end = ray.origin.as_dvec3() + ray.dir.as_dvec3() * ray.t_max as f64;
+            if exact_end.y <= offset.y as f64 {
+                continue;
+            }
+            let hit = reference(brute, &vec![ray], HitMode::Closest)[0];
+            let on_floor = |t: u32| scene.triangle(t as usize).iter().all(|v| v.y == offset.y);
+            if hit.is_hit() && on_floor(hit.tri) {
+                out.push(ray);
+                if out.len() == n {
+                    break;
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn box_test_keeps_every_hit_on_flat_grazing_and_far_geometry() {
+        for offset in [Vec3::ZERO, Vec3::new(1e4, -3e3, 5e3)] {
+            let scene = Arc::new(rooms(81, offset));
+            let brute = BruteForce::from_scene(&scene);
+            let mut rays = room_rays(&scene, 82, 400, offset);
+            let beyond = beyond_segment_rays(&scene, &brute, offset, 40, 20_000);
+            assert!(
+                beyond.len() >= 10,
+                "offset {offset}: {} found",
+                beyond.len()
+            );
+            rays.extend(beyond);
+            let trav = Dual::with_options(&scene, "lbvh", 64.0).unwrap();
+            assert!(trav.box_test());
+            let mut plain = trav.clone();
+            plain.set_box_test(false);
+            for mode in [HitMode::Closest, HitMode::Any] {
+                let want = reference(&brute, &rays, mode);
+                let n_hit = want.iter().filter(|h| h.is_hit()).count();
+                assert!(n_hit > rays.len() / 8, "{n_hit}");
+                for (sub, levels) in [(2u32, 3usize), (8, 2)] {
+                    let h = build(&rays, shuffled(rays.len(), 83), sub, levels);
+                    let what = format!("offset {offset} sub {sub} {mode:?}");
+                    let (hits, _, stats, _) = trace(&trav, &brute, &rays, &h, mode);
+                    assert_same(&hits, &want, mode, &what);
+                    let (_, _, s2, _) = trace(&plain, &brute, &rays, &h, mode);
+                    // The boxes cull: fewer final tests than the spheres alone.
+                    assert!(
+                        stats.tests.ray_triangle < s2.tests.ray_triangle,
+                        "{what}: {:?} against {:?}",
+                        stats.tests,
+                        s2.tests
+                    );
+                }
+            }
+        }
     }
 }
