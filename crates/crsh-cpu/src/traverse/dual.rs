@@ -67,6 +67,22 @@
 //! the final tests see every pair brute force would hit. The exactness tests below check it
 //! against brute force and `crsh`.
 //!
+//! # Single rays
+//!
+//! A lowest node of incoherent rays (reflections off a curved surface, a cone of 60° and
+//! more) reaches nearly every triangle its cone sweeps, and all its rays are tested against
+//! each. With parameter `single_rays` (on by default) a pair (lowest node `N`, internal
+//! object node `O`) that passes, where `N`'s rays spread wider than `O`
+//! ([`NodeBound::spreads_wider_than`]) and `N` has at most 32 rays, descends to `N`'s rays
+//! instead, as a packet with a mask of live rays: each live ray is tested alone against
+//! `O`'s box (its segment, the ray's interval, by slabs in `f64` widened by a relative
+//! `1e-9`; a ray that is not [`Ray::is_valid`] always passes, the intersector refuses it),
+//! the rays that pass go on to `O`'s children, and a triangle that some ray reaches makes
+//! `(N, T)` a candidate, once (the intersector still tests all of `N`'s rays against it).
+//! Exactness is the box test's argument for one ray. Each ray test counts as a bound test, in
+//! the object-depth rows and, on the ray side, in the lowest node level's row (level 1): the
+//! rows still sum to the bounds.
+//!
 //! # The box test
 //!
 //! Cones and spheres are loose around the shapes real scenes are made of: long thin
@@ -135,12 +151,15 @@
 //! |---|---:|---:|---:|---:|---:|---:|
 //! | `crsh` | 613 | 173 | 786 | 2535 | 1662 | 0.28 |
 //! | `dual`, `box_test = false` | 53 | 173 | 226 | 702 | 513 | 0.82 |
-//! | `dual` (box test) | 19 | 29 | 48 | 389 | 182 | 1.45 |
+//! | `dual`, boxes, `single_rays = false` | 19 | 29 | 48 | 389 | 182 | 1.45 |
+//! | `dual` (boxes, single rays) | 18.6 | 22.4 | 41.0 | 386 | 138 | 1.56 |
 //! | `bvh` (obvhs CWBVH, whole scene) | 93 | 3.8 | 97 | – | 354 | 3.48 |
 //!
 //! Without boxes the bounds tests drop 11× against `crsh`, but the final tests (candidates ×
 //! the 8 rays of a lowest node) stay `crsh`'s; the box test cuts them 6× (most of a shadow
-//! node's sphere candidates are floor and wall triangles its segments never reach). The object hierarchy's build is part of the stage's
+//! node's sphere candidates are floor and wall triangles its segments never reach). On the
+//! dining room's reflection rays (lowest-node cones of 63° on average) single rays take the
+//! tests per ray from 61,147 to 730. The object hierarchy's build is part of the stage's
 //! construction: about 27 ms for Sponza (stage builds 79 ms against `crsh`'s 53 ms).
 //!
 //! # Errors
@@ -196,6 +215,14 @@ pub fn info() -> StageVariantInfo {
         "with `objects = lbvh`, test a pair's boxes before the cone-sphere test: the box of \
          the ray node's segments (clipped to the scene) against the object node's box; \
          false: the cone-sphere test alone",
+    ))
+    .param(ParamInfo::bool(
+        "single_rays",
+        true,
+        "with `objects = lbvh`, a lowest ray node whose rays spread wider than an object \
+         node descends to its single rays, each tested against the object nodes' boxes \
+         below (incoherent rays: reflections off curved surfaces); false: lowest nodes \
+         stay whole",
     ))
     .param(
         ParamInfo::float(
@@ -341,32 +368,46 @@ pub fn segment_box(ray: &Ray, bounds: &Aabb) -> Aabb {
     if bounds.is_empty() {
         return Aabb::EMPTY;
     }
-    let o = ray.origin.as_dvec3();
-    let d = ray.dir.as_dvec3();
-    let (lo, hi) = (bounds.min.as_dvec3(), bounds.max.as_dvec3());
-    let (mut t0, mut t1) = (ray.t_min as f64, ray.t_max as f64);
-    for axis in 0..3 {
-        if d[axis] == 0.0 {
-            if o[axis] < lo[axis] || o[axis] > hi[axis] {
-                return Aabb::EMPTY;
-            }
-            continue;
-        }
-        let a = (lo[axis] - o[axis]) / d[axis];
-        let b = (hi[axis] - o[axis]) / d[axis];
-        // Widened by a relative 1e-9 for the rounding of the division (the slab is already
-        // padded by the triangle margins).
-        let (near, far) = (a.min(b), a.max(b));
-        t0 = t0.max(near - 1e-9 * near.abs());
-        t1 = t1.min(far + 1e-9 * far.abs());
-    }
-    if t0 > t1 {
+    let Some((t0, t1)) = clip(ray, bounds) else {
         return Aabb::EMPTY;
-    }
+    };
+    let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
     let (p0, p1) = (o + d * t0, o + d * t1);
     let (plo, phi) = (p0.min(p1), p0.max(p1));
     let scale = plo.abs().max(phi.abs()).max_element().max(1.0);
     round_box(plo, phi, 1e-9 * scale)
+}
+
+/// The part `[t0, t1]` of a valid ray's interval inside the non-empty box `b` (slabs in
+/// `f64`, widened by a relative `1e-9` for the rounding of the division), `None` when it is
+/// empty.
+#[inline]
+fn clip(ray: &Ray, b: &Aabb) -> Option<(f64, f64)> {
+    let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
+    let (lo, hi) = (b.min.as_dvec3(), b.max.as_dvec3());
+    let (mut t0, mut t1) = (ray.t_min as f64, ray.t_max as f64);
+    for axis in 0..3 {
+        if d[axis] == 0.0 {
+            if o[axis] < lo[axis] || o[axis] > hi[axis] {
+                return None;
+            }
+            continue;
+        }
+        let inv = 1.0 / d[axis];
+        let a = (lo[axis] - o[axis]) * inv;
+        let c = (hi[axis] - o[axis]) * inv;
+        let (near, far) = (a.min(c), a.max(c));
+        t0 = t0.max(near - 1e-9 * near.abs());
+        t1 = t1.min(far + 1e-9 * far.abs());
+    }
+    (t0 <= t1).then_some((t0, t1))
+}
+
+/// Whether a point of `ray`'s segment (its interval) may lie in box `b`: [`clip`]; true for a
+/// ray that is not [`Ray::is_valid`] (the intersector refuses it).
+#[inline]
+fn segment_meets_box(ray: &Ray, b: &Aabb) -> bool {
+    !ray.is_valid() || clip(ray, b).is_some()
 }
 
 /// The segment box ([`segment_box`]) of every ray node, by level as the hierarchy's
@@ -615,11 +656,13 @@ pub struct Dual {
 /// The object side.
 #[derive(Clone, Debug)]
 enum Objects {
-    /// A per-frame [`Lbvh`]; `box_test`: the pair test starts with the boxes.
+    /// A per-frame [`Lbvh`]; `box_test`: the pair test starts with the boxes;
+    /// `single_rays`: lowest nodes may descend to their rays.
     Lbvh {
         tree: Box<Lbvh>,
         budget_bytes: u64,
         box_test: bool,
+        single_rays: bool,
     },
     /// The thesis's mesh spheres ([`Crsh`] with mesh culling).
     Meshes(Crsh),
@@ -636,7 +679,13 @@ struct Pair {
     level: u16,
     /// Object node depth (0: the root).
     depth: u16,
+    /// With `level == `[`SINGLE`]: which rays of lowest node `node` this pair still tests
+    /// (bit `i`: the node's `i`-th leaf); otherwise unused.
+    mask: u32,
 }
+
+/// The `level` of a pair that tests the single rays of a lowest node (see *Single rays*).
+const SINGLE: u16 = u16::MAX;
 
 /// Tests and passes per ray level and per object depth.
 #[derive(Clone, Debug, Default)]
@@ -683,6 +732,10 @@ struct Task {
 
 /// What the tasks share.
 struct Ctx<'a> {
+    rays: &'a [Ray],
+    hierarchy: &'a RayHierarchy<Cpu>,
+    /// Whether lowest nodes descend to single rays.
+    single_rays: bool,
     nodes: &'a [Vec<NodeBound>],
     /// The ray nodes' segment boxes, by level as `nodes` (`None`: no box test).
     boxes: Option<&'a [Vec<Aabb>]>,
@@ -702,6 +755,52 @@ impl Task {
                 self.stack.push(p);
                 break;
             }
+            if p.level == SINGLE {
+                // The node's live rays, one by one, against the object node's box (counted
+                // in the lowest level's row).
+                let leaves = lowest_node_leaves(
+                    p.node as usize,
+                    ctx.hierarchy.subdivision,
+                    ctx.hierarchy.leaf_offsets.as_deref(),
+                    ctx.rays.len(),
+                );
+                let bx = tree.bx(p.obj);
+                let (mut live, mut left) = (0u32, p.mask);
+                while left != 0 {
+                    let i = left.trailing_zeros();
+                    left &= left - 1;
+                    let ray = &ctx.rays[ctx.hierarchy.order[leaves.start + i as usize] as usize];
+                    if segment_meets_box(ray, bx) {
+                        live |= 1 << i;
+                    }
+                }
+                let (tested, passed) = (p.mask.count_ones() as u64, live.count_ones() as u64);
+                counts.ray[0][0] += tested;
+                counts.ray[0][1] += passed;
+                counts.obj[p.depth as usize][0] += tested;
+                counts.obj[p.depth as usize][1] += passed;
+                if live == 0 {
+                    continue;
+                }
+                if p.obj & LEAF != 0 {
+                    push_candidate(
+                        &mut out,
+                        cap,
+                        p.node,
+                        tree.leaf_tris[(p.obj & !LEAF) as usize],
+                    );
+                } else {
+                    for &c in tree.inner[p.obj as usize].children.iter().rev() {
+                        self.stack.push(Pair {
+                            obj: c,
+                            depth: p.depth + 1,
+                            mask: live,
+                            ..p
+                        });
+                    }
+                }
+                continue;
+            }
             let nb = &ctx.nodes[p.level as usize][p.node as usize];
             let sphere = tree.sphere(p.obj);
             counts.ray[p.level as usize][0] += 1;
@@ -720,17 +819,34 @@ impl Task {
             let lowest = p.level == 0;
             let split_rays = match (lowest, leaf) {
                 (true, true) => {
-                    if out.len() == out.capacity() {
-                        let more = out.capacity().max(256).min(cap - out.len());
-                        out.reserve_exact(more);
-                    }
-                    out.push(Candidate {
-                        node: p.node,
-                        tri: tree.leaf_tris[(p.obj & !LEAF) as usize],
-                    });
+                    push_candidate(
+                        &mut out,
+                        cap,
+                        p.node,
+                        tree.leaf_tris[(p.obj & !LEAF) as usize],
+                    );
                     continue;
                 }
-                (true, false) => false,
+                (true, false) => {
+                    let rays = lowest_node_leaves(
+                        p.node as usize,
+                        ctx.hierarchy.subdivision,
+                        ctx.hierarchy.leaf_offsets.as_deref(),
+                        ctx.rays.len(),
+                    )
+                    .len();
+                    if ctx.single_rays && rays <= 32 && nb.spreads_wider_than(sphere) {
+                        // The node's rays spread wider than the object node: test them one
+                        // by one below it.
+                        self.stack.push(Pair {
+                            level: SINGLE,
+                            mask: ((1u64 << rays) - 1) as u32,
+                            ..p
+                        });
+                        continue;
+                    }
+                    false
+                }
                 (false, true) => true,
                 (false, false) => nb.spreads_wider_than(sphere),
             };
@@ -763,6 +879,20 @@ impl Task {
     }
 }
 
+/// Appends a candidate to a task's array, growing it by at least 256 pairs at a time but
+/// never past `cap` (more only when the task is already over it).
+fn push_candidate(out: &mut Vec<Candidate>, cap: usize, node: u32, tri: u32) {
+    if out.len() == out.capacity() {
+        let more = out
+            .capacity()
+            .max(256)
+            .min(cap.saturating_sub(out.len()))
+            .max(1);
+        out.reserve_exact(more);
+    }
+    out.push(Candidate { node, tri });
+}
+
 impl Dual {
     /// The traverser over `scene` with `spec`'s `objects` and `candidate_budget_mb`; with
     /// `objects = lbvh` it builds the object hierarchy now.
@@ -771,17 +901,20 @@ impl Dual {
         let mb = spec.f64("candidate_budget_mb")?;
         let mut dual = Dual::with_options(scene, objects, mb)?;
         dual.set_box_test(spec.bool("box_test")?);
+        dual.set_single_rays(spec.bool("single_rays")?);
         Ok(dual)
     }
 
     /// The traverser with explicit options: `objects` one of [`OBJECTS`], `budget_mb` in MiB
-    /// (finite and > 0); the box test on ([`Dual::set_box_test`]).
+    /// (finite and > 0); the box test and single rays on ([`Dual::set_box_test`],
+    /// [`Dual::set_single_rays`]).
     pub fn with_options(scene: &Arc<Scene>, objects: &str, budget_mb: f64) -> Result<Dual> {
         let objects = match objects {
             "lbvh" => Objects::Lbvh {
                 budget_bytes: budget_bytes(budget_mb)?,
                 tree: Box::new(Lbvh::build(scene)?),
                 box_test: true,
+                single_rays: true,
             },
             "meshes" => Objects::Meshes(Crsh::with_options(scene, true, budget_mb)?),
             other => {
@@ -807,6 +940,25 @@ impl Dual {
         if let Objects::Lbvh { box_test, .. } = &mut self.objects {
             *box_test = on;
         }
+    }
+
+    /// Turns the descent of lowest nodes to single rays (`objects = lbvh`) on or off.
+    pub fn set_single_rays(&mut self, on: bool) {
+        if let Objects::Lbvh { single_rays, .. } = &mut self.objects {
+            *single_rays = on;
+        }
+    }
+
+    /// Whether lowest nodes may descend to single rays (`objects = lbvh` with
+    /// `single_rays`).
+    pub fn single_rays(&self) -> bool {
+        matches!(
+            self.objects,
+            Objects::Lbvh {
+                single_rays: true,
+                ..
+            }
+        )
     }
 
     /// Whether pairs are box-tested first (`objects = lbvh` with `box_test`).
@@ -847,7 +999,7 @@ impl Dual {
         sink: &mut dyn FnMut(CandidateBatch<Cpu>, &mut Stats) -> Result<()>,
         stats: &mut Stats,
     ) -> Result<DualReport> {
-        let (tree, budget, box_test) = match &self.objects {
+        let (tree, budget, box_test, single_rays) = match &self.objects {
             Objects::Meshes(crsh) => {
                 let r = crsh.traverse_with_report(rays, kind, hierarchy, sink, stats)?;
                 return Ok(DualReport {
@@ -863,7 +1015,8 @@ impl Dual {
                 tree,
                 budget_bytes,
                 box_test,
-            } => (tree, *budget_bytes, *box_test),
+                single_rays,
+            } => (tree, *budget_bytes, *box_test, *single_rays),
         };
         let (g, cap) = self.round_shape();
         let mut report = DualReport {
@@ -883,6 +1036,9 @@ impl Dual {
         let n_top = nodes[top_level].len();
         let boxes = box_test.then(|| ray_node_boxes(rays, hierarchy, &tree.bounds()));
         let ctx = Ctx {
+            rays,
+            hierarchy,
+            single_rays,
             nodes: &nodes,
             boxes: boxes.as_deref(),
             sub: hierarchy.subdivision as usize,
@@ -898,6 +1054,7 @@ impl Dual {
                         obj: root,
                         level: top_level as u16,
                         depth: 0,
+                        mask: 0,
                     }],
                 });
                 next_top += 1;
@@ -979,6 +1136,97 @@ mod tests {
         trace_with(brute, rays, h, mode, |kind, sink, stats| {
             trav.traverse_with_report(rays, kind, h, sink, stats)
         })
+    }
+
+    /// The candidate sets of `trav` (`objects = lbvh`, both options on) and of its variants
+    /// without single rays and without boxes, against `crsh`'s pairs (`crsh`) and the exact
+    /// pairs (some ray of the node hits the triangle): each keeps every exact pair, only pairs
+    /// its tests pass, and the options only remove pairs.
+    fn check_lbvh_pairs(
+        trav: &Dual,
+        scene: &Scene,
+        rays: &Vec<Ray>,
+        h: &RayHierarchy<Cpu>,
+        crsh: &[Candidate],
+        mode: HitMode,
+        what: &str,
+    ) {
+        use crate::triangle::{PreparedTriangle, RayPre};
+        let brute = BruteForce::from_scene(scene);
+        let boxes = ray_node_boxes(rays, h, &trav_bounds(trav));
+        let tri_box = |t: u32| triangle_box(scene.triangle(t as usize));
+        let node_rays = |n: u32| -> Vec<Ray> {
+            lowest_node_leaves(n as usize, h.subdivision, None, rays.len())
+                .map(|l| rays[h.order[l] as usize])
+                .collect()
+        };
+        let mut exact = Vec::new();
+        for n in 0..h.levels[0].len() as u32 {
+            for r in node_rays(n) {
+                let pre = RayPre::of(&r);
+                for t in 0..scene.triangle_count() as u32 {
+                    let [a, b, c] = scene.triangle(t as usize);
+                    if PreparedTriangle::new(a, b, c)
+                        .intersect(&pre, r.t_min, r.t_max)
+                        .is_some()
+                    {
+                        exact.push(Candidate { node: n, tri: t });
+                    }
+                }
+            }
+        }
+        exact.sort_unstable();
+        exact.dedup();
+        let contains = |all: &[Candidate], want: &[Candidate], label: &str| {
+            let mut at = 0;
+            for p in want {
+                at += all[at..].partition_point(|q| q < p);
+                assert_eq!(all.get(at), Some(p), "{what} {label}");
+            }
+        };
+        let mut sets = Vec::new();
+        for (boxes_on, single) in [(true, true), (true, false), (false, false)] {
+            let mut t = trav.clone();
+            t.set_box_test(boxes_on);
+            t.set_single_rays(single);
+            let (hits, batches, _, _) = trace(&t, &brute, rays, h, mode);
+            let label = format!("box {boxes_on} single {single}");
+            assert_same(&hits, &reference(&brute, rays, mode), mode, &label);
+            // Strictly increasing batches, in increasing node order.
+            let all = batches.concat();
+            assert!(all.windows(2).all(|w| w[0] < w[1]), "{what} {label}");
+            contains(&all, &exact, &label);
+            for p in &all {
+                let nb = NodeBound::new(&h.levels[0][p.node as usize]).unwrap();
+                let sphere = nb.may_hit(&scene.tri_spheres[p.tri as usize]);
+                let one_ray = node_rays(p.node)
+                    .iter()
+                    .any(|r| segment_meets_box(r, &tri_box(p.tri)));
+                let boxed = boxes[0][p.node as usize].overlaps(&tri_box(p.tri));
+                let ok = match (boxes_on, single) {
+                    (true, true) => boxed && (sphere || one_ray),
+                    (true, false) => boxed && sphere,
+                    _ => sphere,
+                };
+                assert!(ok, "{what} {label}: {p:?}");
+            }
+            match (boxes_on, single) {
+                (false, false) => contains(&all, crsh, &label),
+                (true, false) => {
+                    let boxed: Vec<Candidate> = crsh
+                        .iter()
+                        .copied()
+                        .filter(|p| boxes[0][p.node as usize].overlaps(&tri_box(p.tri)))
+                        .collect();
+                    contains(&all, &boxed, &label);
+                }
+                _ => {}
+            }
+            sets.push(all);
+        }
+        // Each option only removes pairs.
+        contains(&sets[1], &sets[0], "single rays ⊆ boxes");
+        contains(&sets[2], &sets[1], "boxes ⊆ spheres");
     }
 
     /// The box around the triangles of `trav`'s object hierarchy.
@@ -1095,43 +1343,9 @@ mod tests {
                             assert_eq!(got3.2, stats, "{what}");
                             assert_eq!(got3.3, report, "{what}");
                             if objects == "lbvh" {
-                                // Strictly increasing batches, in increasing node order.
-                                let all = batches.concat();
-                                assert!(all.windows(2).all(|w| w[0] < w[1]), "{what}");
-                                // Every pair crsh keeps whose boxes overlap (the exact set
-                                // needs no more), and only pairs whose node reaches the
-                                // triangle's sphere and box.
-                                let boxes = ray_node_boxes(&rays, &h, &trav_bounds(&trav));
-                                let tri_box = |t: u32| triangle_box(scene.triangle(t as usize));
-                                let mut at = 0;
-                                for p in &crsh {
-                                    if !boxes[0][p.node as usize].overlaps(&tri_box(p.tri)) {
-                                        continue;
-                                    }
-                                    at += all[at..].partition_point(|q| q < p);
-                                    assert_eq!(all.get(at), Some(p), "{what}");
-                                }
-                                for p in &all {
-                                    let nb = NodeBound::new(&h.levels[0][p.node as usize]);
-                                    let s = &scene.tri_spheres[p.tri as usize];
-                                    assert!(nb.unwrap().may_hit(s), "{what}: {p:?}");
-                                    let b = &boxes[0][p.node as usize];
-                                    assert!(b.overlaps(&tri_box(p.tri)), "{what}: {p:?}");
-                                }
-                                assert_eq!(report.candidates as usize, all.len());
-                                // Without the box test: every pair crsh keeps.
-                                let mut plain = trav.clone();
-                                plain.set_box_test(false);
-                                let (h2, b2, s2, _) = trace(&plain, &brute, &rays, &h, *mode);
-                                assert_same(&h2, want, *mode, &what);
-                                let all2 = b2.concat();
-                                let mut at = 0;
-                                for p in &crsh {
-                                    at += all2[at..].partition_point(|q| q < p);
-                                    assert_eq!(all2.get(at), Some(p), "{what}");
-                                }
-                                assert!(all.len() <= all2.len(), "{what}");
-                                assert!(stats.tests.bounds <= s2.tests.bounds, "{what}");
+                                check_lbvh_pairs(&trav, scene, &rays, &h, &crsh, *mode, &what);
+                                assert_eq!(report.candidates, batches.concat().len() as u64);
+                                let _ = stats;
                             }
                         }
                     }
@@ -1188,7 +1402,7 @@ mod tests {
             assert_eq!((r_big.batches, r_big.suspensions), (1, 0), "{r_big:?}");
             assert_same(&h_big, &want, mode, "big");
             let all_big: Vec<Candidate> = b_big.concat();
-            for bytes in [64.0, 1000.0, 2400.0] {
+            for bytes in [32.0, 64.0, 128.0] {
                 let trav = Dual::with_options(&scene, "lbvh", bytes / mib).unwrap();
                 let run = || trace(&trav, &brute, &rays, &h, mode);
                 let (hits, batches, stats, report) = crate::with_threads(3, run).unwrap();
@@ -1622,6 +1836,7 @@ mod tests {
             assert!(trav.box_test());
             let mut plain = trav.clone();
             plain.set_box_test(false);
+            plain.set_single_rays(false);
             for mode in [HitMode::Closest, HitMode::Any] {
                 let want = reference(&brute, &rays, mode);
                 let n_hit = want.iter().filter(|h| h.is_hit()).count();
@@ -1641,6 +1856,40 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    #[test]
+    fn single_rays_cut_the_tests_of_incoherent_nodes() {
+        let scene = Arc::new(soup(91, 400));
+        let brute = BruteForce::from_scene(&scene);
+        // Random rays in random order: every lowest node's cone is wide.
+        let rays = random_rays(&scene, 92, 480);
+        let h = build(&rays, shuffled(rays.len(), 93), 8, 2);
+        let on = Dual::with_options(&scene, "lbvh", 64.0).unwrap();
+        assert!(on.single_rays());
+        let mut off = on.clone();
+        off.set_single_rays(false);
+        for mode in [HitMode::Closest, HitMode::Any] {
+            let want = reference(&brute, &rays, mode);
+            let (hits, _, s_on, _) = trace(&on, &brute, &rays, &h, mode);
+            let (hits_off, _, s_off, _) = trace(&off, &brute, &rays, &h, mode);
+            assert_same(&hits, &want, mode, "single rays");
+            assert_same(&hits_off, &want, mode, "whole nodes");
+            let (a, b) = (&s_on.tests, &s_off.tests);
+            assert!(
+                a.ray_triangle * 2 < b.ray_triangle && a.total < b.total,
+                "{mode:?}: {a:?} against {b:?}"
+            );
+            // The per-ray tests are in the lowest level's row and the object rows.
+            let rows: u64 = s_on
+                .levels
+                .iter()
+                .filter(|l| l.level > 0)
+                .map(|l| l.tests)
+                .sum();
+            let objs: u64 = s_on.object_levels.iter().map(|l| l.tests).sum();
+            assert_eq!((rows, objs), (a.bounds, a.bounds));
         }
     }
 }
