@@ -248,8 +248,19 @@ pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
 struct Inner {
     /// Contains the sphere of every triangle below.
     sphere: Sphere,
+    /// The union of its leaves' boxes (next to the sphere: a pair test reads one line).
+    bx: Aabb,
     /// Child references: an internal node index, or [`LEAF`] | a sorted position.
     children: [u32; 2],
+}
+
+/// The bounds of a leaf of an [`Lbvh`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Leaf {
+    /// The triangle's sphere.
+    sphere: Sphere,
+    /// The triangle's vertices' box widened by the margin ([`triangle_box`]).
+    bx: Aabb,
 }
 
 /// A binary bounding-sphere hierarchy over a scene's triangles, built from the Morton codes
@@ -260,13 +271,8 @@ pub struct Lbvh {
     inner: Vec<Inner>,
     /// Triangle id of each sorted position.
     leaf_tris: Vec<u32>,
-    /// Sphere of each sorted position's triangle.
-    leaf_spheres: Vec<Sphere>,
-    /// Box of each internal node: the union of its leaves' boxes.
-    inner_boxes: Vec<Aabb>,
-    /// Box of each sorted position's triangle: its vertices' box widened by the margin
-    /// ([`triangle_box`]).
-    leaf_boxes: Vec<Aabb>,
+    /// Bounds of each sorted position's triangle.
+    leaves: Vec<Leaf>,
     /// Deepest node (0: a single triangle or none).
     max_depth: usize,
 }
@@ -354,9 +360,10 @@ pub fn triangle_box(tri: [Vec3; 3]) -> Aabb {
     round_box(lo, hi, pad)
 }
 
-/// The box of the points `origin + t·dir` a ray can report a hit at: `t` in its interval
-/// clipped to `bounds` (the box of every triangle, margins included), the empty box when the
-/// interval misses `bounds` or is empty, and the whole space for a ray that is not
+/// The box of the points `origin + t·dir` a ray can report a hit at: `t` in its interval,
+/// clipped to `bounds` (the box of every triangle, margins included) when the interval is
+/// unbounded (a bounded one is only boxed: its end points, no divisions), the empty box when
+/// the interval is empty or misses `bounds`, and the whole space for a ray that is not
 /// [`Ray::is_valid`] (it is then the intersector's to refuse).
 pub fn segment_box(ray: &Ray, bounds: &Aabb) -> Aabb {
     if !ray.is_valid() {
@@ -368,8 +375,17 @@ pub fn segment_box(ray: &Ray, bounds: &Aabb) -> Aabb {
     if bounds.is_empty() {
         return Aabb::EMPTY;
     }
-    let Some((t0, t1)) = clip(ray, bounds) else {
-        return Aabb::EMPTY;
+    let (t0, t1) = if ray.t_min.is_finite() && ray.t_max.is_finite() {
+        // A bounded segment (shadow rays): its end points, no clipping (no divisions).
+        if ray.t_min > ray.t_max {
+            return Aabb::EMPTY;
+        }
+        (ray.t_min as f64, ray.t_max as f64)
+    } else {
+        let Some(t) = clip(ray, bounds) else {
+            return Aabb::EMPTY;
+        };
+        t
     };
     let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
     let (p0, p1) = (o + d * t0, o + d * t1);
@@ -404,8 +420,9 @@ fn clip(ray: &Ray, b: &Aabb) -> Option<(f64, f64)> {
 }
 
 /// Whether a point of `ray`'s segment (its interval) may lie in box `b`: [`clip`]; true for a
-/// ray that is not [`Ray::is_valid`] (the intersector refuses it).
-#[inline]
+/// ray that is not [`Ray::is_valid`] (the intersector refuses it). The traversal calls
+/// [`clip`] itself, on nodes whose rays are all valid.
+#[cfg(test)]
 fn segment_meets_box(ray: &Ray, b: &Aabb) -> bool {
     !ray.is_valid() || clip(ray, b).is_some()
 }
@@ -482,10 +499,17 @@ impl Lbvh {
         keys.par_sort_unstable();
         let codes: Vec<u64> = keys.iter().map(|k| k.0).collect();
         let leaf_tris: Vec<u32> = keys.iter().map(|k| k.1).collect();
-        let leaf_spheres: Vec<Sphere> = leaf_tris.iter().map(|&t| spheres[t as usize]).collect();
+        let leaves: Vec<Leaf> = leaf_tris
+            .par_iter()
+            .map(|&t| Leaf {
+                sphere: spheres[t as usize],
+                bx: triangle_box(scene.triangle(t as usize)),
+            })
+            .collect();
         let mut inner = vec![
             Inner {
                 sphere: Sphere::new(Vec3::ZERO, 0.0),
+                bx: Aabb::EMPTY,
                 children: [0, 0],
             };
             n.saturating_sub(1)
@@ -525,17 +549,12 @@ impl Lbvh {
                 stack.push((split + 1, b, right, depth + 1));
             }
         }
-        let leaf_boxes: Vec<Aabb> = leaf_tris
-            .par_iter()
-            .map(|&t| triangle_box(scene.triangle(t as usize)))
-            .collect();
-        let mut inner_boxes = vec![Aabb::EMPTY; inner.len()];
         let mut boxes = vec![(DVec3::ZERO, DVec3::ZERO); inner.len()];
         for &i in preorder.iter().rev() {
             let [l, r] = inner[i as usize].children;
             let part = |c: u32| -> (Sphere, (DVec3, DVec3)) {
                 if c & LEAF != 0 {
-                    let s = leaf_spheres[(c & !LEAF) as usize];
+                    let s = leaves[(c & !LEAF) as usize].sphere;
                     (s, sphere_box(&s))
                 } else {
                     (inner[c as usize].sphere, boxes[c as usize])
@@ -548,19 +567,17 @@ impl Lbvh {
             boxes[i as usize] = bounds;
             let child_box = |c: u32| {
                 if c & LEAF != 0 {
-                    leaf_boxes[(c & !LEAF) as usize]
+                    leaves[(c & !LEAF) as usize].bx
                 } else {
-                    inner_boxes[c as usize]
+                    inner[c as usize].bx
                 }
             };
-            inner_boxes[i as usize] = child_box(l).union(child_box(r));
+            inner[i as usize].bx = child_box(l).union(child_box(r));
         }
         Ok(Lbvh {
             inner,
             leaf_tris,
-            leaf_spheres,
-            inner_boxes,
-            leaf_boxes,
+            leaves,
             max_depth,
         })
     }
@@ -588,7 +605,7 @@ impl Lbvh {
     #[inline]
     fn sphere(&self, node: u32) -> &Sphere {
         if node & LEAF != 0 {
-            &self.leaf_spheres[(node & !LEAF) as usize]
+            &self.leaves[(node & !LEAF) as usize].sphere
         } else {
             &self.inner[node as usize].sphere
         }
@@ -598,9 +615,9 @@ impl Lbvh {
     #[inline]
     fn bx(&self, node: u32) -> &Aabb {
         if node & LEAF != 0 {
-            &self.leaf_boxes[(node & !LEAF) as usize]
+            &self.leaves[(node & !LEAF) as usize].bx
         } else {
-            &self.inner_boxes[node as usize]
+            &self.inner[node as usize].bx
         }
     }
 
@@ -730,15 +747,30 @@ struct Task {
     stack: Vec<Pair>,
 }
 
+/// A ray node prepared for the pair test: its segment box (the whole space when neither the
+/// box test nor single rays need it) next to its cone-sphere bound.
+#[derive(Clone, Copy, Debug)]
+struct RayNode {
+    bx: Aabb,
+    bound: NodeBound,
+}
+
+/// The whole space: the box of a ray node nothing is culled by.
+const EVERYWHERE: Aabb = Aabb {
+    min: Vec3::NEG_INFINITY,
+    max: Vec3::INFINITY,
+};
+
 /// What the tasks share.
 struct Ctx<'a> {
     rays: &'a [Ray],
     hierarchy: &'a RayHierarchy<Cpu>,
     /// Whether lowest nodes descend to single rays.
     single_rays: bool,
-    nodes: &'a [Vec<NodeBound>],
-    /// The ray nodes' segment boxes, by level as `nodes` (`None`: no box test).
-    boxes: Option<&'a [Vec<Aabb>]>,
+    /// Whether pairs are box-tested.
+    box_test: bool,
+    /// The ray nodes by level (lowest first).
+    nodes: &'a [Vec<RayNode>],
     sub: usize,
     tree: &'a Lbvh,
 }
@@ -770,7 +802,7 @@ impl Task {
                     let i = left.trailing_zeros();
                     left &= left - 1;
                     let ray = &ctx.rays[ctx.hierarchy.order[leaves.start + i as usize] as usize];
-                    if segment_meets_box(ray, bx) {
+                    if clip(ray, bx).is_some() {
                         live |= 1 << i;
                     }
                 }
@@ -801,14 +833,13 @@ impl Task {
                 }
                 continue;
             }
-            let nb = &ctx.nodes[p.level as usize][p.node as usize];
+            let rn = &ctx.nodes[p.level as usize][p.node as usize];
+            let nb = &rn.bound;
             let sphere = tree.sphere(p.obj);
             counts.ray[p.level as usize][0] += 1;
             counts.obj[p.depth as usize][0] += 1;
-            if let Some(boxes) = ctx.boxes {
-                if !boxes[p.level as usize][p.node as usize].overlaps(tree.bx(p.obj)) {
-                    continue;
-                }
+            if ctx.box_test && !rn.bx.overlaps(tree.bx(p.obj)) {
+                continue;
             }
             if !nb.may_hit(sphere) {
                 continue;
@@ -835,7 +866,13 @@ impl Task {
                         ctx.rays.len(),
                     )
                     .len();
-                    if ctx.single_rays && rays <= 32 && nb.spreads_wider_than(sphere) {
+                    // A node with a ray that is not valid has the whole space as its box
+                    // and stays whole (the single-ray test assumes valid rays).
+                    if ctx.single_rays
+                        && rays <= 32
+                        && rn.bx.min.is_finite()
+                        && nb.spreads_wider_than(sphere)
+                    {
                         // The node's rays spread wider than the object node: test them one
                         // by one below it.
                         self.stack.push(Pair {
@@ -1034,13 +1071,29 @@ impl Dual {
         };
         let top_level = nodes.len() - 1;
         let n_top = nodes[top_level].len();
-        let boxes = box_test.then(|| ray_node_boxes(rays, hierarchy, &tree.bounds()));
+        let boxes =
+            (box_test || single_rays).then(|| ray_node_boxes(rays, hierarchy, &tree.bounds()));
+        let nodes: Vec<Vec<RayNode>> = nodes
+            .into_iter()
+            .enumerate()
+            .map(|(l, level)| {
+                level
+                    .into_iter()
+                    .enumerate()
+                    .map(|(n, bound)| RayNode {
+                        bx: boxes.as_ref().map_or(EVERYWHERE, |b| b[l][n]),
+                        bound,
+                    })
+                    .collect()
+            })
+            .collect();
+        drop(boxes);
         let ctx = Ctx {
             rays,
             hierarchy,
             single_rays,
+            box_test,
             nodes: &nodes,
-            boxes: boxes.as_deref(),
             sub: hierarchy.subdivision as usize,
             tree,
         };
@@ -1682,7 +1735,9 @@ mod tests {
         let behind = test_ray(Vec3::new(-2.0, 0.0, 0.0), -Vec3::X, 0.0, f32::INFINITY, 0);
         assert!(segment_box(&behind, &bounds).is_empty());
         let short = test_ray(Vec3::new(-2.0, 0.0, 0.0), Vec3::X, 0.0, 0.5, 0);
-        assert!(segment_box(&short, &bounds).is_empty());
+        // A bounded segment is boxed, not clipped: its box misses the bounds.
+        let b = segment_box(&short, &bounds);
+        assert!(!b.is_empty() && !b.overlaps(&bounds), "{b:?}");
         let reversed = test_ray(Vec3::ZERO, Vec3::X, 0.5, 0.25, 0);
         assert!(segment_box(&reversed, &bounds).is_empty());
         let parallel = test_ray(Vec3::new(0.0, 0.5, -3.0), Vec3::Z, 0.0, f32::INFINITY, 0);
