@@ -180,9 +180,11 @@ use rayon::prelude::*;
 
 use super::crsh::{budget_bytes, prepare_nodes, Crsh, NodeBound, ABS_MARGIN, REL_MARGIN};
 use crate::backend::Cpu;
+use crate::intersect::bvh::{build_bvh2, BuildQuality};
+use obvhs::triangle::Triangle;
 
 /// The choices of parameter `objects`.
-pub const OBJECTS: [&str; 2] = ["lbvh", "meshes"];
+pub const OBJECTS: [&str; 3] = ["lbvh", "bvh", "meshes"];
 /// Most tasks (top-level ray nodes) traversed in one round.
 const ROUND_TASKS: usize = 256;
 /// Fewest candidates a task may hold before it stops, unless the budget is smaller.
@@ -206,8 +208,9 @@ pub fn info() -> StageVariantInfo {
         "lbvh",
         &OBJECTS,
         "object side: `lbvh` a binary sphere hierarchy over the triangles by Morton codes, \
-         rebuilt per frame; `meshes` the thesis's mesh spheres then triangle spheres (the \
-         `crsh` traverser with mesh culling)",
+         rebuilt per frame; `bvh` the same bounds over the topology of obvhs's binary BVH \
+         (PLOC with reinsertion, `fast` preset), rebuilt per frame; `meshes` the thesis's \
+         mesh spheres then triangle spheres (the `crsh` traverser with mesh culling)",
     ))
     .param(ParamInfo::bool(
         "box_test",
@@ -499,13 +502,6 @@ impl Lbvh {
         keys.par_sort_unstable();
         let codes: Vec<u64> = keys.iter().map(|k| k.0).collect();
         let leaf_tris: Vec<u32> = keys.iter().map(|k| k.1).collect();
-        let leaves: Vec<Leaf> = leaf_tris
-            .par_iter()
-            .map(|&t| Leaf {
-                sphere: spheres[t as usize],
-                bx: triangle_box(scene.triangle(t as usize)),
-            })
-            .collect();
         let mut inner = vec![
             Inner {
                 sphere: Sphere::new(Vec3::ZERO, 0.0),
@@ -549,6 +545,132 @@ impl Lbvh {
                 stack.push((split + 1, b, right, depth + 1));
             }
         }
+        Ok(Lbvh::with_topology(
+            scene, inner, leaf_tris, &preorder, max_depth,
+        ))
+    }
+
+    /// Builds the hierarchy over the topology of obvhs's binary BVH (`Bvh2`, PLOC with
+    /// reinsertion, preset `quality`) over all of `scene`'s triangles, one triangle per leaf
+    /// (a leaf of several becomes a balanced subtree); the bounds are computed as for the
+    /// Morton build. Errors on 2³¹ triangles or more.
+    pub fn build_bvh2(scene: &Scene, quality: BuildQuality) -> Result<Lbvh> {
+        let n = scene.triangle_count();
+        if n >= LEAF as usize {
+            return Err(CoreError::InvalidInput(format!(
+                "{n} triangles: the object hierarchy holds fewer than 2^31"
+            )));
+        }
+        if n < 2 {
+            return Lbvh::build(scene);
+        }
+        let tris: Vec<Triangle> = (0..n)
+            .into_par_iter()
+            .map(|t| {
+                let [a, b, c] = scene.triangle(t);
+                Triangle {
+                    v0: a.into(),
+                    v1: b.into(),
+                    v2: c.into(),
+                }
+            })
+            .collect();
+        let bvh = build_bvh2(&tris, &quality.params());
+        /// A part of the obvhs tree still to convert: a node, or a run of a leaf's primitives.
+        enum Part {
+            Node(usize),
+            Prims(usize, usize),
+        }
+        let mut inner: Vec<Inner> = Vec::with_capacity(n - 1);
+        let mut leaf_tris: Vec<u32> = Vec::with_capacity(n);
+        let mut preorder: Vec<u32> = Vec::with_capacity(n - 1);
+        let mut max_depth = 0usize;
+        let blank = Inner {
+            sphere: Sphere::new(Vec3::ZERO, 0.0),
+            bx: Aabb::EMPTY,
+            children: [0, 0],
+        };
+        let root = &bvh.nodes[0];
+        let first = if root.prim_count == 0 {
+            Part::Node(0)
+        } else {
+            Part::Prims(root.first_index as usize, root.prim_count as usize)
+        };
+        inner.push(blank);
+        let mut stack: Vec<(Part, u32, usize)> = vec![(first, 0, 0)];
+        while let Some((part, index, depth)) = stack.pop() {
+            preorder.push(index);
+            max_depth = max_depth.max(depth + 1);
+            let halves: [Part; 2] = match part {
+                Part::Node(i) => {
+                    let f = bvh.nodes[i].first_index as usize;
+                    [f, f + 1].map(|c| {
+                        let node = &bvh.nodes[c];
+                        if node.prim_count == 0 {
+                            Part::Node(c)
+                        } else {
+                            Part::Prims(node.first_index as usize, node.prim_count as usize)
+                        }
+                    })
+                }
+                Part::Prims(start, count) => {
+                    let half = count / 2;
+                    [
+                        Part::Prims(start, half),
+                        Part::Prims(start + half, count - half),
+                    ]
+                }
+            };
+            let mut children = [0u32; 2];
+            let mut later = Vec::with_capacity(2);
+            for (k, half) in halves.into_iter().enumerate() {
+                children[k] = match half {
+                    Part::Prims(start, 1) => {
+                        leaf_tris.push(bvh.primitive_indices[start]);
+                        LEAF | (leaf_tris.len() - 1) as u32
+                    }
+                    other => {
+                        inner.push(blank);
+                        let c = (inner.len() - 1) as u32;
+                        later.push((other, c, depth + 1));
+                        c
+                    }
+                };
+            }
+            inner[index as usize].children = children;
+            // Right first, so that the left subtree's leaves come first.
+            stack.extend(later.into_iter().rev());
+        }
+        if leaf_tris.len() != n || inner.len() != n - 1 {
+            return Err(CoreError::InvalidInput(format!(
+                "the obvhs BVH over {n} triangles has {} leaves and {} inner nodes",
+                leaf_tris.len(),
+                inner.len()
+            )));
+        }
+        Ok(Lbvh::with_topology(
+            scene, inner, leaf_tris, &preorder, max_depth,
+        ))
+    }
+
+    /// The hierarchy with the given topology (`inner` nodes' children set, leaves' triangle
+    /// ids, the inner nodes in an order where a parent precedes its children): leaf spheres
+    /// and boxes from the scene, inner bounds bottom-up.
+    fn with_topology(
+        scene: &Scene,
+        mut inner: Vec<Inner>,
+        leaf_tris: Vec<u32>,
+        preorder: &[u32],
+        max_depth: usize,
+    ) -> Lbvh {
+        let spheres = &scene.tri_spheres;
+        let leaves: Vec<Leaf> = leaf_tris
+            .par_iter()
+            .map(|&t| Leaf {
+                sphere: spheres[t as usize],
+                bx: triangle_box(scene.triangle(t as usize)),
+            })
+            .collect();
         let mut boxes = vec![(DVec3::ZERO, DVec3::ZERO); inner.len()];
         for &i in preorder.iter().rev() {
             let [l, r] = inner[i as usize].children;
@@ -574,12 +696,12 @@ impl Lbvh {
             };
             inner[i as usize].bx = child_box(l).union(child_box(r));
         }
-        Ok(Lbvh {
+        Lbvh {
             inner,
             leaf_tris,
             leaves,
             max_depth,
-        })
+        }
     }
 
     /// Triangles (leaves).
@@ -678,6 +800,8 @@ enum Objects {
     Lbvh {
         tree: Box<Lbvh>,
         budget_bytes: u64,
+        /// The topology is obvhs's (`objects = bvh`), not the Morton build's.
+        sah: bool,
         box_test: bool,
         single_rays: bool,
     },
@@ -947,9 +1071,14 @@ impl Dual {
     /// [`Dual::set_single_rays`]).
     pub fn with_options(scene: &Arc<Scene>, objects: &str, budget_mb: f64) -> Result<Dual> {
         let objects = match objects {
-            "lbvh" => Objects::Lbvh {
+            "lbvh" | "bvh" => Objects::Lbvh {
                 budget_bytes: budget_bytes(budget_mb)?,
-                tree: Box::new(Lbvh::build(scene)?),
+                tree: Box::new(if objects == "lbvh" {
+                    Lbvh::build(scene)?
+                } else {
+                    Lbvh::build_bvh2(scene, BuildQuality::Fast)?
+                }),
+                sah: objects == "bvh",
                 box_test: true,
                 single_rays: true,
             },
@@ -964,10 +1093,11 @@ impl Dual {
         Ok(Dual { objects })
     }
 
-    /// The object side (`lbvh` or `meshes`).
+    /// The object side (`lbvh`, `bvh` or `meshes`).
     pub fn objects(&self) -> &'static str {
         match self.objects {
-            Objects::Lbvh { .. } => "lbvh",
+            Objects::Lbvh { sah: false, .. } => "lbvh",
+            Objects::Lbvh { sah: true, .. } => "bvh",
             Objects::Meshes(_) => "meshes",
         }
     }
@@ -1053,6 +1183,7 @@ impl Dual {
                 budget_bytes,
                 box_test,
                 single_rays,
+                ..
             } => (tree, *budget_bytes, *box_test, *single_rays),
         };
         let (g, cap) = self.round_shape();
@@ -1313,13 +1444,15 @@ mod tests {
             Arc::new(clustered(2, 6, 40)),
             Arc::new(crsh_scene::builtin::build("office-boxes").unwrap()),
         ];
-        for scene in &scenes {
-            let tree = crate::with_threads(1, || Lbvh::build(scene))
-                .unwrap()
-                .unwrap();
-            let again = crate::with_threads(3, || Lbvh::build(scene))
-                .unwrap()
-                .unwrap();
+        let builds: [fn(&Scene) -> Result<Lbvh>; 2] = [Lbvh::build, |s: &Scene| {
+            Lbvh::build_bvh2(s, BuildQuality::Fast)
+        }];
+        for (scene, build) in scenes
+            .iter()
+            .flat_map(|s| builds.iter().map(move |b| (s, b)))
+        {
+            let tree = crate::with_threads(1, || build(scene)).unwrap().unwrap();
+            let again = crate::with_threads(3, || build(scene)).unwrap().unwrap();
             assert_eq!(
                 tree, again,
                 "{}: the build depends on the threads",
@@ -1395,7 +1528,7 @@ mod tests {
                             assert_eq!(got3.1, batches, "{what}");
                             assert_eq!(got3.2, stats, "{what}");
                             assert_eq!(got3.3, report, "{what}");
-                            if objects == "lbvh" {
+                            if objects != "meshes" {
                                 check_lbvh_pairs(&trav, scene, &rays, &h, &crsh, *mode, &what);
                                 assert_eq!(report.candidates, batches.concat().len() as u64);
                                 let _ = stats;
@@ -1549,9 +1682,13 @@ mod tests {
             }
         }
         assert!(matches!(
-            Dual::with_options(&scene, "bvh", 1.0),
+            Dual::with_options(&scene, "grid", 1.0),
             Err(CoreError::InvalidParam { .. })
         ));
+        assert_eq!(
+            Dual::with_options(&scene, "bvh", 1.0).unwrap().objects(),
+            "bvh"
+        );
         spec.params.remove("objects");
         assert!(Dual::new(&scene, &spec).is_err());
     }
