@@ -1886,3 +1886,74 @@ fn rttest_plan_is_exact_on_every_cell_and_reports_packets() {
         assert!(header.contains(col), "{col} missing from {header}");
     }
 }
+
+/// The shipped dual-traversal plan (issue 17) validates, and a tiny version of it (32 pixels,
+/// two built-in scenes) runs every cell exactly (hit agreement 1 against the CWBVH), with the
+/// default `dual` cells needing fewer tests per ray than the thesis's `crsh` traversal.
+#[test]
+fn dual_plan_is_exact_on_every_cell() {
+    let dir = scratch("dual-plan");
+    let path = repo_root().join("plans/dual.toml");
+    let o = crsh(
+        &dir,
+        &["ablate", "--plan", path.to_str().unwrap(), "--dry-run"],
+    );
+    assert_ok(&o);
+    assert!(
+        text(&o.stdout).contains("36 cells, 2 timed runs each (nothing run)"),
+        "{}",
+        text(&o.stdout)
+    );
+    let shipped = std::fs::read_to_string(&path).unwrap();
+    let start = shipped.find("scenes = [").unwrap();
+    let end = start + shipped[start..].find("]\n").unwrap() + 2;
+    let small = format!(
+        "{}scenes = [\"office-boxes\", \"cornell-mirrors\"]\n{}",
+        &shipped[..start],
+        &shipped[end..]
+    )
+    .replace("width = 256", "width = 32")
+    .replace("repeat = 2", "repeat = 1");
+    let plan = dir.join("dual-small.toml");
+    std::fs::write(&plan, small).unwrap();
+    let o = crsh(
+        &dir,
+        &["ablate", "--plan", plan.to_str().unwrap(), "--out", "out"],
+    );
+    assert_ok(&o);
+    let v = read_json(&dir.join("out/results.json"));
+    let cs = cells(&v);
+    assert_eq!(cs.len(), 2 * 12);
+    for scene in ["office-boxes", "cornell-mirrors"] {
+        let per_ray = |label: &str| -> f64 {
+            let c = cs
+                .iter()
+                .find(|c| c["scene"] == scene && c["label"] == label)
+                .unwrap_or_else(|| panic!("{scene}: no {label} cell"));
+            c["measures"]["tests"]["per_ray"].as_f64().unwrap()
+        };
+        let crsh_tests = per_ray("crsh");
+        let dual_default = cs
+            .iter()
+            .find(|c| {
+                c["scene"] == scene
+                    && c["label"].as_str().is_some_and(|l| {
+                        l.starts_with("dual ")
+                            && l.contains("subdivision=8")
+                            && l.contains("depth=2")
+                    })
+            })
+            .unwrap_or_else(|| panic!("{scene}: no default dual cell"));
+        let dual_tests = dual_default["measures"]["tests"]["per_ray"]
+            .as_f64()
+            .unwrap();
+        assert!(
+            dual_tests < crsh_tests,
+            "{scene}: dual {dual_tests} against crsh {crsh_tests}"
+        );
+    }
+    for c in cs {
+        assert_eq!(c["status"], "ok", "{c:#}");
+        assert_eq!(c["measures"]["accuracy"]["hit_agreement"], 1.0, "{c:#}");
+    }
+}
