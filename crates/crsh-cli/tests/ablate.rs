@@ -1900,7 +1900,7 @@ fn dual_plan_is_exact_on_every_cell() {
     );
     assert_ok(&o);
     assert!(
-        text(&o.stdout).contains("36 cells, 2 timed runs each (nothing run)"),
+        text(&o.stdout).contains("36 cells, 3 timed runs each (nothing run)"),
         "{}",
         text(&o.stdout)
     );
@@ -1912,8 +1912,8 @@ fn dual_plan_is_exact_on_every_cell() {
         &shipped[..start],
         &shipped[end..]
     )
-    .replace("width = 256", "width = 32")
-    .replace("repeat = 2", "repeat = 1");
+    .replace("width = 512", "width = 32")
+    .replace("repeat = 3", "repeat = 1");
     let plan = dir.join("dual-small.toml");
     std::fs::write(&plan, small).unwrap();
     let o = crsh(
