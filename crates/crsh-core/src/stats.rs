@@ -402,6 +402,12 @@ pub struct Stats {
     /// with [`Stats::add_packets`].
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub packets: BTreeMap<String, PacketStats>,
+    /// What stages chose from the data of this frame, by `slot.ray_kind` key (e.g.
+    /// `"hierarchy.shadow"` → the ray-hierarchy shape an automatic builder picked for shadow
+    /// rays, with the estimates it compared); empty unless such a stage ran. Added to with
+    /// [`Stats::add_choice`].
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub choices: BTreeMap<String, String>,
 }
 
 impl Stats {
@@ -451,6 +457,13 @@ impl Stats {
     /// Adds level counters, merging with an existing entry of the same kind and level.
     pub fn add_level(&mut self, kind: RayKind, level: u32, tests: u64, hits: u64) {
         add_row(&mut self.levels, kind, level, tests, hits);
+    }
+
+    /// Records what stage slot `slot` chose for rays of `kind` ([`Stats::choices`], key
+    /// `slot.kind`); a later choice for the same key replaces it.
+    pub fn add_choice(&mut self, slot: &str, kind: RayKind, choice: String) {
+        self.choices
+            .insert(format!("{slot}.{}", kind.name()), choice);
     }
 
     /// Adds object-hierarchy counters at object node depth `depth` ([`Stats::object_levels`]),

@@ -32,6 +32,7 @@ impl BuiltinVariants for Cpu {
         crate::sort::compress::register(registry)?;
         crate::sort::radix::register(registry)?;
         crate::hierarchy::sphere_cone::register(registry)?;
+        crate::hierarchy::auto_shape::register(registry)?;
         crate::hierarchy::tile_cone::register(registry)?;
         crate::traverse::crsh::register(registry)?;
         crate::traverse::dual::register(registry)?;

@@ -213,6 +213,10 @@ pub struct StatsReport {
     /// (empty unless a coherent traversal ran).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub packets: BTreeMap<String, crsh_core::PacketStats>,
+    /// What stages chose from the frame's data ([`crsh_core::Stats::choices`]; absent unless
+    /// such a stage ran, e.g. the `auto_shape` hierarchy).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub choices: BTreeMap<String, String>,
     /// The most bytes the candidate arrays held at once (0 without a hierarchy).
     pub peak_candidate_bytes: u64,
     /// Per generation (bounce depth) and ray kind: rays, tests, tracing time and the
@@ -342,6 +346,7 @@ impl StatsReport {
             mesh_culling: stats.mesh_culling.clone(),
             object_levels: stats.object_levels.clone(),
             packets: stats.packets.clone(),
+            choices: stats.choices.clone(),
             peak_candidate_bytes: stats.peak_candidate_bytes,
             generations: stats.generations.clone(),
             timings_ms: stats.timings_ms.clone(),
@@ -427,6 +432,9 @@ impl StatsReport {
                 t.inner_nodes_per_ray,
                 t.leaves_per_ray,
             );
+        }
+        for (key, choice) in &self.choices {
+            let _ = writeln!(s, "choice    {key}: {choice}");
         }
         for kind in RayKind::ALL {
             let rows: Vec<&LevelStats> = self

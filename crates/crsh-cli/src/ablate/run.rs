@@ -517,6 +517,9 @@ fn add_stats(sum: &mut Stats, s: &Stats) {
     for (kind, p) in &s.packets {
         sum.packets.entry(kind.clone()).or_default().add(p);
     }
+    for (key, choice) in &s.choices {
+        sum.choices.insert(key.clone(), choice.clone());
+    }
     for (k, v) in &s.timings_ms {
         *sum.timings_ms.entry(k.clone()).or_default() += v;
     }

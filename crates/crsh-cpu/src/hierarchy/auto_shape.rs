@@ -1,0 +1,346 @@
+//! `auto_shape`: the sphere-cone hierarchy ([`super::sphere_cone`]) with its shape
+//! (subdivision and depth) chosen per ray kind from a sampled pre-pass (issue 17's
+//! auto-configuration; seed 000 §4 measures subdivisions 8 and 16 and depths 2-4 and finds no
+//! shape best everywhere).
+//!
+//! # The pre-pass
+//!
+//! On the first batch of each ray kind the builder sees, it takes a sample of the batch in
+//! sorted order: the first block of [`BLOCK`] consecutive leaves and then one in every
+//! `sample` (param, default 64, so 1/64 of a big batch; a batch of one block is taken whole).
+//! Blocks of consecutive leaves keep the coherence the sort created, which a sample of
+//! scattered rays would destroy. For every shape of [`SHAPES`] it builds the sphere-cone hierarchy over the
+//! sample and traverses it with the [`Dual`] traverser (LBVH objects, box test and single
+//! rays, built once with the stage) against the scene, and estimates the shape's cost as
+//!
+//! `bounds tests + Σ over candidates of the candidate node's rays`,
+//!
+//! i.e. the tests per ray the issue measures, with every ray of a candidate node tested (an
+//! upper bound: any-hit rays stop earlier). The cheapest shape (the first of [`SHAPES`] on a
+//! tie) is kept for that ray kind for the rest of the stage's life (a frame of a moving scene,
+//! every frame of a static one), and the full batch's hierarchy is built with it. The choice
+//! and the estimates of every shape go to [`Stats::choices`] (`hierarchy.<kind>`), so the
+//! summary and the stats JSON show what was picked and why.
+//!
+//! The estimate counts tests, not time: it prefers the shape with the fewest tests, which on
+//! the measured scenes is not always the fastest (`plans/dual.toml`: 8/3 has the fewest tests
+//! on Sponza, 16/3 is fastest). It is deterministic (a function of the rays, the order and
+//! the scene), as the pipeline requires.
+//!
+//! Its cost is the sample's traversals, 6 shapes × 1/64 of the rays (about a tenth of a full
+//! traversal; measured on Sponza 1024² shadow rays: 1/16 added 260 ms to the hierarchy
+//! stage), once per ray kind, plus the probe's LBVH build at stage construction. It is timed
+//! with the hierarchy stage.
+//!
+//! # Errors
+//!
+//! As [`super::sphere_cone`]: [`CoreError::InvalidInput`] for an order that is not a
+//! permutation of the rays or a ray that is not usable; [`CoreError::InvalidParam`] for a
+//! `sample` outside 1..=1024.
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+
+use crsh_core::{
+    lowest_node_leaves, CoreError, HierarchyBuilder, ParamInfo, Ray, RayHierarchy, RayKind,
+    Registry, Result, StageKind, StageSpec, StageVariantInfo, Stats,
+};
+use crsh_scene::Scene;
+
+use super::sphere_cone::{validate_leaves, SphereConeBuilder};
+use crate::backend::Cpu;
+use crate::traverse::dual::Dual;
+
+/// The shapes compared, as (subdivision, depth).
+pub const SHAPES: [(u32, u32); 6] = [(4, 2), (4, 3), (8, 2), (8, 3), (16, 2), (16, 3)];
+/// Consecutive sorted leaves per sample block.
+pub const BLOCK: usize = 1024;
+
+/// The catalogue entry of this variant.
+pub fn info() -> StageVariantInfo {
+    StageVariantInfo::new(
+        StageKind::Hierarchy,
+        "auto_shape",
+        "the sphere-cone hierarchy with subdivision and depth chosen per ray kind by a \
+         pre-pass: each shape of 4/8/16 × 2/3 traversed (dual, LBVH) over a sample of the \
+         sorted batch, the fewest estimated tests kept (issue 17's auto-configuration)",
+    )
+    .param(ParamInfo::int(
+        "sample",
+        64,
+        1,
+        1024,
+        "the first block of 1024 consecutive sorted rays and then one in every `sample` go \
+         into the pre-pass",
+    ))
+}
+
+/// Registers `auto_shape` ([`info`], [`AutoShape::new`]).
+pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
+    registry.add_hierarchy(info(), |ctx, spec| {
+        Ok(Box::new(AutoShape::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
+}
+
+/// The shape one pre-pass picked, with every shape's estimate.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShapeChoice {
+    /// The kept (subdivision, depth).
+    pub shape: (u32, u32),
+    /// Rays in the sample.
+    pub sample_rays: usize,
+    /// Rays in the batch the sample came from.
+    pub batch_rays: usize,
+    /// Estimated tests per sampled ray of each shape of [`SHAPES`], in that order.
+    pub estimates: Vec<f64>,
+}
+
+impl ShapeChoice {
+    /// One line for [`Stats::choices`].
+    pub fn describe(&self) -> String {
+        let est: Vec<String> = SHAPES
+            .iter()
+            .zip(&self.estimates)
+            .map(|((s, d), e)| format!("{s}/{d} {e:.1}"))
+            .collect();
+        format!(
+            "subdivision {} depth {} (sample {} of {} rays; estimated tests per ray: {})",
+            self.shape.0,
+            self.shape.1,
+            self.sample_rays,
+            self.batch_rays,
+            est.join(", ")
+        )
+    }
+}
+
+/// The `auto_shape` builder (see the module doc).
+pub struct AutoShape {
+    probe: Dual,
+    sample: usize,
+    chosen: Mutex<BTreeMap<u32, ShapeChoice>>,
+}
+
+impl AutoShape {
+    /// The builder over `scene` with `spec`'s `sample`; builds the probe's object hierarchy.
+    pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<AutoShape> {
+        AutoShape::with_sample(scene, spec.u32_in("sample", 1..=1024)? as usize)
+    }
+
+    /// The builder with one block in `sample` (1..=1024) sampled.
+    pub fn with_sample(scene: &Arc<Scene>, sample: usize) -> Result<AutoShape> {
+        if !(1..=1024).contains(&sample) {
+            return Err(CoreError::InvalidParam {
+                key: "auto_shape.sample".into(),
+                reason: format!("{sample} is outside 1..=1024"),
+            });
+        }
+        Ok(AutoShape {
+            probe: Dual::with_options(scene, "lbvh", 64.0)?,
+            sample,
+            chosen: Mutex::new(BTreeMap::new()),
+        })
+    }
+
+    /// The shape chosen for rays of `kind` so far, if any.
+    pub fn choice(&self, kind: RayKind) -> Option<ShapeChoice> {
+        self.lock().get(&(kind as u32)).cloned()
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, BTreeMap<u32, ShapeChoice>> {
+        self.chosen
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// Runs the pre-pass over `rays` in `order` for rays of `kind`: the sample, every shape's
+    /// estimate, the cheapest shape. Errors as the `sphere_cone` builder on a bad order or
+    /// unusable rays.
+    pub fn pre_pass(&self, rays: &[Ray], order: &[u32], kind: RayKind) -> Result<ShapeChoice> {
+        validate_leaves("auto_shape", rays, order)?;
+        let sampled: Vec<u32> = order
+            .chunks(BLOCK)
+            .step_by(self.sample)
+            .flatten()
+            .copied()
+            .collect();
+        let sample_rays: Vec<Ray> = sampled.iter().map(|&i| rays[i as usize]).collect();
+        let n = sample_rays.len();
+        let mut estimates = Vec::with_capacity(SHAPES.len());
+        for &(sub, depth) in &SHAPES {
+            let builder = SphereConeBuilder::with_params(sub, depth)?;
+            let h = RayHierarchy::<Cpu> {
+                leaf_offsets: None,
+                order: (0..n as u32).collect(),
+                levels: builder.build_levels(&sample_rays, &(0..n as u32).collect::<Vec<_>>())?,
+                subdivision: sub,
+                reach: vec![],
+            };
+            let mut final_tests = 0u64;
+            let mut scratch = Stats::default();
+            self.probe.traverse_with_report(
+                &sample_rays,
+                kind,
+                &h,
+                &mut |batch, _| {
+                    final_tests += batch
+                        .pairs
+                        .iter()
+                        .map(|c| lowest_node_leaves(c.node as usize, sub, None, n).len() as u64)
+                        .sum::<u64>();
+                    Ok(())
+                },
+                &mut scratch,
+            )?;
+            let total = scratch.tests.bounds + final_tests;
+            estimates.push(if n == 0 { 0.0 } else { total as f64 / n as f64 });
+        }
+        let best = (0..SHAPES.len())
+            .min_by(|&a, &b| estimates[a].total_cmp(&estimates[b]).then(a.cmp(&b)))
+            .expect("shapes");
+        Ok(ShapeChoice {
+            shape: SHAPES[best],
+            sample_rays: n,
+            batch_rays: order.len(),
+            estimates,
+        })
+    }
+}
+
+impl HierarchyBuilder<Cpu> for AutoShape {
+    fn name(&self) -> &str {
+        "auto_shape"
+    }
+
+    fn build(
+        &self,
+        backend: &Cpu,
+        rays: &Vec<Ray>,
+        order: Vec<u32>,
+        stats: &mut Stats,
+    ) -> Result<RayHierarchy<Cpu>> {
+        let Some(first) = order.first() else {
+            let default = SphereConeBuilder::with_params(8, 2)?;
+            return default.build(backend, rays, order, stats);
+        };
+        let kind = rays[*first as usize].ray_kind();
+        if *first as usize >= rays.len() {
+            validate_leaves("auto_shape", rays, &order)?;
+        }
+        let known = self.choice(kind);
+        let choice = match known {
+            Some(c) => c,
+            None => {
+                let c = self.pre_pass(rays, &order, kind)?;
+                self.lock().insert(kind as u32, c.clone());
+                c
+            }
+        };
+        stats.add_choice("hierarchy", kind, choice.describe());
+        let (sub, depth) = choice.shape;
+        SphereConeBuilder::with_params(sub, depth)?.build(backend, rays, order, stats)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::intersect::brute::BruteForce;
+    use crsh_core::{render_frame, FrameOptions, FrameSize, PipelineConfig, StageContext};
+
+    /// One frame of built-in `name` with the `crsh` preset, `dual` traversal and `auto_shape`,
+    /// on `threads` threads, checked against brute force.
+    fn frame(name: &str, threads: usize) -> crsh_core::Frame<Cpu> {
+        let registry = Registry::<Cpu>::builtin();
+        let scene = Arc::new(crsh_scene::builtin::build(name).unwrap());
+        let mut cfg: PipelineConfig = registry.preset("crsh").unwrap();
+        cfg.set("traverse.kind=dual").unwrap();
+        cfg.set("hierarchy.kind=auto_shape").unwrap();
+        cfg.set("hierarchy.sample=2").unwrap();
+        let ctx = StageContext::new(&Cpu, &scene, FrameSize::new(64, 48).unwrap());
+        let opts = FrameOptions::default().with_max_depth(2);
+        let reference = BruteForce::from_scene(&scene);
+        crate::with_threads(threads, || {
+            let pipeline = registry.build(&ctx, &cfg).unwrap();
+            render_frame(&Cpu, &pipeline, &opts, Some(&reference), &mut |_| {}).unwrap()
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn frames_are_exact_and_report_the_choice_per_kind() {
+        for name in ["cornell-mirrors", "office-boxes"] {
+            let f = frame(name, 1);
+            assert_eq!(f.stats.stages["hierarchy"], "auto_shape", "{name}");
+            let acc = f.stats.accuracy.clone().unwrap();
+            assert!(acc.rays > 0);
+            assert_eq!(acc.agreeing, acc.rays, "{name}: {acc:?}");
+            for kind in f.stats.per_kind.keys() {
+                if kind == "primary" {
+                    continue;
+                }
+                let choice = &f.stats.choices[&format!("hierarchy.{kind}")];
+                assert!(choice.starts_with("subdivision "), "{choice}");
+                assert!(choice.contains("estimated tests per ray: 4/2 "), "{choice}");
+            }
+            let three = frame(name, 3);
+            assert_eq!(three.image, f.image, "{name}");
+            assert_eq!(three.stats.choices, f.stats.choices, "{name}");
+            assert_eq!(three.stats.tests, f.stats.tests, "{name}");
+        }
+    }
+
+    #[test]
+    fn the_pre_pass_keeps_the_cheapest_shape_and_samples_blocks() {
+        let scene = Arc::new(crsh_scene::builtin::build("office-boxes").unwrap());
+        // Shadow segments from the first light to points on the triangles, in triangle
+        // order (coherent runs).
+        let light = scene.lights[0].position;
+        let rays: Vec<Ray> = (0..5000)
+            .map(|i| {
+                let [a, b, c] = scene.triangle(i % scene.triangle_count());
+                let w = (i / scene.triangle_count()) as f32 * 0.07 % 0.3;
+                let p = a * (0.4 + w) + b * (0.3 - w / 2.0) + c * (0.3 - w / 2.0);
+                let d = p - light;
+                let mut r = crate::intersect::brute::tests::test_ray(
+                    light,
+                    d.normalize(),
+                    1e-4,
+                    d.length() * 0.999,
+                    i,
+                );
+                r.kind = RayKind::Shadow as u32;
+                r
+            })
+            .collect();
+        let order: Vec<u32> = (0..rays.len() as u32).collect();
+        let auto = AutoShape::with_sample(&scene, 2).unwrap();
+        let c = auto.pre_pass(&rays, &order, RayKind::Shadow).unwrap();
+        // Every other block of 1024 sorted leaves.
+        let want: usize = order.chunks(BLOCK).step_by(2).map(<[u32]>::len).sum();
+        assert_eq!((c.sample_rays, c.batch_rays), (want, rays.len()));
+        assert_eq!(c.estimates.len(), SHAPES.len());
+        let best = c.estimates.iter().copied().fold(f64::INFINITY, f64::min);
+        let at = SHAPES.iter().position(|s| *s == c.shape).unwrap();
+        assert_eq!(c.estimates[at], best);
+        assert!(
+            c.estimates.iter().all(|e| e.is_finite() && *e > 0.0),
+            "{c:?}"
+        );
+        // The estimates are the dual traversal's, and depend on the shape.
+        assert!(c.estimates.iter().any(|e| *e != best), "{c:?}");
+        // A small batch is sampled whole; the sample size is checked.
+        let few = &rays[..BLOCK];
+        let small = auto
+            .pre_pass(few, &order[..BLOCK], RayKind::Shadow)
+            .unwrap();
+        assert_eq!(small.sample_rays, BLOCK);
+        // A bad order is refused.
+        assert!(auto
+            .pre_pass(&rays, &order[..BLOCK], RayKind::Shadow)
+            .is_err());
+        assert!(AutoShape::with_sample(&scene, 0).is_err());
+        assert!(AutoShape::with_sample(&scene, 1025).is_err());
+    }
+}
