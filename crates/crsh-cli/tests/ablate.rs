@@ -1713,15 +1713,9 @@ fn ray_engine_plan_is_exact_on_every_cell() {
         ],
     );
     assert_ok(&o);
-    let start = shipped.find("scenes = [").unwrap();
-    let end = start + shipped[start..].find("]\n").unwrap() + 2;
-    let small = format!(
-        "{}scenes = [\"glass-sphere-100\", \"glass-shell-100\"]\n{}",
-        &shipped[..start],
-        &shipped[end..]
-    )
-    .replace("width = 256", "width = 24")
-    .replace("depth = [1, 2, 5, 8]", "depth = [1, 5]");
+    let small = with_scenes(&shipped, &["glass-sphere-100", "glass-shell-100"])
+        .replace("width = 256", "width = 24")
+        .replace("depth = [1, 2, 5, 8]", "depth = [1, 5]");
     let plan = dir.join("ray-engine-small.toml");
     std::fs::write(&plan, small).unwrap();
     let o = crsh(
@@ -1847,14 +1841,8 @@ fn rttest_plan_is_exact_on_every_cell_and_reports_packets() {
     ] {
         assert!(shipped.contains(needle), "rttest.toml changed: {needle}");
     }
-    let start = shipped.find("scenes = [").unwrap();
-    let end = start + shipped[start..].find("]\n").unwrap() + 2;
-    let small = format!(
-        "{}scenes = [\"office-boxes\", \"cornell-mirrors\"]\n{}",
-        &shipped[..start],
-        &shipped[end..]
-    )
-    .replace("width = 512", "width = 32");
+    let small = with_scenes(&shipped, &["office-boxes", "cornell-mirrors"])
+        .replace("width = 512", "width = 32");
     let plan = dir.join("rttest-small.toml");
     std::fs::write(&plan, small).unwrap();
     let o = crsh(
@@ -1905,15 +1893,9 @@ fn dual_plan_is_exact_on_every_cell() {
         text(&o.stdout)
     );
     let shipped = std::fs::read_to_string(&path).unwrap();
-    let start = shipped.find("scenes = [").unwrap();
-    let end = start + shipped[start..].find("]\n").unwrap() + 2;
-    let small = format!(
-        "{}scenes = [\"office-boxes\", \"cornell-mirrors\"]\n{}",
-        &shipped[..start],
-        &shipped[end..]
-    )
-    .replace("width = 512", "width = 32")
-    .replace("repeat = 3", "repeat = 1");
+    let small = with_scenes(&shipped, &["office-boxes", "cornell-mirrors"])
+        .replace("width = 512", "width = 32")
+        .replace("repeat = 3", "repeat = 1");
     let plan = dir.join("dual-small.toml");
     std::fs::write(&plan, small).unwrap();
     let o = crsh(
@@ -1956,4 +1938,17 @@ fn dual_plan_is_exact_on_every_cell() {
         assert_eq!(c["status"], "ok", "{c:#}");
         assert_eq!(c["measures"]["accuracy"]["hit_agreement"], 1.0, "{c:#}");
     }
+}
+
+/// `shipped` (a plan's text) with its `scenes = [...]` list replaced by `scenes`.
+fn with_scenes(shipped: &str, scenes: &[&str]) -> String {
+    let start = shipped.find("scenes = [").expect("a scenes list");
+    let end = start + shipped[start..].find("]\n").expect("its end") + 2;
+    let list: Vec<String> = scenes.iter().map(|s| format!("\"{s}\"")).collect();
+    format!(
+        "{}scenes = [{}]\n{}",
+        &shipped[..start],
+        list.join(", "),
+        &shipped[end..]
+    )
 }

@@ -246,26 +246,17 @@ impl HierarchyBuilder<Cpu> for AutoShape {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::intersect::brute::BruteForce;
-    use crsh_core::{render_frame, FrameOptions, FrameSize, PipelineConfig, StageContext};
 
-    /// One frame of built-in `name` with the `crsh` preset, `dual` traversal and `auto_shape`,
-    /// on `threads` threads, checked against brute force.
+    /// One frame of built-in `name` with the `crsh` preset, `dual` traversal and `auto_shape`
+    /// (two sample blocks), on `threads` threads, checked against brute force.
     fn frame(name: &str, threads: usize) -> crsh_core::Frame<Cpu> {
-        let registry = Registry::<Cpu>::builtin();
         let scene = Arc::new(crsh_scene::builtin::build(name).unwrap());
-        let mut cfg: PipelineConfig = registry.preset("crsh").unwrap();
-        cfg.set("traverse.kind=dual").unwrap();
-        cfg.set("hierarchy.kind=auto_shape").unwrap();
-        cfg.set("hierarchy.sample=2").unwrap();
-        let ctx = StageContext::new(&Cpu, &scene, FrameSize::new(64, 48).unwrap());
-        let opts = FrameOptions::default().with_max_depth(2);
-        let reference = BruteForce::from_scene(&scene);
-        crate::with_threads(threads, || {
-            let pipeline = registry.build(&ctx, &cfg).unwrap();
-            render_frame(&Cpu, &pipeline, &opts, Some(&reference), &mut |_| {}).unwrap()
-        })
-        .unwrap()
+        let sets = [
+            "traverse.kind=dual",
+            "hierarchy.kind=auto_shape",
+            "hierarchy.sample=2",
+        ];
+        crate::traverse::dual::tests::frame(&scene, &sets.map(String::from), threads)
     }
 
     #[test]

@@ -1296,7 +1296,7 @@ impl Traverser<Cpu> for Dual {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::intersect::brute::tests::{random_rays, soup, test_ray};
     use crate::intersect::brute::BruteForce;
@@ -1739,8 +1739,8 @@ mod tests {
     }
 
     /// One frame of built-in `scene` with the `crsh` preset and `sets`, on `threads` threads,
-    /// checked against brute force on every batch.
-    fn frame(scene: &Arc<Scene>, sets: &[String], threads: usize) -> Frame<Cpu> {
+    /// checked against brute force on every batch. Shared with the `auto_shape` tests.
+    pub(crate) fn frame(scene: &Arc<Scene>, sets: &[String], threads: usize) -> Frame<Cpu> {
         let registry = Registry::<Cpu>::builtin();
         let mut cfg = registry.preset("crsh").unwrap();
         for s in sets {
