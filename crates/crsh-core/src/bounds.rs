@@ -65,6 +65,29 @@ pub struct SphereCone {
     pub cone: Cone,
 }
 
+/// The largest `f32` not above `x` (`x` rounded toward −∞, NaN stays NaN): how a lower bound
+/// computed in `f64` is stored so that it does not move inwards.
+pub fn f32_down(x: f64) -> f32 {
+    let f = x as f32;
+    if f64::from(f) > x {
+        f.next_down()
+    } else {
+        f
+    }
+}
+
+/// The smallest `f32` not below `x` (`x` rounded toward +∞, NaN stays NaN): how an upper bound
+/// (a radius, an angle, a box's maximum) computed in `f64` is stored so that it does not
+/// shrink.
+pub fn f32_up(x: f64) -> f32 {
+    let f = x as f32;
+    if f64::from(f) < x {
+        f.next_up()
+    } else {
+        f
+    }
+}
+
 /// An axis-aligned bounding box (24 bytes). The empty box has `min > max`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable, Serialize, Deserialize)]
@@ -144,6 +167,37 @@ impl Aabb {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn outward_rounding_brackets_the_value() {
+        let check = |x: f64| {
+            let (lo, hi) = (f32_down(x), f32_up(x));
+            assert!(f64::from(lo) <= x && f64::from(hi) >= x && lo <= hi, "{x}");
+            // The nearest on each side: one step further passes `x`.
+            assert!(f64::from(lo.next_up()) > x || f64::from(lo) == x, "{x}");
+            assert!(f64::from(hi.next_down()) < x || f64::from(hi) == x, "{x}");
+            assert!(hi == lo || f32_up(f64::from(lo)) == lo, "{x}");
+        };
+        for x in [
+            0.1f64, -0.1, 1e-40, -1e-40, 0.0, 3.0, -3.0, 1e30, 16777217.0, 1e-50, -1e-50, 1e300,
+        ] {
+            check(x);
+        }
+        // Pseudo-random magnitudes from 1e-20 to 1e20, both signs.
+        let mut state = 71u64;
+        for _ in 0..20_000 {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let unit = (state >> 11) as f64 / (1u64 << 53) as f64;
+            check((unit - 0.5) * 10f64.powi((state % 40) as i32 - 20));
+        }
+        assert_eq!(f32_down(f64::INFINITY), f32::INFINITY);
+        assert_eq!(f32_up(f64::NEG_INFINITY), f32::NEG_INFINITY);
+        assert_eq!(f32_down(1e300), f32::MAX);
+        assert!(f32_down(1e-50) == 0.0 && f32_down(-1e-50) < 0.0 && f32_up(1e-50) > 0.0);
+        assert!(f32_down(f64::NAN).is_nan() && f32_up(f64::NAN).is_nan());
+    }
 
     #[test]
     fn overlap_counts_touching_boxes_and_not_empty_ones() {

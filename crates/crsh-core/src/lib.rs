@@ -53,7 +53,7 @@ pub mod stage;
 pub mod stats;
 
 pub use backend::{Backend, StageScene};
-pub use bounds::{Aabb, Cone, Sphere, SphereCone};
+pub use bounds::{f32_down, f32_up, Aabb, Cone, Sphere, SphereCone};
 pub use config::{ParamInfo, ParamValue, PipelineConfig, StageKind, StageSpec, StageVariantInfo};
 pub use error::{panic_message, CoreError, Result};
 pub use pipeline::{

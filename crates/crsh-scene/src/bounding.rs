@@ -19,7 +19,7 @@
 //! collinear or coplanar points) are handled: a support set that has no circumscribed sphere
 //! falls back to the smallest sphere enclosing it.
 
-use crsh_core::Sphere;
+use crsh_core::{f32_up, Sphere};
 use glam::{DVec3, Vec3};
 
 use crate::rng::SplitMix64;
@@ -207,11 +207,7 @@ fn to_sphere(center: DVec3, points: impl IntoIterator<Item = Vec3>) -> Sphere {
     let r64 = points
         .into_iter()
         .fold(0.0f64, |r, p| r.max(c64.distance(p.as_dvec3())));
-    let mut r32 = r64 as f32;
-    if (r32 as f64) < r64 {
-        r32 = r32.next_up();
-    }
-    Sphere::new(c32, r32)
+    Sphere::new(c32, f32_up(r64))
 }
 
 /// The exact minimal bounding sphere of `points` (Welzl's algorithm, seed 000 §3.2.1 ref. 10).

@@ -60,8 +60,8 @@ use std::f64::consts::PI;
 use std::sync::Arc;
 
 use crsh_core::{
-    Cone, CoreError, HierarchyBuilder, ParamInfo, Ray, RayHierarchy, Registry, Result, Sphere,
-    SphereCone, StageKind, StageSpec, StageVariantInfo, Stats,
+    f32_up, Cone, CoreError, HierarchyBuilder, ParamInfo, Ray, RayHierarchy, Registry, Result,
+    Sphere, SphereCone, StageKind, StageSpec, StageVariantInfo, Stats,
 };
 use crsh_scene::bounding::min_sphere;
 use crsh_scene::Scene;
@@ -549,16 +549,6 @@ fn sphere_union_d(a: (DVec3, f64), b: (DVec3, f64)) -> (DVec3, f64) {
     // d > 0 here: with d = 0 one sphere contains the other.
     let c = a.0 + (b.0 - a.0) * ((r - a.1) / d);
     (c, r)
-}
-
-/// `x` as the smallest `f32` not below it (for radii and angles, which must not shrink).
-fn f32_up(x: f64) -> f32 {
-    let f = x as f32;
-    if (f as f64) < x {
-        f.next_up()
-    } else {
-        f
-    }
 }
 
 /// The stored cone: `axis` rounded to `f32`, half-angle re-measured as the largest of

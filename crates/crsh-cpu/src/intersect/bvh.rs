@@ -329,19 +329,18 @@ pub(crate) fn hittable_triangles(scene: &Scene, test: TestKind) -> (Vec<u32>, Ve
         .into_par_iter()
         .filter_map(|t| {
             let tri = scene.triangle(t);
-            keep(tri).then(|| {
-                let [a, b, c] = tri;
-                (
-                    t as u32,
-                    Triangle {
-                        v0: a.into(),
-                        v1: b.into(),
-                        v2: c.into(),
-                    },
-                )
-            })
+            keep(tri).then(|| (t as u32, obvhs_triangle(tri)))
         })
         .unzip()
+}
+
+/// A scene triangle as obvhs's `Triangle`.
+pub(crate) fn obvhs_triangle([a, b, c]: [Vec3; 3]) -> Triangle {
+    Triangle {
+        v0: a.into(),
+        v1: b.into(),
+        v2: c.into(),
+    }
 }
 
 /// obvhs's binary tree over `tris` (not empty) with the preset `params`: PLOC, then

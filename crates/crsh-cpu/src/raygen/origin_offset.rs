@@ -174,7 +174,7 @@
 use std::time::{Duration, Instant};
 
 use crsh_core::glam::{DVec3, Vec3};
-use crsh_core::Ray;
+use crsh_core::{f32_down, Ray};
 use crsh_scene::Scene;
 use obvhs::bvh2::builder::build_bvh2_from_tris;
 use obvhs::bvh2::node::Bvh2Node;
@@ -183,6 +183,7 @@ use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 use rayon::prelude::*;
 
+use crate::intersect::bvh::obvhs_triangle;
 use crate::triangle::is_degenerate;
 
 /// Coplanarity tolerance, relative to the largest coordinate (absolute value) of a
@@ -388,14 +389,7 @@ impl Occluders {
         if ids.is_empty() {
             return None;
         }
-        let obvhs_tris: Vec<Triangle> = tris32
-            .iter()
-            .map(|&[a, b, c]| Triangle {
-                v0: a.into(),
-                v1: b.into(),
-                v2: c.into(),
-            })
-            .collect();
+        let obvhs_tris: Vec<Triangle> = tris32.iter().map(|&t| obvhs_triangle(t)).collect();
         let bvh = build_bvh2_from_tris(
             &obvhs_tris,
             BvhBuildParams::fast_build(),
@@ -495,16 +489,6 @@ pub fn exact_radii(scene: &Scene, sites: &[Site]) -> Vec<f64> {
         .par_iter()
         .map_init(Vec::new, |stack, s| occ.radius(s, stack))
         .collect()
-}
-
-/// The largest `f32` not above `x` (for `x ≥ 0`).
-fn f32_down(x: f64) -> f32 {
-    let f = x as f32;
-    if f as f64 > x {
-        f32::from_bits(f.to_bits() - 1)
-    } else {
-        f
-    }
 }
 
 /// The stored record of a site with exact radius `r` (see the module docs): lifted centre and

@@ -172,15 +172,16 @@ use std::sync::Arc;
 
 use crsh_core::glam::{DVec3, Vec3};
 use crsh_core::{
-    lowest_node_leaves, Aabb, Candidate, CandidateBatch, CoreError, ParamInfo, Ray, RayHierarchy,
-    RayKind, Registry, Result, Sphere, StageKind, StageSpec, StageVariantInfo, Stats, Traverser,
+    f32_down, f32_up, lowest_node_leaves, Aabb, Candidate, CandidateBatch, CoreError, ParamInfo,
+    Ray, RayHierarchy, RayKind, Registry, Result, Sphere, StageKind, StageSpec, StageVariantInfo,
+    Stats, Traverser,
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
 
 use super::crsh::{budget_bytes, prepare_nodes, Crsh, NodeBound, ABS_MARGIN, REL_MARGIN};
 use crate::backend::Cpu;
-use crate::intersect::bvh::{build_bvh2, BuildQuality};
+use crate::intersect::bvh::{build_bvh2, obvhs_triangle, BuildQuality};
 use obvhs::triangle::Triangle;
 
 /// The choices of parameter `objects`.
@@ -320,25 +321,6 @@ fn enclose(a: &Sphere, b: &Sphere, bounds: (DVec3, DVec3)) -> Sphere {
     );
     let (c, r) = if boxed.1 < merged.1 { boxed } else { merged };
     round_out(c, r)
-}
-
-/// The largest `f32` not above `x` (`x` finite or infinite, not NaN).
-fn f32_down(x: f64) -> f32 {
-    let f = x as f32;
-    if (f as f64) <= x {
-        f
-    } else if f == 0.0 {
-        -f32::from_bits(1)
-    } else if f > 0.0 {
-        f32::from_bits(f.to_bits() - 1)
-    } else {
-        f32::from_bits(f.to_bits() + 1)
-    }
-}
-
-/// The smallest `f32` not below `x`.
-fn f32_up(x: f64) -> f32 {
-    -f32_down(-x)
 }
 
 /// The `f32` box around `[lo, hi]` (`f64`), each side widened by `pad` and rounded outwards.
@@ -566,14 +548,7 @@ impl Lbvh {
         }
         let tris: Vec<Triangle> = (0..n)
             .into_par_iter()
-            .map(|t| {
-                let [a, b, c] = scene.triangle(t);
-                Triangle {
-                    v0: a.into(),
-                    v1: b.into(),
-                    v2: c.into(),
-                }
-            })
+            .map(|t| obvhs_triangle(scene.triangle(t)))
             .collect();
         let bvh = build_bvh2(&tris, &quality.params());
         /// A part of the obvhs tree still to convert: a node, or a run of a leaf's primitives.
@@ -590,28 +565,24 @@ impl Lbvh {
             bx: Aabb::EMPTY,
             children: [0, 0],
         };
-        let root = &bvh.nodes[0];
-        let first = if root.prim_count == 0 {
-            Part::Node(0)
-        } else {
-            Part::Prims(root.first_index as usize, root.prim_count as usize)
+        // An obvhs node: inner (no primitives) or a leaf's run of primitives.
+        let part_of = |i: usize| {
+            let node = &bvh.nodes[i];
+            if node.prim_count == 0 {
+                Part::Node(i)
+            } else {
+                Part::Prims(node.first_index as usize, node.prim_count as usize)
+            }
         };
         inner.push(blank);
-        let mut stack: Vec<(Part, u32, usize)> = vec![(first, 0, 0)];
+        let mut stack: Vec<(Part, u32, usize)> = vec![(part_of(0), 0, 0)];
         while let Some((part, index, depth)) = stack.pop() {
             preorder.push(index);
             max_depth = max_depth.max(depth + 1);
             let halves: [Part; 2] = match part {
                 Part::Node(i) => {
                     let f = bvh.nodes[i].first_index as usize;
-                    [f, f + 1].map(|c| {
-                        let node = &bvh.nodes[c];
-                        if node.prim_count == 0 {
-                            Part::Node(c)
-                        } else {
-                            Part::Prims(node.first_index as usize, node.prim_count as usize)
-                        }
-                    })
+                    [part_of(f), part_of(f + 1)]
                 }
                 Part::Prims(start, count) => {
                     let half = count / 2;
@@ -900,6 +871,18 @@ struct Ctx<'a> {
 }
 
 impl Task {
+    /// Pairs `p`'s ray side (node, level, live rays) with both children of its internal
+    /// object node, the left one to be popped first.
+    fn push_object_children(&mut self, tree: &Lbvh, p: Pair) {
+        for &c in tree.inner[p.obj as usize].children.iter().rev() {
+            self.stack.push(Pair {
+                obj: c,
+                depth: p.depth + 1,
+                ..p
+            });
+        }
+    }
+
     /// Runs until the stack is empty or `cap` candidates are held; returns them sorted, and
     /// the counters.
     fn run(&mut self, ctx: &Ctx<'_>, cap: usize) -> (Vec<Candidate>, Counters) {
@@ -946,14 +929,7 @@ impl Task {
                         tree.leaf_tris[(p.obj & !LEAF) as usize],
                     );
                 } else {
-                    for &c in tree.inner[p.obj as usize].children.iter().rev() {
-                        self.stack.push(Pair {
-                            obj: c,
-                            depth: p.depth + 1,
-                            mask: live,
-                            ..p
-                        });
-                    }
+                    self.push_object_children(tree, Pair { mask: live, ..p });
                 }
                 continue;
             }
@@ -1024,14 +1000,7 @@ impl Task {
                     });
                 }
             } else {
-                let children = tree.inner[p.obj as usize].children;
-                for &c in children.iter().rev() {
-                    self.stack.push(Pair {
-                        obj: c,
-                        depth: p.depth + 1,
-                        ..p
-                    });
-                }
+                self.push_object_children(tree, p);
             }
         }
         // (node, triangle) order, as one 64-bit key (the same order as `Candidate`'s `Ord`).
@@ -1822,16 +1791,7 @@ pub(crate) mod tests {
 
     #[test]
     fn outward_rounding_and_boxes_contain_what_they_must() {
-        let mut rng = TestRng(71);
-        for _ in 0..20_000 {
-            let x = (rng.f32() as f64 - 0.5) * 10f64.powi((rng.next_u64() % 40) as i32 - 20);
-            let (lo, hi) = (f32_down(x), f32_up(x));
-            assert!(lo as f64 <= x && hi as f64 >= x && lo <= hi, "{x}");
-            assert!(hi == lo || f32_up(lo as f64) == lo, "{x}");
-        }
-        assert_eq!(f32_down(f64::INFINITY), f32::INFINITY);
-        assert_eq!(f32_up(f64::NEG_INFINITY), f32::NEG_INFINITY);
-        assert!(f32_down(1e-50) == 0.0 && f32_down(-1e-50) < 0.0 && f32_up(1e-50) > 0.0);
+        // (The outward rounding itself is tested with `crsh_core::f32_down`.)
         // A triangle's box holds its vertices with room to spare on every side.
         let scene = soup(72, 300);
         for t in 0..scene.triangle_count() {
