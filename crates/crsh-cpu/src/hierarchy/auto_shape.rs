@@ -169,14 +169,13 @@ impl AutoShape {
         let n = sample_rays.len();
         let mut estimates = Vec::with_capacity(SHAPES.len());
         for &(sub, depth) in &SHAPES {
-            let builder = SphereConeBuilder::with_params(sub, depth)?;
-            let h = RayHierarchy::<Cpu> {
-                leaf_offsets: None,
-                order: (0..n as u32).collect(),
-                levels: builder.build_levels(&sample_rays, &(0..n as u32).collect::<Vec<_>>())?,
-                subdivision: sub,
-                reach: vec![],
-            };
+            // The hierarchy the stage would build for the sample (reach bounds included).
+            let h = SphereConeBuilder::with_params(sub, depth)?.build(
+                &Cpu,
+                &sample_rays,
+                (0..n as u32).collect(),
+                &mut Stats::default(),
+            )?;
             let mut final_tests = 0u64;
             let mut scratch = Stats::default();
             self.probe.traverse_with_report(
@@ -220,14 +219,15 @@ impl HierarchyBuilder<Cpu> for AutoShape {
         order: Vec<u32>,
         stats: &mut Stats,
     ) -> Result<RayHierarchy<Cpu>> {
-        let Some(first) = order.first() else {
-            let default = SphereConeBuilder::with_params(8, 2)?;
-            return default.build(backend, rays, order, stats);
+        // Without a first ray (no rays, or an order the builder refuses) there is nothing to
+        // choose for: the default shape's builder answers.
+        let Some(kind) = order
+            .first()
+            .and_then(|&i| rays.get(i as usize))
+            .map(Ray::ray_kind)
+        else {
+            return SphereConeBuilder::with_params(8, 2)?.build(backend, rays, order, stats);
         };
-        let kind = rays[*first as usize].ray_kind();
-        if *first as usize >= rays.len() {
-            validate_leaves("auto_shape", rays, &order)?;
-        }
         let known = self.choice(kind);
         let choice = match known {
             Some(c) => c,
