@@ -1658,10 +1658,9 @@ pub(crate) mod tests {
         assert!(Crsh::new(&scene, &spec).is_err());
     }
 
-    #[test]
-    fn empty_rays_call_no_sink() {
-        let scene = Arc::new(soup(61, 10));
-        let trav = Crsh::with_options(&scene, true, 1.0).unwrap();
+    /// How often `trav` calls its sink for a batch without rays (an empty hierarchy); it
+    /// must succeed. Shared by the tests of every traverser.
+    pub(crate) fn sink_calls_without_rays(trav: &dyn Traverser<Cpu>) -> usize {
         let h = RayHierarchy::<Cpu> {
             leaf_offsets: None,
             order: vec![],
@@ -1682,6 +1681,13 @@ pub(crate) mod tests {
             &mut Stats::default(),
         )
         .unwrap();
-        assert_eq!(calls, 0);
+        calls
+    }
+
+    #[test]
+    fn empty_rays_call_no_sink() {
+        let scene = Arc::new(soup(61, 10));
+        let trav = Crsh::with_options(&scene, true, 1.0).unwrap();
+        assert_eq!(sink_calls_without_rays(&trav), 0);
     }
 }

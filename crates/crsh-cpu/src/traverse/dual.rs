@@ -1270,7 +1270,8 @@ pub(crate) mod tests {
     use crate::intersect::brute::tests::{random_rays, soup, test_ray};
     use crate::intersect::brute::BruteForce;
     use crate::traverse::crsh::tests::{
-        assert_same, build, clustered, reference, shuffled, test_rays, trace_with,
+        assert_same, build, clustered, reference, shuffled, sink_calls_without_rays, test_rays,
+        trace_with,
     };
     use crate::triangle::tests::TestRng;
     use crsh_core::{
@@ -1684,27 +1685,7 @@ pub(crate) mod tests {
             );
             assert!(matches!(r, Err(CoreError::InvalidInput(_))), "{r:?}");
         }
-        let empty = RayHierarchy::<Cpu> {
-            leaf_offsets: None,
-            order: vec![],
-            levels: vec![vec![]],
-            subdivision: 4,
-            reach: vec![],
-        };
-        let mut calls = 0;
-        trav.traverse(
-            &Cpu,
-            &Vec::new(),
-            RayKind::Shadow,
-            &empty,
-            &mut |_, _| {
-                calls += 1;
-                Ok(())
-            },
-            &mut Stats::default(),
-        )
-        .unwrap();
-        assert_eq!(calls, 0);
+        assert_eq!(sink_calls_without_rays(&trav), 0);
     }
 
     /// One frame of built-in `scene` with the `crsh` preset and `sets`, on `threads` threads,
