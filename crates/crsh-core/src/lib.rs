@@ -65,6 +65,7 @@ pub use registry::{BuiltinVariants, Preset, Registry, StageContext};
 pub use stage::{
     check_leaf_offsets, lowest_node_leaves, Candidate, CandidateBatch, Hasher, HierarchyBuilder,
     Intersector, PrimaryVisibility, Query, RayGen, RayHierarchy, Shader, Sorter, Traverser,
+    ALL_LANES,
 };
 pub use stats::{
     AccuracyCounts, CullStats, GenerationStats, KindStats, LevelStats, PacketStats, RayCounts,

@@ -260,6 +260,32 @@ pub struct Candidate {
 pub struct CandidateBatch<B: Backend> {
     /// The surviving pairs.
     pub pairs: B::Buffer<Candidate>,
+    /// Optionally, per pair, which of its node's rays it is for: bit `k` is the node's `k`-th
+    /// leaf ([`lowest_node_leaves`]), [`ALL_LANES`] every ray of the node (whatever their
+    /// number). A traverser that culls single rays (the CPU `dual`'s `single_rays`) sends the
+    /// rays that reached the triangle, and the intersector tests only those; a ray left out
+    /// must be one that cannot hit the triangle. A pair whose node has more than 32 rays must
+    /// say [`ALL_LANES`]; a mask without a bit for any of its node's rays is allowed (nothing
+    /// tested). `None`: every pair is for all of its node's rays.
+    pub lanes: Option<B::Buffer<u32>>,
+}
+
+/// The lane mask of a candidate for every ray of its node ([`CandidateBatch::lanes`]).
+pub const ALL_LANES: u32 = u32::MAX;
+
+impl<B: Backend> CandidateBatch<B> {
+    /// A batch whose pairs are for all rays of their nodes.
+    pub fn new(pairs: B::Buffer<Candidate>) -> CandidateBatch<B> {
+        CandidateBatch { pairs, lanes: None }
+    }
+
+    /// A batch with a lane mask per pair (see [`CandidateBatch::lanes`]).
+    pub fn with_lanes(pairs: B::Buffer<Candidate>, lanes: B::Buffer<u32>) -> CandidateBatch<B> {
+        CandidateBatch {
+            pairs,
+            lanes: Some(lanes),
+        }
+    }
 }
 
 /// Top-down hierarchy traversal against mesh and triangle bounding spheres (§3.2.8, eq. 3.16).

@@ -256,9 +256,7 @@ fn brute_candidate_queries_match_the_cpu() {
             let mut hits = b.filled(rays.len(), Hit::MISS).unwrap();
             let mut stats = Stats::default();
             for (i, pairs) in batches.iter().enumerate() {
-                let cb = CandidateBatch {
-                    pairs: pairs.clone(),
-                };
+                let cb = CandidateBatch::new(pairs.clone());
                 cpu.intersect(
                     &Cpu,
                     &rays,
@@ -276,9 +274,7 @@ fn brute_candidate_queries_match_the_cpu() {
                 if i % 2 == 1 {
                     p.reverse();
                 }
-                let gb = CandidateBatch {
-                    pairs: b.upload(&p).unwrap(),
-                };
+                let gb = CandidateBatch::new(b.upload(&p).unwrap());
                 gpu.intersect(
                     &b,
                     &buf,
@@ -645,9 +641,7 @@ fn offsets_hierarchy_gives_the_brute_force_hits() {
                 offsets[..offsets.len() - 1].to_vec(),
             ];
             let pairs = vec![Candidate { node: 1, tri: 0 }];
-            let batch = CandidateBatch {
-                pairs: b.upload(&pairs).unwrap(),
-            };
+            let batch = CandidateBatch::new(b.upload(&pairs).unwrap());
             for o in &bad_offsets {
                 let h: RayHierarchy<Wgpu> = RayHierarchy {
                     order: b.upload(&order).unwrap(),
@@ -693,6 +687,29 @@ fn offsets_hierarchy_gives_the_brute_force_hits() {
                     "traversal {o:?}: {r:?}"
                 );
             }
+            // Lane masks (only the CPU `dual` sends them) are refused, not ignored.
+            let masked =
+                CandidateBatch::with_lanes(b.upload(&pairs).unwrap(), b.upload(&[1u32]).unwrap());
+            let h: RayHierarchy<Wgpu> = RayHierarchy {
+                order: b.upload(&order).unwrap(),
+                levels: vec![b.upload(&nodes).unwrap()],
+                subdivision: 256,
+                leaf_offsets: Some(b.upload(&offsets).unwrap()),
+                reach: Vec::new(),
+            };
+            let mut hits = b.filled(rays.len(), Hit::MISS).unwrap();
+            let r = gpu.intersect(
+                &b,
+                &buf,
+                Query::Candidates {
+                    hierarchy: &h,
+                    batch: &masked,
+                },
+                mode,
+                &mut hits,
+                &mut Stats::default(),
+            );
+            assert!(matches!(&r, Err(CoreError::Unsupported { .. })), "{r:?}");
         }
     }
 }

@@ -1335,7 +1335,7 @@ mod tests {
         let brute = BruteForce::from_scene(&scene);
         let mut stats = Stats::default();
         let mut via_nodes = vec![Hit::MISS; rays.len()];
-        let batch = CandidateBatch { pairs };
+        let batch = CandidateBatch::new(pairs);
         let query = Query::Candidates {
             hierarchy: &h,
             batch: &batch,

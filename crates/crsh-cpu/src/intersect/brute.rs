@@ -38,6 +38,12 @@
 //! result does not depend on their order; per ray the triangles are tested in increasing id
 //! order with the same merge rules as above (any-hit: the lowest-id hit, stop at the first).
 //!
+//! A batch with [`CandidateBatch::lanes`] names, per pair, the rays of the node it is for (a
+//! traverser that culled single rays, the `dual` traverser's `single_rays`): only those are
+//! tested and counted, a repeated pair is for the union of its masks, and a packet skips a
+//! triangle none of its live rays needs. A mask other than [`ALL_LANES`] on a node of more
+//! than 32 rays, or a mask array of another length than the pairs', is an error.
+//!
 //! Work is per node (rayon over the nodes of the batch): the node's rays (up to [`LANES`] at
 //! a time) sit in the lanes of a [`RayPacket`] and each candidate triangle is loaded once and
 //! tested against all of them, with the same per-lane arithmetic as the scalar test. Pairs
@@ -70,9 +76,9 @@ use std::sync::{Arc, Mutex};
 
 use crsh_core::edge_width::{Crossing, EdgePairing, EdgeWidthLights};
 use crsh_core::{
-    check_leaf_offsets, lowest_node_leaves, Candidate, CoreError, Hit, HitMode, Intersector,
-    ParamInfo, Query, Ray, RayHierarchy, RayKind, Registry, Result, StageKind, StageSpec,
-    StageVariantInfo, Stats,
+    check_leaf_offsets, lowest_node_leaves, Candidate, CandidateBatch, CoreError, Hit, HitMode,
+    Intersector, ParamInfo, Query, Ray, RayHierarchy, RayKind, Registry, Result, StageKind,
+    StageSpec, StageVariantInfo, Stats, ALL_LANES,
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
@@ -323,10 +329,21 @@ impl BruteForce {
         set: &TriangleSet<T>,
         rays: &[Ray],
         hierarchy: &RayHierarchy<Cpu>,
-        pairs: &[Candidate],
+        batch: &CandidateBatch<Cpu>,
         mode: HitMode,
         hits: &mut [Hit],
     ) -> Result<(u64, u64)> {
+        let pairs = batch.pairs.as_slice();
+        let lanes = batch.lanes.as_deref();
+        if let Some(l) = lanes {
+            if l.len() != pairs.len() {
+                return Err(CoreError::InvalidInput(format!(
+                    "{} lane masks for {} candidate pairs",
+                    l.len(),
+                    pairs.len()
+                )));
+            }
+        }
         if pairs.is_empty() {
             check_rays(rays)?;
             return Ok((0, 0));
@@ -390,14 +407,29 @@ impl BruteForce {
             )));
         }
         let owned: Vec<Candidate>;
-        let sorted: &[Candidate] = if increasing {
-            pairs
+        let owned_lanes: Vec<u32>;
+        let (sorted, lanes): (&[Candidate], Option<&[u32]>) = if increasing {
+            (pairs, lanes)
+        } else if let Some(lanes) = lanes {
+            // Sorted with their masks; a repeated pair is for the union of its masks.
+            let mut v: Vec<(Candidate, u32)> =
+                pairs.iter().copied().zip(lanes.iter().copied()).collect();
+            v.par_sort_unstable_by_key(|e| e.0);
+            let mut merged: Vec<(Candidate, u32)> = Vec::with_capacity(v.len());
+            for (c, m) in v {
+                match merged.last_mut() {
+                    Some(last) if last.0 == c => last.1 |= m,
+                    _ => merged.push((c, m)),
+                }
+            }
+            (owned, owned_lanes) = merged.into_iter().unzip();
+            (&owned, Some(&owned_lanes))
         } else {
             let mut v = pairs.to_vec();
             v.par_sort_unstable();
             v.dedup();
             owned = v;
-            &owned
+            (&owned, None)
         };
         let groups = node_runs(sorted, hierarchy.subdivision, offsets, n_rays);
 
@@ -424,7 +456,11 @@ impl BruteForce {
             .map(|((gi, g), out)| {
                 let leaves = &order[g.first_leaf..g.first_leaf + g.leaves];
                 let usable = leaves.iter().all(|&r| rays[r as usize].is_valid());
-                if !usable {
+                let node_lanes = lanes.map(|l| &l[g.pairs.clone()]);
+                // A node of more than 32 rays has no mask but "all of them".
+                let masks_fit =
+                    g.leaves <= 32 || node_lanes.is_none_or(|l| l.iter().all(|&m| m == ALL_LANES));
+                if !usable || !masks_fit {
                     return (0, 0, gi);
                 }
                 for (slot, &r) in out.iter_mut().zip(leaves) {
@@ -432,9 +468,18 @@ impl BruteForce {
                 }
                 let mut tests = 0u64;
                 let mut found = 0u64;
-                for (ids, best) in leaves.chunks(LANES).zip(out.chunks_mut(LANES)) {
-                    let (t, f) =
-                        node_packet::<T>(rays, ids, &sorted[g.pairs.clone()], tris, mode, best);
+                for (k, (ids, best)) in leaves.chunks(LANES).zip(out.chunks_mut(LANES)).enumerate()
+                {
+                    let node_pairs = &sorted[g.pairs.clone()];
+                    let (t, f) = node_packet::<T>(
+                        rays,
+                        ids,
+                        node_pairs,
+                        node_lanes.map(|l| (l, k * LANES)),
+                        tris,
+                        mode,
+                        best,
+                    );
                     tests += t;
                     found += f;
                 }
@@ -445,6 +490,18 @@ impl BruteForce {
                 |a, b| (a.0 + b.0, a.1 + b.1, a.2.min(b.2)),
             );
         if bad != usize::MAX {
+            let g = &groups[bad];
+            if g.leaves > 32 {
+                if let Some(l) = lanes {
+                    if let Some(&m) = l[g.pairs.clone()].iter().find(|&&m| m != ALL_LANES) {
+                        return Err(CoreError::InvalidInput(format!(
+                            "candidate of hierarchy node {} has lane mask {m:#x}, but the node \
+                             has {} rays (more than 32: only the all-rays mask)",
+                            sorted[g.pairs.start].node, g.leaves
+                        )));
+                    }
+                }
+            }
             // A ray changed in place since it was validated: report it as `check_rays` does.
             self.validated
                 .lock()
@@ -509,10 +566,13 @@ fn node_runs(
 /// rules; returns `(tests, hits found)`. Each triangle is loaded once for all the rays, which
 /// sit in the lanes of a [`RayPacket`]; per ray the decisions and counts are those of testing
 /// the triangles one after the other (any-hit: the lowest-id hit, then the ray stops).
+/// With `lanes` (the pairs' masks, and the node leaf of `ids[0]`), a pair tests only the rays
+/// its mask names, and a triangle no live ray of the packet needs is skipped.
 fn node_packet<T: TriangleTest>(
     rays: &[Ray],
     ids: &[u32],
     node_pairs: &[Candidate],
+    lanes: Option<(&[u32], usize)>,
     tris: &[T::Tri],
     mode: HitMode,
     best: &mut [Hit],
@@ -528,13 +588,21 @@ fn node_packet<T: TriangleTest>(
     }
     let mut tests = 0u64;
     let mut found = 0u64;
-    for c in node_pairs {
+    for (j, c) in node_pairs.iter().enumerate() {
         if active == 0 {
             break;
         }
-        tests += active.count_ones() as u64;
+        let want = match lanes {
+            // `first` < 32 here: a node of more than 32 rays has only all-rays masks.
+            Some((l, first)) if l[j] != ALL_LANES => active & (l[j] >> first),
+            _ => active,
+        };
+        if want == 0 {
+            continue;
+        }
+        tests += want.count_ones() as u64;
         let (mask, bh) = T::test_packet(&packet, &tris[c.tri as usize]);
-        let mut hit = mask & active;
+        let mut hit = mask & want;
         found += hit.count_ones() as u64;
         while hit != 0 {
             let l = hit.trailing_zeros() as usize;
@@ -718,16 +786,15 @@ impl Intersector<Cpu> for BruteForce {
                 }
             }
             Query::Candidates { hierarchy, batch } => {
-                let pairs = &batch.pairs;
                 let (tests, found) = match &self.tris {
                     AnyTriangleSet::MollerTrumbore(s) => {
-                        self.candidates(s, rays, hierarchy, pairs, mode, hits)?
+                        self.candidates(s, rays, hierarchy, batch, mode, hits)?
                     }
                     AnyTriangleSet::Watertight(s) => {
-                        self.candidates(s, rays, hierarchy, pairs, mode, hits)?
+                        self.candidates(s, rays, hierarchy, batch, mode, hits)?
                     }
                     AnyTriangleSet::Projected(s) => {
-                        self.candidates(s, rays, hierarchy, pairs, mode, hits)?
+                        self.candidates(s, rays, hierarchy, batch, mode, hits)?
                     }
                 };
                 if !batch.pairs.is_empty() {
@@ -753,7 +820,7 @@ pub(crate) mod tests {
     use crate::surface::tests::raw_scene;
     use crate::triangle::tests::TestRng;
     use crsh_core::glam::Vec3;
-    use crsh_core::{CandidateBatch, SphereCone};
+    use crsh_core::SphereCone;
 
     /// A random triangle soup in `[-1, 1]³` with a few degenerate and duplicated triangles
     /// (exact ties).
@@ -1011,9 +1078,7 @@ pub(crate) mod tests {
             let mut hits = vec![Hit::MISS; rays.len()];
             let mut stats = Stats::default();
             for part in [&pairs[..half], &pairs[half..]] {
-                let batch = CandidateBatch::<Cpu> {
-                    pairs: part.to_vec(),
-                };
+                let batch = CandidateBatch::<Cpu>::new(part.to_vec());
                 let q = Query::Candidates {
                     hierarchy: &h,
                     batch: &batch,
@@ -1050,7 +1115,7 @@ pub(crate) mod tests {
             Candidate { node: 2, tri: 3 },
             Candidate { node: 2, tri: 7 },
         ];
-        let batch = CandidateBatch::<Cpu> { pairs };
+        let batch = CandidateBatch::<Cpu>::new(pairs);
         let mut hits = vec![Hit::MISS; rays.len()];
         let mut stats = Stats::default();
         b.intersect(
@@ -1095,22 +1160,29 @@ pub(crate) mod tests {
         }
     }
 
-    /// The candidate query written the obvious way: pairs sorted and de-duplicated, then per
-    /// ray of each node, its triangles one at a time; returns the (tests, hits found) counts.
+    /// The candidate query written the obvious way: pairs sorted and de-duplicated (a
+    /// repeated pair for the union of its lane masks), then per ray of each node, the
+    /// triangles whose mask names the ray, one at a time; returns the (tests, hits found)
+    /// counts.
     fn naive_candidates(
         set: &AnyTriangleSet,
         rays: &[Ray],
         h: &RayHierarchy<Cpu>,
         pairs: &[Candidate],
+        lanes: Option<&[u32]>,
         mode: HitMode,
         hits: &mut [Hit],
     ) -> (u64, u64) {
         match set {
             AnyTriangleSet::MollerTrumbore(s) => {
-                naive_candidates_with(s, rays, h, pairs, mode, hits)
+                naive_candidates_with(s, rays, h, pairs, lanes, mode, hits)
             }
-            AnyTriangleSet::Watertight(s) => naive_candidates_with(s, rays, h, pairs, mode, hits),
-            AnyTriangleSet::Projected(s) => naive_candidates_with(s, rays, h, pairs, mode, hits),
+            AnyTriangleSet::Watertight(s) => {
+                naive_candidates_with(s, rays, h, pairs, lanes, mode, hits)
+            }
+            AnyTriangleSet::Projected(s) => {
+                naive_candidates_with(s, rays, h, pairs, lanes, mode, hits)
+            }
         }
     }
 
@@ -1119,28 +1191,33 @@ pub(crate) mod tests {
         rays: &[Ray],
         h: &RayHierarchy<Cpu>,
         pairs: &[Candidate],
+        lanes: Option<&[u32]>,
         mode: HitMode,
         hits: &mut [Hit],
     ) -> (u64, u64) {
-        let mut sorted = pairs.to_vec();
-        sorted.sort();
-        sorted.dedup();
+        let mut merged: std::collections::BTreeMap<Candidate, u32> = Default::default();
+        for (i, c) in pairs.iter().enumerate() {
+            *merged.entry(*c).or_insert(0) |= lanes.map_or(ALL_LANES, |l| l[i]);
+        }
         let (mut tests, mut found) = (0, 0);
         for node in 0..h.levels[0].len() {
-            let tris: Vec<u32> = sorted
+            let tris: Vec<(u32, u32)> = merged
                 .iter()
-                .filter(|c| c.node as usize == node)
-                .map(|c| c.tri)
+                .filter(|(c, _)| c.node as usize == node)
+                .map(|(c, m)| (c.tri, *m))
                 .collect();
             let leaves =
                 lowest_node_leaves(node, h.subdivision, h.leaf_offsets.as_deref(), rays.len());
-            for &r in &h.order[leaves] {
+            for (k, &r) in h.order[leaves].iter().enumerate() {
                 let ray = &rays[r as usize];
                 let best = &mut hits[r as usize];
                 if mode == HitMode::Any && best.is_hit() {
                     continue;
                 }
-                for &tri in &tris {
+                for &(tri, m) in &tris {
+                    if m != ALL_LANES && (k >= 32 || m & (1 << k) == 0) {
+                        continue;
+                    }
                     tests += 1;
                     let pre = T::ray_of(ray);
                     if let Some(x) = T::hit(
@@ -1199,7 +1276,23 @@ pub(crate) mod tests {
             for i in (1..second.len()).rev() {
                 second.swap(i, rng.next_u64() as usize % (i + 1));
             }
-            for mode in [HitMode::Closest, HitMode::Any] {
+            // Lane masks for both batches: all rays, none, or random rays of the node.
+            let mut masks = |n: usize| -> Vec<u32> {
+                (0..n)
+                    .map(|_| match rng.next_u64() % 4 {
+                        0 => ALL_LANES,
+                        1 => 0,
+                        _ => rng.next_u64() as u32,
+                    })
+                    .collect()
+            };
+            let lanes = [masks(pairs.len()), masks(second.len())];
+            for (mode, masked) in [
+                (HitMode::Closest, false),
+                (HitMode::Any, false),
+                (HitMode::Closest, true),
+                (HitMode::Any, true),
+            ] {
                 // Start from some stored hits (closer than anything, or misses).
                 let start: Vec<Hit> = (0..rays.len())
                     .map(|i| match i % 9 {
@@ -1216,11 +1309,13 @@ pub(crate) mod tests {
                 let mut got = start.clone();
                 let mut stats = Stats::default();
                 let mut counts = (0, 0);
-                for part in [&pairs, &second] {
-                    let c = naive_candidates(&b.tris, &rays, &h, part, mode, &mut want);
+                for (part, l) in [&pairs, &second].into_iter().zip(&lanes) {
+                    let l = masked.then_some(l.as_slice());
+                    let c = naive_candidates(&b.tris, &rays, &h, part, l, mode, &mut want);
                     counts = (counts.0 + c.0, counts.1 + c.1);
-                    let batch = CandidateBatch::<Cpu> {
-                        pairs: part.to_vec(),
+                    let batch = match l {
+                        Some(l) => CandidateBatch::<Cpu>::with_lanes(part.to_vec(), l.to_vec()),
+                        None => CandidateBatch::<Cpu>::new(part.to_vec()),
                     };
                     let q = Query::Candidates {
                         hierarchy: &h,
@@ -1229,7 +1324,7 @@ pub(crate) mod tests {
                     b.intersect(&Cpu, &rays, q, mode, &mut got, &mut stats)
                         .unwrap();
                 }
-                let what = format!("{kind:?} sub {sub} {mode:?}");
+                let what = format!("{kind:?} sub {sub} {mode:?} masked {masked}");
                 assert_eq!(got, want, "{what}");
                 assert_eq!(stats.tests.ray_triangle, counts.0, "{what}");
                 let found: u64 = stats.levels.iter().map(|r| r.hits).sum();
@@ -1237,6 +1332,32 @@ pub(crate) mod tests {
                 assert!(counts.1 > 0, "{what}: no hits, not a test");
             }
         }
+    }
+
+    #[test]
+    fn lane_masks_that_do_not_fit_are_errors() {
+        let scene = soup(31, 40);
+        let b = BruteForce::from_scene(&scene);
+        let rays = random_rays(&scene, 32, 80);
+        // Nodes of 40 rays: more than a mask holds.
+        let h = hierarchy((0..80).collect(), 40);
+        let pairs = vec![Candidate { node: 0, tri: 3 }, Candidate { node: 1, tri: 5 }];
+        let run = |lanes: Vec<u32>| {
+            let batch = CandidateBatch::<Cpu>::with_lanes(pairs.clone(), lanes);
+            let mut hits = vec![Hit::MISS; rays.len()];
+            let mut stats = Stats::default();
+            let q = Query::Candidates {
+                hierarchy: &h,
+                batch: &batch,
+            };
+            b.intersect(&Cpu, &rays, q, HitMode::Closest, &mut hits, &mut stats)
+                .map(|()| stats.tests.ray_triangle)
+        };
+        assert_eq!(run(vec![ALL_LANES, ALL_LANES]).unwrap(), 80);
+        let err = run(vec![ALL_LANES, 1]).unwrap_err().to_string();
+        assert!(err.contains("node 1") && err.contains("40 rays"), "{err}");
+        let err = run(vec![ALL_LANES]).unwrap_err().to_string();
+        assert!(err.contains("1 lane masks for 2"), "{err}");
     }
 
     /// A one-level hierarchy with variable-size lowest nodes: `offsets` over `order`.
@@ -1290,7 +1411,7 @@ pub(crate) mod tests {
                 .collect();
             // Every pair: the scene query's answer, N×M tests.
             let (want, _) = run(&b, &rays, Query::Scene, HitMode::Closest);
-            let batch = CandidateBatch::<Cpu> { pairs: all.clone() };
+            let batch = CandidateBatch::<Cpu>::new(all.clone());
             let q = Query::Candidates {
                 hierarchy: &h,
                 batch: &batch,
@@ -1311,10 +1432,8 @@ pub(crate) mod tests {
             }
             for mode in [HitMode::Closest, HitMode::Any] {
                 let mut want = vec![Hit::MISS; rays.len()];
-                let counts = naive_candidates(&b.tris, &rays, &h, &half, mode, &mut want);
-                let batch = CandidateBatch::<Cpu> {
-                    pairs: half.clone(),
-                };
+                let counts = naive_candidates(&b.tris, &rays, &h, &half, None, mode, &mut want);
+                let batch = CandidateBatch::<Cpu>::new(half.clone());
                 let q = Query::Candidates {
                     hierarchy: &h,
                     batch: &batch,
@@ -1348,9 +1467,10 @@ pub(crate) mod tests {
             hierarchy_with_offsets(order.clone(), vec![0, u32::MAX, 3, 8]),
         ];
         for (i, h) in cases.iter().enumerate() {
-            let batch = CandidateBatch::<Cpu> {
-                pairs: vec![Candidate { node: 0, tri: 0 }, Candidate { node: 2, tri: 1 }],
-            };
+            let batch = CandidateBatch::<Cpu>::new(vec![
+                Candidate { node: 0, tri: 0 },
+                Candidate { node: 2, tri: 1 },
+            ]);
             let mut hits = vec![Hit::MISS; rays.len()];
             let r = b.intersect(
                 &Cpu,
@@ -1453,7 +1573,7 @@ pub(crate) mod tests {
             ),
         ];
         for (h, pairs) in cases {
-            let batch = CandidateBatch::<Cpu> { pairs };
+            let batch = CandidateBatch::<Cpu>::new(pairs);
             let r = b.intersect(
                 &Cpu,
                 &rays,
@@ -1475,8 +1595,8 @@ pub(crate) mod tests {
         let b = BruteForce::from_scene(&scene);
         let mut rays = random_rays(&scene, 16, 16);
         let h = hierarchy((0..16).rev().collect(), 4);
-        let batch = |node: u32| CandidateBatch::<Cpu> {
-            pairs: (0..40).map(|tri| Candidate { node, tri }).collect(),
+        let batch = |node: u32| {
+            CandidateBatch::<Cpu>::new((0..40).map(|tri| Candidate { node, tri }).collect())
         };
         let mut hits = vec![Hit::MISS; rays.len()];
         let mut go = |rays: &Vec<Ray>, node: u32| {
@@ -1524,9 +1644,7 @@ pub(crate) mod tests {
         let b = BruteForce::from_scene(&scene);
         let rays = random_rays(&scene, 18, 12);
         let mut h = hierarchy((0..12).collect(), 4);
-        let batch = CandidateBatch::<Cpu> {
-            pairs: vec![Candidate { node: 0, tri: 1 }],
-        };
+        let batch = CandidateBatch::<Cpu>::new(vec![Candidate { node: 0, tri: 1 }]);
         let mut hits = vec![Hit::MISS; rays.len()];
         for (i, want_ok) in [(11, true), (10, false), (11, true)] {
             // Leaf 11 (outside node 0) names ray 11, then ray 10 twice, then 11 again.

@@ -389,7 +389,7 @@ mod tests {
             subdivision: 4,
             reach: Vec::new(),
         };
-        let batch = crsh_core::CandidateBatch::<Cpu> { pairs: Vec::new() };
+        let batch = crsh_core::CandidateBatch::<Cpu>::new(Vec::new());
         let q = Query::Candidates {
             hierarchy: &h,
             batch: &batch,

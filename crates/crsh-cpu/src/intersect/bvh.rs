@@ -1206,7 +1206,7 @@ pub(crate) mod tests {
             subdivision: 8,
             reach: vec![],
         };
-        let batch = CandidateBatch::<Cpu> { pairs: vec![] };
+        let batch = CandidateBatch::<Cpu>::new(vec![]);
         let mut hits = vec![Hit::MISS; 8];
         let r = x.intersect(
             &Cpu,

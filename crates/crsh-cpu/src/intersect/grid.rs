@@ -1594,7 +1594,7 @@ mod tests {
             subdivision: 8,
             reach: vec![],
         };
-        let batch = CandidateBatch::<Cpu> { pairs: vec![] };
+        let batch = CandidateBatch::<Cpu>::new(vec![]);
         let mut hits = vec![Hit::MISS; 8];
         let r = grid.intersect(
             &Cpu,

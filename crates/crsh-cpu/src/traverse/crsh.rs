@@ -566,7 +566,7 @@ impl Crsh {
                     report.peak_candidate_bytes = report.peak_candidate_bytes.max(peak);
                     if !pairs.is_empty() {
                         report.candidates += pairs.len() as u64;
-                        sink(CandidateBatch { pairs }, stats)?;
+                        sink(CandidateBatch::new(pairs), stats)?;
                     }
                     if worst <= self.budget_bytes / 2 {
                         batch = (batch * 2).min(max_batch);

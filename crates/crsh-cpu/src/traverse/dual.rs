@@ -78,8 +78,9 @@
 //! `O`'s box (its segment, the ray's interval, by slabs in `f64` widened by a relative
 //! `1e-9`; a ray that is not [`Ray::is_valid`] always passes, the intersector refuses it),
 //! the rays that pass go on to `O`'s children, and a triangle that some ray reaches makes
-//! `(N, T)` a candidate, once (the intersector still tests all of `N`'s rays against it).
-//! Exactness is the box test's argument for one ray. Each ray test counts as a bound test, in
+//! `(N, T)` a candidate, once, for the rays that reached it: the batch carries a lane mask per
+//! pair ([`CandidateBatch::lanes`], [`ALL_LANES`] for the pairs of whole nodes) and the
+//! intersector tests only those rays. Exactness is the box test's argument for one ray. Each ray test counts as a bound test, in
 //! the object-depth rows and, on the ray side, in the lowest node level's row (level 1): the
 //! rows still sum to the bounds.
 //!
@@ -120,10 +121,11 @@
 //! `(node, triangle)`, tasks in top-node order, so the batch is strictly increasing, the
 //! order the intersector uses in place) go to the sink as one [`CandidateBatch`]; new tasks
 //! join the next round in top-node order. `G` and `C` come from the budget alone:
-//! with `P = candidate_budget_mb · 2²⁰ / 16` pairs, `G = clamp(P / 1024, 1, 256)` and
+//! with `P = candidate_budget_mb · 2²⁰ / 24` pairs (12 bytes each: the pair and its lane
+//! mask), `G = clamp(P / 1024, 1, 256)` and
 //! `C = max(1, P / G)`, and a task's array never grows past `C`, so the candidate arrays
 //! alive at once (the tasks' arrays and the batch they are copied into) stay within
-//! `2·G·C·8 ≤` the budget (at least one pair's worth). [`DualReport::peak_candidate_bytes`]
+//! `2·G·C·12 ≤` the budget (at least one pair's worth). [`DualReport::peak_candidate_bytes`]
 //! reports the peak reached. Nothing depends on the thread count: the rounds, the batches and
 //! the counters are functions of the hierarchy, the scene and the budget.
 //!
@@ -174,7 +176,7 @@ use crsh_core::glam::{DVec3, Vec3};
 use crsh_core::{
     f32_down, f32_up, lowest_node_leaves, Aabb, Candidate, CandidateBatch, CoreError, ParamInfo,
     Ray, RayHierarchy, RayKind, Registry, Result, Sphere, StageKind, StageSpec, StageVariantInfo,
-    Stats, Traverser,
+    Stats, Traverser, ALL_LANES,
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
@@ -191,7 +193,7 @@ const ROUND_TASKS: usize = 256;
 /// Fewest candidates a task may hold before it stops, unless the budget is smaller.
 const MIN_PIECE: u64 = 1024;
 /// Bytes per candidate pair.
-const PAIR_BYTES: u64 = std::mem::size_of::<Candidate>() as u64;
+const PAIR_BYTES: u64 = (std::mem::size_of::<Candidate>() + std::mem::size_of::<u32>()) as u64;
 /// Marks a leaf (a sorted triangle position) in an object node reference.
 const LEAF: u32 = 1 << 31;
 
@@ -885,9 +887,9 @@ impl Task {
 
     /// Runs until the stack is empty or `cap` candidates are held; returns them sorted, and
     /// the counters.
-    fn run(&mut self, ctx: &Ctx<'_>, cap: usize) -> (Vec<Candidate>, Counters) {
+    fn run(&mut self, ctx: &Ctx<'_>, cap: usize) -> (Vec<(Candidate, u32)>, Counters) {
         let tree = ctx.tree;
-        let mut out: Vec<Candidate> = Vec::new();
+        let mut out: Vec<(Candidate, u32)> = Vec::new();
         let mut counts = Counters::new(ctx.nodes.len(), tree.max_depth + 1);
         while let Some(p) = self.stack.pop() {
             if out.len() >= cap {
@@ -925,8 +927,11 @@ impl Task {
                     push_candidate(
                         &mut out,
                         cap,
-                        p.node,
-                        tree.leaf_tris[(p.obj & !LEAF) as usize],
+                        Candidate {
+                            node: p.node,
+                            tri: tree.leaf_tris[(p.obj & !LEAF) as usize],
+                        },
+                        live,
                     );
                 } else {
                     self.push_object_children(tree, Pair { mask: live, ..p });
@@ -953,8 +958,11 @@ impl Task {
                     push_candidate(
                         &mut out,
                         cap,
-                        p.node,
-                        tree.leaf_tris[(p.obj & !LEAF) as usize],
+                        Candidate {
+                            node: p.node,
+                            tri: tree.leaf_tris[(p.obj & !LEAF) as usize],
+                        },
+                        ALL_LANES,
                     );
                     continue;
                 }
@@ -1004,14 +1012,14 @@ impl Task {
             }
         }
         // (node, triangle) order, as one 64-bit key (the same order as `Candidate`'s `Ord`).
-        out.sort_unstable_by_key(|c| (c.node as u64) << 32 | c.tri as u64);
+        out.sort_unstable_by_key(|(c, _)| (c.node as u64) << 32 | c.tri as u64);
         (out, counts)
     }
 }
 
-/// Appends a candidate to a task's array, growing it by at least 256 pairs at a time but
-/// never past `cap` (more only when the task is already over it).
-fn push_candidate(out: &mut Vec<Candidate>, cap: usize, node: u32, tri: u32) {
+/// Appends a candidate and its lane mask to a task's array, growing it by at least 256 pairs
+/// at a time but never past `cap` (more only when the task is already over it).
+fn push_candidate(out: &mut Vec<(Candidate, u32)>, cap: usize, c: Candidate, lanes: u32) {
     if out.len() == out.capacity() {
         let more = out
             .capacity()
@@ -1020,7 +1028,7 @@ fn push_candidate(out: &mut Vec<Candidate>, cap: usize, node: u32, tri: u32) {
             .max(1);
         out.reserve_exact(more);
     }
-    out.push(Candidate { node, tri });
+    out.push((c, lanes));
 }
 
 impl Dual {
@@ -1215,29 +1223,38 @@ impl Dual {
             if active.is_empty() {
                 break;
             }
-            let results: Vec<(Vec<Candidate>, Counters)> =
+            let results: Vec<(Vec<(Candidate, u32)>, Counters)> =
                 active.par_iter_mut().map(|t| t.run(&ctx, cap)).collect();
             report.rounds += 1;
             let n_pairs: usize = results.iter().map(|r| r.0.len()).sum();
             let held: u64 = results.iter().map(|r| r.0.capacity() as u64).sum::<u64>();
             let mut pairs = Vec::with_capacity(n_pairs);
+            let mut lanes = Vec::with_capacity(if single_rays { n_pairs } else { 0 });
             let mut counts = Counters::new(nodes.len(), tree.max_depth + 1);
             for (piece, c) in &results {
-                pairs.extend_from_slice(piece);
+                pairs.extend(piece.iter().map(|e| e.0));
+                if single_rays {
+                    lanes.extend(piece.iter().map(|e| e.1));
+                }
                 counts.add(c);
             }
             // Counted before the sink runs, as `crsh` does per batch.
             counts.record(kind, stats);
             report.peak_candidate_bytes = report
                 .peak_candidate_bytes
-                .max((held + pairs.capacity() as u64) * PAIR_BYTES);
+                .max(held * PAIR_BYTES + (pairs.capacity() * 8 + lanes.capacity() * 4) as u64);
             drop(results);
             active.retain(|t| !t.stack.is_empty());
             report.suspensions += active.len();
             if !pairs.is_empty() {
                 report.batches += 1;
                 report.candidates += pairs.len() as u64;
-                sink(CandidateBatch { pairs }, stats)?;
+                let batch = if single_rays {
+                    CandidateBatch::with_lanes(pairs, lanes)
+                } else {
+                    CandidateBatch::new(pairs)
+                };
+                sink(batch, stats)?;
             }
         }
         Ok(report)
@@ -1636,7 +1653,7 @@ pub(crate) mod tests {
         let t = Dual::new(&scene, &spec).unwrap();
         assert_eq!((t.objects(), t.budget_bytes()), ("lbvh", 64 << 20));
         assert_eq!(t.name(), "dual");
-        assert_eq!(t.round_shape(), (256, (64 << 20) / 16 / 256));
+        assert_eq!(t.round_shape(), (256, (64 << 20) / 24 / 256));
         spec.params
             .insert("objects".into(), ParamValue::Str("meshes".into()));
         spec.params
@@ -2023,6 +2040,43 @@ pub(crate) mod tests {
                 .sum();
             let objs: u64 = s_on.object_levels.iter().map(|l| l.tests).sum();
             assert_eq!((rows, objs), (a.bounds, a.bounds));
+        }
+        // The batches name each pair's rays; every ray's nearest hit is in its mask.
+        let want = reference(&brute, &rays, HitMode::Closest);
+        for (trav, masked) in [(&on, true), (&off, false)] {
+            let mut tagged: Vec<(Candidate, u32)> = Vec::new();
+            trav.traverse_with_report(
+                &rays,
+                RayKind::Reflection,
+                &h,
+                &mut |batch, _| {
+                    assert_eq!(batch.lanes.is_some(), masked);
+                    let lanes = batch
+                        .lanes
+                        .unwrap_or_else(|| vec![ALL_LANES; batch.pairs.len()]);
+                    tagged.extend(batch.pairs.into_iter().zip(lanes));
+                    Ok(())
+                },
+                &mut Stats::default(),
+            )
+            .unwrap();
+            let partial = tagged.iter().filter(|t| t.1 != ALL_LANES).count();
+            assert_eq!(partial > 0, masked, "{partial} pairs for some rays only");
+            for (leaf, &r) in h.order.iter().enumerate() {
+                let hit = want[r as usize];
+                if !hit.is_hit() {
+                    continue;
+                }
+                let c = Candidate {
+                    node: (leaf / 8) as u32,
+                    tri: hit.tri,
+                };
+                let mask = tagged.iter().find(|t| t.0 == c).map(|t| t.1);
+                assert!(
+                    mask.is_some_and(|m| m == ALL_LANES || m & (1 << (leaf % 8)) != 0),
+                    "ray {r}: {c:?} has mask {mask:?}"
+                );
+            }
         }
     }
 }

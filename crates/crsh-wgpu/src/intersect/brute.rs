@@ -337,6 +337,14 @@ impl Intersector<Wgpu> for BruteForce {
                 self.scene_query(rays, any_hit, hits)?
             }
             Query::Candidates { hierarchy, batch } => {
+                if batch.lanes.is_some() {
+                    // No wgpu traverser culls single rays; the CPU `dual` does.
+                    return Err(CoreError::Unsupported {
+                        stage: "intersect",
+                        variant: "brute".into(),
+                        what: "candidate lane masks on the wgpu backend".into(),
+                    });
+                }
                 if batch.pairs.is_empty() || rays.is_empty() {
                     return Ok(());
                 }

@@ -500,7 +500,7 @@ impl Traverser<Wgpu> for Crsh {
                     }
                     peak_all = peak_all.max(peak);
                     if !pairs.is_empty() {
-                        sink(CandidateBatch { pairs }, stats)?;
+                        sink(CandidateBatch::new(pairs), stats)?;
                     }
                     if worst <= self.budget_bytes / 2 {
                         batch = (batch * 2).min(max_batch);
