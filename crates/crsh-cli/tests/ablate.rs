@@ -1894,7 +1894,7 @@ fn dual_plan_is_exact_on_every_cell() {
     );
     assert_ok(&o);
     assert!(
-        text(&o.stdout).contains("39 cells, 3 timed runs each (nothing run)"),
+        text(&o.stdout).contains("42 cells, 3 timed runs each (nothing run)"),
         "{}",
         text(&o.stdout)
     );
@@ -1911,7 +1911,7 @@ fn dual_plan_is_exact_on_every_cell() {
     assert_ok(&o);
     let v = read_json(&dir.join("out/results.json"));
     let cs = cells(&v);
-    assert_eq!(cs.len(), 2 * 13);
+    assert_eq!(cs.len(), 2 * 14);
     for scene in ["office-boxes", "cornell-mirrors"] {
         let per_ray = |label: &str| -> f64 {
             let c = cs

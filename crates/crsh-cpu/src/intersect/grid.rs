@@ -632,10 +632,18 @@ impl GridData {
     /// # Errors
     /// Those of [`run_passes`] (a grid too large for 32-bit indices).
     pub fn build(scene: &Scene, k: f64, test: TestKind) -> Result<GridData> {
-        let keep = hittable(scene, test);
+        GridData::build_of(scene, k, &hittable(scene, test))
+    }
+
+    /// [`GridData::build`] binning the triangles `keep` marks (all of them for a structure
+    /// that serves any ray-triangle test, e.g. the `dual` traverser's `objects = grid`).
+    ///
+    /// # Errors
+    /// As [`GridData::build`].
+    pub fn build_of(scene: &Scene, k: f64, keep: &[bool]) -> Result<GridData> {
         let binned = keep.iter().filter(|&&h| h).count();
         let geometry = GridGeometry::new(&scene.bounds, binned, k);
-        let boxes = triangle_boxes(&geometry, scene, &keep);
+        let boxes = triangle_boxes(&geometry, scene, keep);
         let cells = BoxCells {
             geometry: &geometry,
             boxes: &boxes,

@@ -14,6 +14,9 @@
 //!   i.e. once per frame (a moving scene rebuilds its stages every frame,
 //!   [`crsh_core::Registry::rebuild`], and the build time is the stage's row in
 //!   [`crsh_core::Pipeline::builds`]).
+//! - `bvh`: the same bounds over the topology of obvhs's binary BVH ([`Lbvh::build_bvh2`]).
+//! - `grid`: the same bounds over seed 002's uniform grid ([`Lbvh::build_grid`], parameter
+//!   `grid_density`, default [`GRID_DENSITY`]), each leaf clipped to its cell (below).
 //! - `meshes`: the thesis's mesh-sphere traversal, i.e. [`super::crsh::Crsh`] with mesh
 //!   culling (whole-mesh spheres at the top level, then every triangle sphere of the kept
 //!   meshes, level by level, §3.2.8). Same candidates, counters and batches as the `crsh`
@@ -35,6 +38,34 @@
 //! of the box around its triangles' spheres (a box is bounded by its circumscribed sphere, so
 //! the node test stays the ray-node-against-sphere test), computed in `f64`, rounded outwards
 //! to `f32` (radius enlarged by `1e-6` relative plus the centre's rounding).
+//!
+//! # The grid (`grid`)
+//!
+//! Seed 002's grid (its five passes, [`GridData::build_of`], every triangle binned in every
+//! cell its margin-widened vertex box meets) gives the topology: cell ranges halved at the
+//! middle of their longest axis down to single cells (halves without entries skipped), then
+//! each cell's triangle list halved down to single entries. A leaf is one (cell, triangle)
+//! entry, so a triangle in `m` cells is `m` leaves. Unclipped, a big triangle (a floor)
+//! would give every cell node it crosses its whole box; so each entry's box is the
+//! triangle's box ([`triangle_box`]) clipped to its **region** ([`entry_region`]: the closed
+//! cell widened on each side by the margin the triangle's box has on that side), and its
+//! sphere is the smaller of the triangle's sphere and the sphere around the clipped box.
+//! Internal nodes get their bounds from their children as above.
+//!
+//! **No hit is lost.** A hit on `T` is reported inside `T`'s box, so within its margin of the
+//! point `q` of `T`'s vertex box nearest to it; the grid lists `T` in the cell holding `q`,
+//! whose region therefore holds the hit: that entry's clipped box contains it, and its sphere
+//! is either `T`'s (the argument above) or one around a box that contains it. Internal nodes
+//! contain their leaves' bounds, so every pair on the path to that entry passes. A triangle
+//! reached through several cells becomes one candidate (a task sorts its candidates and
+//! merges repeats, lane masks or'ed); only a task stopped by its share of the budget between
+//! two such cells can hand the same pair on in two batches (tested twice, same hits).
+//!
+//! Measured on Sponza (1024², depth 3, shadow rays): density 0.25 / 1 / 5 give 43.0 / 42.2 /
+//! 44.4 tests per ray; 1 also needs the fewest on cornell-mirror (5.8), 0.25 on the dining
+//! room (55.2 against 62.8). The Morton build needs 40.6, 36.9 and 5.4 and is faster
+//! everywhere, but the clipped entries take the final tests below it (Sponza 16.8-19.3M
+//! against 27.3M ray-triangle tests).
 //!
 //! # Traversal
 //!
@@ -184,10 +215,14 @@ use rayon::prelude::*;
 use super::crsh::{budget_bytes, prepare_nodes, Crsh, NodeBound, ABS_MARGIN, REL_MARGIN};
 use crate::backend::Cpu;
 use crate::intersect::bvh::{build_bvh2, obvhs_triangle, BuildQuality};
+use crate::intersect::grid::{GridData, MAX_DENSITY, MIN_DENSITY};
 use obvhs::triangle::Triangle;
 
 /// The choices of parameter `objects`.
-pub const OBJECTS: [&str; 3] = ["lbvh", "bvh", "meshes"];
+pub const OBJECTS: [&str; 4] = ["lbvh", "bvh", "grid", "meshes"];
+/// The default `grid_density` of `objects = grid`: about one cell per triangle (the fewest
+/// tests per ray on Sponza and cornell-mirror among 0.25, 1 and 5, module doc).
+pub const GRID_DENSITY: f64 = 1.0;
 /// Most tasks (top-level ray nodes) traversed in one round.
 const ROUND_TASKS: usize = 256;
 /// Fewest candidates a task may hold before it stops, unless the budget is smaller.
@@ -212,9 +247,19 @@ pub fn info() -> StageVariantInfo {
         &OBJECTS,
         "object side: `lbvh` a binary sphere hierarchy over the triangles by Morton codes, \
          rebuilt per frame; `bvh` the same bounds over the topology of obvhs's binary BVH \
-         (PLOC with reinsertion, `fast` preset), rebuilt per frame; `meshes` the thesis's \
-         mesh spheres then triangle spheres (the `crsh` traverser with mesh culling)",
+         (PLOC with reinsertion, `fast` preset), rebuilt per frame; `grid` the same bounds \
+         over seed 002's uniform grid (cell ranges halved, then each cell's triangles), \
+         rebuilt per frame; `meshes` the thesis's mesh spheres then triangle spheres (the \
+         `crsh` traverser with mesh culling)",
     ))
+    .param(
+        ParamInfo::float(
+            "grid_density",
+            GRID_DENSITY,
+            "with `objects = grid`: k of seed 002 eq. 1, about k cells per triangle",
+        )
+        .range(MIN_DENSITY, MAX_DENSITY),
+    )
     .param(ParamInfo::bool(
         "box_test",
         true,
@@ -530,7 +575,7 @@ impl Lbvh {
             }
         }
         Ok(Lbvh::with_topology(
-            scene, inner, leaf_tris, &preorder, max_depth,
+            scene, inner, leaf_tris, &preorder, max_depth, None,
         ))
     }
 
@@ -622,26 +667,184 @@ impl Lbvh {
             )));
         }
         Ok(Lbvh::with_topology(
-            scene, inner, leaf_tris, &preorder, max_depth,
+            scene, inner, leaf_tris, &preorder, max_depth, None,
+        ))
+    }
+
+    /// Builds the hierarchy over seed 002's uniform grid ([`GridData::build_of`], density `k`
+    /// of eq. 1, every triangle binned whatever the ray-triangle test): the cells are grouped
+    /// by halving cell ranges (the whole grid, then each range split at the middle of its
+    /// longest axis, lowest axis on ties; a half without triangles is skipped, so every node
+    /// has two non-empty halves), a single cell's triangle list is split in halves down to
+    /// single entries. A leaf is one (cell, triangle) entry of the grid: a triangle in `m`
+    /// cells is `m` leaves, each with the triangle's own sphere and box, so the bounds and
+    /// their proof are the Morton build's (every node's sphere and box contain those of every
+    /// leaf below) and only the topology is the grid's. Errors on 2³¹ entries or more.
+    pub fn build_grid(scene: &Scene, k: f64) -> Result<Lbvh> {
+        let n = scene.triangle_count();
+        if n < 2 {
+            return Lbvh::build(scene);
+        }
+        let grid = GridData::build_of(scene, k, &vec![true; n])?;
+        let entries = grid.cell_tris.len();
+        if entries >= LEAF as usize {
+            return Err(CoreError::InvalidInput(format!(
+                "{entries} grid entries: the object hierarchy holds fewer than 2^31"
+            )));
+        }
+        let dims = grid.geometry.dims;
+        let counts = CellCounts::new(dims, &grid.cell_ranges);
+        /// A part still to convert: a range of cells (lowest corner, highest exclusive) whose
+        /// halves both hold entries, or a run of one cell's entries.
+        enum Part {
+            Cells([u32; 3], [u32; 3]),
+            Entries(u32, usize, usize),
+        }
+        // The part a non-empty cell range becomes: its first range, going down through empty
+        // halves, that splits into two non-empty halves, or a single cell's entries.
+        let settle = |mut lo: [u32; 3], mut hi: [u32; 3]| -> Part {
+            loop {
+                let Some((left, right)) = halves(lo, hi) else {
+                    let cell = grid.geometry.cell_id(lo);
+                    let [start, count] = grid.cell_ranges[cell as usize];
+                    return Part::Entries(cell, start as usize, count as usize);
+                };
+                match (counts.of(left.0, left.1), counts.of(right.0, right.1)) {
+                    (0, _) => (lo, hi) = right,
+                    (_, 0) => (lo, hi) = left,
+                    _ => return Part::Cells(lo, hi),
+                }
+            }
+        };
+        let mut inner: Vec<Inner> = Vec::with_capacity(entries - 1);
+        let mut leaf_tris: Vec<u32> = Vec::with_capacity(entries);
+        let mut leaf_cells: Vec<u32> = Vec::with_capacity(entries);
+        let mut preorder: Vec<u32> = Vec::with_capacity(entries - 1);
+        let mut max_depth = 0usize;
+        let blank = Inner {
+            sphere: Sphere::new(Vec3::ZERO, 0.0),
+            bx: Aabb::EMPTY,
+            children: [0, 0],
+        };
+        inner.push(blank);
+        let root = settle([0; 3], dims);
+        if let Part::Entries(_, _, 1) = root {
+            // Two or more triangles are two or more entries.
+            return Err(CoreError::InvalidInput(format!(
+                "the grid over {n} triangles has one entry"
+            )));
+        }
+        let mut stack: Vec<(Part, u32, usize)> = vec![(root, 0, 0)];
+        while let Some((part, index, depth)) = stack.pop() {
+            preorder.push(index);
+            max_depth = max_depth.max(depth + 1);
+            let two: [Part; 2] = match part {
+                Part::Cells(lo, hi) => {
+                    let (l, r) = halves(lo, hi).expect("a settled range splits");
+                    [settle(l.0, l.1), settle(r.0, r.1)]
+                }
+                Part::Entries(cell, start, count) => {
+                    let half = count / 2;
+                    [
+                        Part::Entries(cell, start, half),
+                        Part::Entries(cell, start + half, count - half),
+                    ]
+                }
+            };
+            let mut children = [0u32; 2];
+            let mut later = Vec::with_capacity(2);
+            for (k, half) in two.into_iter().enumerate() {
+                children[k] = match half {
+                    Part::Entries(cell, start, 1) => {
+                        leaf_tris.push(grid.cell_tris[start]);
+                        leaf_cells.push(cell);
+                        LEAF | (leaf_tris.len() - 1) as u32
+                    }
+                    other => {
+                        inner.push(blank);
+                        let c = (inner.len() - 1) as u32;
+                        later.push((other, c, depth + 1));
+                        c
+                    }
+                };
+            }
+            inner[index as usize].children = children;
+            stack.extend(later.into_iter().rev());
+        }
+        if leaf_tris.len() != entries || inner.len() != entries - 1 {
+            return Err(CoreError::InvalidInput(format!(
+                "the grid's {entries} entries gave {} leaves and {} inner nodes",
+                leaf_tris.len(),
+                inner.len()
+            )));
+        }
+        // Each entry's region: its cell, closed, widened by its triangle's box margins.
+        let g = &grid.geometry;
+        let regions: Vec<Aabb> = leaf_cells
+            .par_iter()
+            .zip(&leaf_tris)
+            .map(|(&cell, &t)| {
+                let (nx, ny) = (g.dims[0], g.dims[1]);
+                let c = [cell % nx, (cell / nx) % ny, cell / (nx * ny)];
+                let lo = Vec3::from_array([0, 1, 2].map(|a| g.planes[a][c[a] as usize]));
+                let hi = Vec3::from_array([0, 1, 2].map(|a| g.planes[a][c[a] as usize + 1]));
+                entry_region(scene.triangle(t as usize), lo, hi)
+            })
+            .collect();
+        Ok(Lbvh::with_topology(
+            scene,
+            inner,
+            leaf_tris,
+            &preorder,
+            max_depth,
+            Some(&regions),
         ))
     }
 
     /// The hierarchy with the given topology (`inner` nodes' children set, leaves' triangle
     /// ids, the inner nodes in an order where a parent precedes its children): leaf spheres
-    /// and boxes from the scene, inner bounds bottom-up.
+    /// and boxes from the scene, inner bounds bottom-up. With `regions` (one per leaf, the
+    /// grid's: [`entry_region`]), a leaf's box is its triangle's box within its region, and
+    /// its sphere the smaller of the triangle's and the one around that box.
     fn with_topology(
         scene: &Scene,
         mut inner: Vec<Inner>,
         leaf_tris: Vec<u32>,
         preorder: &[u32],
         max_depth: usize,
+        regions: Option<&[Aabb]>,
     ) -> Lbvh {
         let spheres = &scene.tri_spheres;
         let leaves: Vec<Leaf> = leaf_tris
             .par_iter()
-            .map(|&t| Leaf {
-                sphere: spheres[t as usize],
-                bx: triangle_box(scene.triangle(t as usize)),
+            .enumerate()
+            .map(|(i, &t)| {
+                let sphere = spheres[t as usize];
+                let bx = triangle_box(scene.triangle(t as usize));
+                let Some(region) = regions.map(|r| r[i]) else {
+                    return Leaf { sphere, bx };
+                };
+                let clipped = Aabb {
+                    min: bx.min.max(region.min),
+                    max: bx.max.min(region.max),
+                };
+                if clipped.is_empty() {
+                    // No hit of the triangle is reported in this entry's region.
+                    return Leaf {
+                        sphere,
+                        bx: Aabb::EMPTY,
+                    };
+                }
+                let (lo, hi) = (clipped.min.as_dvec3(), clipped.max.as_dvec3());
+                let around = round_out((lo + hi) / 2.0, (hi - lo).length() / 2.0);
+                Leaf {
+                    sphere: if around.radius < sphere.radius {
+                        around
+                    } else {
+                        sphere
+                    },
+                    bx: clipped,
+                }
             })
             .collect();
         let mut boxes = vec![(DVec3::ZERO, DVec3::ZERO); inner.len()];
@@ -737,6 +940,94 @@ impl Lbvh {
     }
 }
 
+/// Where a hit on `tri` reported in grid cell `[lo, hi]` (closed) can lie: the cell widened on
+/// each side by the margin [`triangle_box`] adds on that side, rounded outwards. A hit is
+/// within [`triangle_box`], so within that margin of the point `q` of the triangle's vertex
+/// box nearest to it, and the grid lists the triangle in the cell holding `q` (it bins the
+/// triangle in every cell its widened vertex box meets); so the entry of that cell keeps the
+/// hit inside its clipped box.
+pub fn entry_region(tri: [Vec3; 3], lo: Vec3, hi: Vec3) -> Aabb {
+    let tb = triangle_box(tri);
+    let (vlo, vhi) = (
+        tri[0].min(tri[1]).min(tri[2]),
+        tri[0].max(tri[1]).max(tri[2]),
+    );
+    let side = |a: usize| -> (f32, f32) {
+        let down = lo[a] as f64 - (vlo[a] as f64 - tb.min[a] as f64);
+        let up = hi[a] as f64 + (tb.max[a] as f64 - vhi[a] as f64);
+        let slack = |x: f64| 1e-12 * x.abs().max(1.0);
+        (f32_down(down - slack(down)), f32_up(up + slack(up)))
+    };
+    let [x, y, z] = [0, 1, 2].map(side);
+    Aabb {
+        min: Vec3::new(x.0, y.0, z.0),
+        max: Vec3::new(x.1, y.1, z.1),
+    }
+}
+
+/// A range of grid cells: lowest corner, highest corner exclusive.
+type CellRange = ([u32; 3], [u32; 3]);
+
+/// The two halves of the cell range `lo .. hi` (highest corner exclusive), split at the middle
+/// of its longest axis (the lowest such axis on ties); `None` for a single cell.
+fn halves(lo: [u32; 3], hi: [u32; 3]) -> Option<(CellRange, CellRange)> {
+    let ext = [0, 1, 2].map(|a| hi[a] - lo[a]);
+    let a = (0..3).fold(0, |best, a| if ext[a] > ext[best] { a } else { best });
+    if ext[a] <= 1 {
+        return None;
+    }
+    let mid = lo[a] + ext[a] / 2;
+    let (mut left_hi, mut right_lo) = (hi, lo);
+    left_hi[a] = mid;
+    right_lo[a] = mid;
+    Some(((lo, left_hi), (right_lo, hi)))
+}
+
+/// Grid entries per cell range in O(1): a summed-volume table of the cells' entry counts.
+struct CellCounts {
+    /// `(nx + 1)·(ny + 1)·(nz + 1)` sums: entries of the cells below `(x, y, z)` on every axis.
+    sums: Vec<u64>,
+    dims: [usize; 3],
+}
+
+impl CellCounts {
+    fn new(dims: [u32; 3], ranges: &[[u32; 2]]) -> CellCounts {
+        let d = dims.map(|n| n as usize);
+        let (sx, sy) = (d[0] + 1, d[1] + 1);
+        let mut sums = vec![0u64; sx * sy * (d[2] + 1)];
+        let at = |x: usize, y: usize, z: usize| x + sx * (y + sy * z);
+        for z in 1..=d[2] {
+            for y in 1..=d[1] {
+                for x in 1..=d[0] {
+                    let cell = (x - 1) + d[0] * ((y - 1) + d[1] * (z - 1));
+                    sums[at(x, y, z)] = ranges[cell][1] as u64
+                        + sums[at(x - 1, y, z)]
+                        + sums[at(x, y - 1, z)]
+                        + sums[at(x, y, z - 1)]
+                        + sums[at(x - 1, y - 1, z - 1)]
+                        - sums[at(x - 1, y - 1, z)]
+                        - sums[at(x - 1, y, z - 1)]
+                        - sums[at(x, y - 1, z - 1)];
+                }
+            }
+        }
+        CellCounts { sums, dims: d }
+    }
+
+    /// Entries in the cells `lo .. hi` (highest corner exclusive).
+    fn of(&self, lo: [u32; 3], hi: [u32; 3]) -> u64 {
+        let (sx, sy) = (self.dims[0] + 1, self.dims[1] + 1);
+        let s =
+            |x: u32, y: u32, z: u32| self.sums[x as usize + sx * (y as usize + sy * z as usize)];
+        let (a, b) = (lo, hi);
+        s(b[0], b[1], b[2]) + s(a[0], a[1], b[2]) + s(a[0], b[1], a[2]) + s(b[0], a[1], a[2])
+            - s(a[0], b[1], b[2])
+            - s(b[0], a[1], b[2])
+            - s(b[0], b[1], a[2])
+            - s(a[0], a[1], a[2])
+    }
+}
+
 /// What one `dual` traversal did, for tests and tuning.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct DualReport {
@@ -773,8 +1064,8 @@ enum Objects {
     Lbvh {
         tree: Box<Lbvh>,
         budget_bytes: u64,
-        /// The topology is obvhs's (`objects = bvh`), not the Morton build's.
-        sah: bool,
+        /// Whose topology the tree has: the `objects` value (`lbvh`, `bvh` or `grid`).
+        source: &'static str,
         box_test: bool,
         single_rays: bool,
     },
@@ -893,8 +1184,13 @@ impl Task {
         let mut counts = Counters::new(ctx.nodes.len(), tree.max_depth + 1);
         while let Some(p) = self.stack.pop() {
             if out.len() >= cap {
-                self.stack.push(p);
-                break;
+                // Grid triangles arrive once per cell: merge them, and stop only if that
+                // frees less than a quarter of the share.
+                sort_and_merge(&mut out);
+                if out.len() >= cap - cap / 4 {
+                    self.stack.push(p);
+                    break;
+                }
             }
             if p.level == SINGLE {
                 // The node's live rays, one by one, against the object node's box (counted
@@ -1011,10 +1307,23 @@ impl Task {
                 self.push_object_children(tree, p);
             }
         }
-        // (node, triangle) order, as one 64-bit key (the same order as `Candidate`'s `Ord`).
-        out.sort_unstable_by_key(|(c, _)| (c.node as u64) << 32 | c.tri as u64);
+        sort_and_merge(&mut out);
         (out, counts)
     }
+}
+
+/// Sorts a task's candidates by `(node, triangle)` and merges repeats (a triangle in several
+/// grid cells is reached once per cell) into one candidate for the rays of all of them.
+fn sort_and_merge(out: &mut Vec<(Candidate, u32)>) {
+    // (node, triangle) order, as one 64-bit key (the same order as `Candidate`'s `Ord`).
+    out.sort_unstable_by_key(|(c, _)| (c.node as u64) << 32 | c.tri as u64);
+    out.dedup_by(|next, kept| {
+        let same = next.0 == kept.0;
+        if same {
+            kept.1 |= next.1;
+        }
+        same
+    });
 }
 
 /// Appends a candidate and its lane mask to a task's array, growing it by at least 256 pairs
@@ -1037,7 +1346,11 @@ impl Dual {
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<Dual> {
         let objects = spec.str("objects")?;
         let mb = spec.f64("candidate_budget_mb")?;
-        let mut dual = Dual::with_options(scene, objects, mb)?;
+        let mut dual = if objects == "grid" {
+            Dual::over_grid(scene, spec.f64("grid_density")?, mb)?
+        } else {
+            Dual::with_options(scene, objects, mb)?
+        };
         dual.set_box_test(spec.bool("box_test")?);
         dual.set_single_rays(spec.bool("single_rays")?);
         Ok(dual)
@@ -1046,19 +1359,22 @@ impl Dual {
     /// The traverser with explicit options: `objects` one of [`OBJECTS`], `budget_mb` in MiB
     /// (finite and > 0); the box test and single rays on ([`Dual::set_box_test`],
     /// [`Dual::set_single_rays`]).
+    /// `objects = grid` builds the grid at [`GRID_DENSITY`] ([`Dual::over_grid`] for
+    /// another).
     pub fn with_options(scene: &Arc<Scene>, objects: &str, budget_mb: f64) -> Result<Dual> {
-        let objects = match objects {
-            "lbvh" | "bvh" => Objects::Lbvh {
+        let tree = |source: &'static str, tree: Lbvh| -> Result<Objects> {
+            Ok(Objects::Lbvh {
                 budget_bytes: budget_bytes(budget_mb)?,
-                tree: Box::new(if objects == "lbvh" {
-                    Lbvh::build(scene)?
-                } else {
-                    Lbvh::build_bvh2(scene, BuildQuality::Fast)?
-                }),
-                sah: objects == "bvh",
+                tree: Box::new(tree),
+                source,
                 box_test: true,
                 single_rays: true,
-            },
+            })
+        };
+        let objects = match objects {
+            "lbvh" => tree("lbvh", Lbvh::build(scene)?)?,
+            "bvh" => tree("bvh", Lbvh::build_bvh2(scene, BuildQuality::Fast)?)?,
+            "grid" => tree("grid", Lbvh::build_grid(scene, GRID_DENSITY)?)?,
             "meshes" => Objects::Meshes(Crsh::with_options(scene, true, budget_mb)?),
             other => {
                 return Err(CoreError::InvalidParam {
@@ -1070,23 +1386,44 @@ impl Dual {
         Ok(Dual { objects })
     }
 
-    /// The object side (`lbvh`, `bvh` or `meshes`).
+    /// The traverser with `objects = grid` at density `k` (seed 002 eq. 1, within
+    /// [`MIN_DENSITY`] ..= [`MAX_DENSITY`]), budget as [`Dual::with_options`].
+    pub fn over_grid(scene: &Arc<Scene>, k: f64, budget_mb: f64) -> Result<Dual> {
+        if !(MIN_DENSITY..=MAX_DENSITY).contains(&k) {
+            return Err(CoreError::InvalidParam {
+                key: "traverse.grid_density".into(),
+                reason: format!("{k} is not in {MIN_DENSITY} ..= {MAX_DENSITY}"),
+            });
+        }
+        Ok(Dual {
+            objects: Objects::Lbvh {
+                budget_bytes: budget_bytes(budget_mb)?,
+                tree: Box::new(Lbvh::build_grid(scene, k)?),
+                source: "grid",
+                box_test: true,
+                single_rays: true,
+            },
+        })
+    }
+
+    /// The object side (one of [`OBJECTS`]).
     pub fn objects(&self) -> &'static str {
         match self.objects {
-            Objects::Lbvh { sah: false, .. } => "lbvh",
-            Objects::Lbvh { sah: true, .. } => "bvh",
+            Objects::Lbvh { source, .. } => source,
             Objects::Meshes(_) => "meshes",
         }
     }
 
-    /// Turns the box test of `objects = lbvh` on or off (no effect with `meshes`).
+    /// Turns the box test of `objects = lbvh`, `bvh` or `grid` on or off (no effect with
+    /// `meshes`).
     pub fn set_box_test(&mut self, on: bool) {
         if let Objects::Lbvh { box_test, .. } = &mut self.objects {
             *box_test = on;
         }
     }
 
-    /// Turns the descent of lowest nodes to single rays (`objects = lbvh`) on or off.
+    /// Turns the descent of lowest nodes to single rays (`objects = lbvh`, `bvh` or `grid`) on
+    /// or off.
     pub fn set_single_rays(&mut self, on: bool) {
         if let Objects::Lbvh { single_rays, .. } = &mut self.objects {
             *single_rays = on;
@@ -1363,13 +1700,27 @@ pub(crate) mod tests {
             let (hits, batches, _, _) = trace(&t, &brute, rays, h, mode);
             let label = format!("box {boxes_on} single {single}");
             assert_same(&hits, &reference(&brute, rays, mode), mode, &label);
-            // Strictly increasing batches, in increasing node order.
+            // Strictly increasing batches.
             let all = batches.concat();
-            assert!(all.windows(2).all(|w| w[0] < w[1]), "{what} {label}");
+            for b in &batches {
+                assert!(b.windows(2).all(|w| w[0] < w[1]), "{what} {label}");
+            }
+            // A task stopped by its share of the budget may meet a grid triangle again in a
+            // later round (another cell's entry).
+            let mut all = all;
+            all.sort_unstable();
+            all.dedup();
             contains(&all, &exact, &label);
+            let tree = trav.lbvh().unwrap();
             for p in &all {
                 let nb = NodeBound::new(&h.levels[0][p.node as usize]).unwrap();
-                let sphere = nb.may_hit(&scene.tri_spheres[p.tri as usize]);
+                // The triangle's sphere, or (grid) a sphere of one of its entries.
+                let sphere = tree
+                    .leaf_tris
+                    .iter()
+                    .zip(&tree.leaves)
+                    .filter(|(&t, _)| t == p.tri)
+                    .any(|(_, leaf)| nb.may_hit(&leaf.sphere));
                 let one_ray = node_rays(p.node)
                     .iter()
                     .any(|r| segment_meets_box(r, &tri_box(p.tri)));
@@ -1381,7 +1732,11 @@ pub(crate) mod tests {
                 };
                 assert!(ok, "{what} {label}: {p:?}");
             }
+            // The grid's entries are clipped to their cells: it keeps fewer pairs than the
+            // triangles' own bounds would, and still every exact one (checked above).
+            let whole_triangles = trav.objects() != "grid";
             match (boxes_on, single) {
+                _ if !whole_triangles => {}
                 (false, false) => contains(&all, crsh, &label),
                 (true, false) => {
                     let boxed: Vec<Candidate> = crsh
@@ -1422,6 +1777,98 @@ pub(crate) mod tests {
         .unwrap();
         all.sort_unstable();
         all
+    }
+
+    #[test]
+    fn grid_entries_keep_every_point_of_their_triangles_boxes() {
+        let scenes = [
+            Arc::new(soup(11, 150)),
+            Arc::new(clustered(12, 6, 30)),
+            Arc::new(rooms(13, Vec3::new(1e4, -3e3, 5e3))),
+        ];
+        let mut rng = TestRng(14);
+        for (scene, k) in scenes.iter().flat_map(|s| [0.3, 1.0, 16.0].map(|k| (s, k))) {
+            let what = format!("{} k {k}", scene.name);
+            let tree = crate::with_threads(1, || Lbvh::build_grid(scene, k))
+                .unwrap()
+                .unwrap();
+            let again = crate::with_threads(3, || Lbvh::build_grid(scene, k))
+                .unwrap()
+                .unwrap();
+            assert_eq!(tree, again, "{what}: the build depends on the threads");
+            // The leaves are the grid's entries, every triangle at least once.
+            let n = scene.triangle_count();
+            let grid = GridData::build_of(scene, k, &vec![true; n]).unwrap();
+            let mut entries = grid.cell_tris.clone();
+            entries.sort_unstable();
+            let mut leaves = tree.leaf_tris.clone();
+            leaves.sort_unstable();
+            assert_eq!(leaves, entries, "{what}");
+            leaves.dedup();
+            assert_eq!(leaves.len(), n, "{what}");
+            // Every node's box and sphere contain those of every leaf below.
+            for (i, node) in tree.inner.iter().enumerate() {
+                let mut stack = vec![i as u32];
+                while let Some(c) = stack.pop() {
+                    if c & LEAF == 0 {
+                        stack.extend(tree.inner[c as usize].children);
+                        continue;
+                    }
+                    let leaf = &tree.leaves[(c & !LEAF) as usize];
+                    if !leaf.bx.is_empty() {
+                        assert!(
+                            node.bx.min.cmple(leaf.bx.min).all()
+                                && node.bx.max.cmpge(leaf.bx.max).all(),
+                            "{what}: node {i}"
+                        );
+                    }
+                    let d = leaf
+                        .sphere
+                        .center
+                        .as_dvec3()
+                        .distance(node.sphere.center.as_dvec3());
+                    assert!(
+                        d + leaf.sphere.radius as f64 <= node.sphere.radius as f64,
+                        "{what}: node {i}"
+                    );
+                }
+            }
+            // What the exactness argument needs: every point of a triangle's box (where its
+            // hits are reported) lies in the box and the sphere of one of its entries. The
+            // corners are the farthest points from the triangle.
+            for t in 0..n as u32 {
+                let tb = triangle_box(scene.triangle(t as usize));
+                let own: Vec<&Leaf> = tree
+                    .leaf_tris
+                    .iter()
+                    .zip(&tree.leaves)
+                    .filter(|(&u, _)| u == t)
+                    .map(|(_, l)| l)
+                    .collect();
+                let corners = (0..8).map(|c| {
+                    Vec3::new(
+                        if c & 1 == 0 { tb.min.x } else { tb.max.x },
+                        if c & 2 == 0 { tb.min.y } else { tb.max.y },
+                        if c & 4 == 0 { tb.min.z } else { tb.max.z },
+                    )
+                });
+                let inside = (0..8).map(|_| {
+                    let f = rng.vec3(0.0, 1.0);
+                    (tb.min + (tb.max - tb.min) * f).clamp(tb.min, tb.max)
+                });
+                for p in corners.chain(inside) {
+                    // The sphere: the triangle's own (whose test allows for hits off the
+                    // triangle, see `crsh`), or one around the entry's box that holds `p`.
+                    let held = own.iter().any(|l| {
+                        let in_box = l.bx.min.cmple(p).all() && l.bx.max.cmpge(p).all();
+                        let d = l.sphere.center.as_dvec3().distance(p.as_dvec3());
+                        let own_sphere = l.sphere == scene.tri_spheres[t as usize];
+                        in_box && (own_sphere || d <= l.sphere.radius as f64)
+                    });
+                    assert!(held, "{what}: triangle {t}, point {p}");
+                }
+            }
+        }
     }
 
     #[test]
@@ -1669,13 +2116,29 @@ pub(crate) mod tests {
             }
         }
         assert!(matches!(
-            Dual::with_options(&scene, "grid", 1.0),
+            Dual::with_options(&scene, "kdtree", 1.0),
             Err(CoreError::InvalidParam { .. })
         ));
         assert_eq!(
             Dual::with_options(&scene, "bvh", 1.0).unwrap().objects(),
             "bvh"
         );
+        // The grid's density comes from the spec and is checked.
+        spec.params
+            .insert("objects".into(), ParamValue::Str("grid".into()));
+        spec.params
+            .insert("grid_density".into(), ParamValue::Float(0.5));
+        let t = Dual::new(&scene, &spec).unwrap();
+        assert_eq!(t.objects(), "grid");
+        let fine = Dual::over_grid(&scene, 4.0, 2.0).unwrap();
+        assert!(fine.lbvh().unwrap().triangles() > t.lbvh().unwrap().triangles());
+        for k in [0.0, -1.0, f64::NAN, 1e9] {
+            let r = Dual::over_grid(&scene, k, 2.0);
+            assert!(
+                matches!(&r, Err(CoreError::InvalidParam { key, .. }) if key == "traverse.grid_density"),
+                "{k}"
+            );
+        }
         spec.params.remove("objects");
         assert!(Dual::new(&scene, &spec).is_err());
     }
@@ -1982,19 +2445,31 @@ pub(crate) mod tests {
                 beyond.len()
             );
             rays.extend(beyond);
-            let trav = Dual::with_options(&scene, "lbvh", 64.0).unwrap();
-            assert!(trav.box_test());
-            let mut plain = trav.clone();
-            plain.set_box_test(false);
-            plain.set_single_rays(false);
-            for mode in [HitMode::Closest, HitMode::Any] {
+            // The grid coarse and fine: hits near cell planes and triangles in many cells.
+            let travs = [
+                Dual::with_options(&scene, "lbvh", 64.0).unwrap(),
+                Dual::over_grid(&scene, 0.3, 64.0).unwrap(),
+                Dual::over_grid(&scene, 16.0, 64.0).unwrap(),
+            ];
+            for (trav, mode) in travs
+                .iter()
+                .flat_map(|t| [HitMode::Closest, HitMode::Any].map(|m| (t, m)))
+            {
+                assert!(trav.box_test());
+                let mut plain = trav.clone();
+                plain.set_box_test(false);
+                plain.set_single_rays(false);
                 let want = reference(&brute, &rays, mode);
                 let n_hit = want.iter().filter(|h| h.is_hit()).count();
                 assert!(n_hit > rays.len() / 8, "{n_hit}");
                 for (sub, levels) in [(2u32, 3usize), (8, 2)] {
                     let h = build(&rays, shuffled(rays.len(), 83), sub, levels);
-                    let what = format!("offset {offset} sub {sub} {mode:?}");
-                    let (hits, _, stats, _) = trace(&trav, &brute, &rays, &h, mode);
+                    let what = format!(
+                        "offset {offset} {} {} entries sub {sub} {mode:?}",
+                        trav.objects(),
+                        trav.lbvh().unwrap().triangles()
+                    );
+                    let (hits, _, stats, _) = trace(trav, &brute, &rays, &h, mode);
                     assert_same(&hits, &want, mode, &what);
                     let (_, _, s2, _) = trace(&plain, &brute, &rays, &h, mode);
                     // The boxes cull: fewer final tests than the spheres alone.
