@@ -568,6 +568,33 @@ fn store_cone(axis: DVec3, full: bool, children: impl Iterator<Item = (DVec3, f6
     }
 }
 
+/// [`store_cone`] for a lowest node, whose children are directions (angle 0): the widest
+/// direction is found by comparing `(sin, cos)` pairs (`θᵢ > θⱼ` exactly when
+/// `sin θᵢ·cos θⱼ − cos θᵢ·sin θⱼ > 0`, both angles in `[0, π]`), so only its angle is measured
+/// with `atan2`, not every ray's. A near tie that rounding decides the wrong way costs a few
+/// ulps of the angle, far below the [`CONE_ABS_MARGIN`] the stored angle is enlarged by.
+fn store_leaf_cone(axis: DVec3, full: bool, dirs: impl Iterator<Item = DVec3>) -> Cone {
+    let stored = axis.as_vec3().normalize();
+    let a = stored.as_dvec3();
+    let measured = if full {
+        PI
+    } else {
+        let widest = dirs.fold(None, |best: Option<(f64, f64)>, x| {
+            let (s, c) = (a.cross(x).length(), a.dot(x));
+            match best {
+                Some((bs, bc)) if s * bc - c * bs <= 0.0 => best,
+                _ => Some((s, c)),
+            }
+        });
+        widest.map_or(0.0, |(s, c)| s.atan2(c))
+    };
+    let widened = measured * (1.0 + CONE_REL_MARGIN) + CONE_ABS_MARGIN;
+    Cone {
+        axis: stored,
+        half_angle: f32_up(widened.min(PI)),
+    }
+}
+
 /// The stored sphere: centre rounded to `f32`, radius re-measured as the largest of
 /// `|stored centre − child centre| + child radius`, enlarged by the margin.
 fn store_sphere(center: DVec3, children: impl Iterator<Item = (DVec3, f64)>) -> Sphere {
@@ -619,11 +646,7 @@ fn leaf_node(rays: &[Ray], leaves: &[u32]) -> SphereCone {
             ball.center.as_dvec3(),
             origins.iter().map(|o| (o.as_dvec3(), 0.0)),
         ),
-        cone: store_cone(
-            cone.axis,
-            cone.angle >= PI,
-            leaves.iter().map(|i| (dir(i), 0.0)),
-        ),
+        cone: store_leaf_cone(cone.axis, cone.angle >= PI, leaves.iter().map(dir)),
     }
 }
 
