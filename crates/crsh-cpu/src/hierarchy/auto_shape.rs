@@ -13,10 +13,11 @@
 //! sample and traverses it with the [`Dual`] traverser (LBVH objects, box test and single
 //! rays, built once with the stage) against the scene, and estimates the shape's cost as
 //!
-//! `bounds tests + Σ over candidates of the candidate node's rays`,
+//! `bounds tests + Σ over candidates of the candidate's rays`,
 //!
-//! i.e. the tests per ray the issue measures, with every ray of a candidate node tested (an
-//! upper bound: any-hit rays stop earlier). The cheapest shape (the first of [`SHAPES`] on a
+//! i.e. the tests per ray the issue measures, with every ray of a candidate tested (its lane
+//! mask's rays for a single-ray candidate, else all of its node's: an upper bound, since
+//! any-hit rays stop earlier). The cheapest shape (the first of [`SHAPES`] on a
 //! tie) is kept for that ray kind for the rest of the stage's life (a frame of a moving scene,
 //! every frame of a static one), and the full batch's hierarchy is built with it. The choice
 //! and the estimates of every shape go to [`Stats::choices`] (`hierarchy.<kind>`), so the
@@ -43,7 +44,7 @@ use std::sync::{Arc, Mutex};
 
 use crsh_core::{
     lowest_node_leaves, CoreError, HierarchyBuilder, ParamInfo, Ray, RayHierarchy, RayKind,
-    Registry, Result, StageKind, StageSpec, StageVariantInfo, Stats,
+    Registry, Result, StageKind, StageSpec, StageVariantInfo, Stats, ALL_LANES,
 };
 use crsh_scene::Scene;
 
@@ -183,10 +184,19 @@ impl AutoShape {
                 kind,
                 &h,
                 &mut |batch, _| {
+                    // A candidate's rays: those its lane mask names, else its node's.
+                    let masks = batch.lanes.as_deref();
                     final_tests += batch
                         .pairs
                         .iter()
-                        .map(|c| lowest_node_leaves(c.node as usize, sub, None, n).len() as u64)
+                        .enumerate()
+                        .map(|(i, c)| {
+                            let rays = lowest_node_leaves(c.node as usize, sub, None, n).len();
+                            match masks.map(|m| m[i]) {
+                                Some(m) if m != ALL_LANES => m.count_ones() as u64,
+                                _ => rays as u64,
+                            }
+                        })
                         .sum::<u64>();
                     Ok(())
                 },
@@ -333,5 +343,53 @@ mod tests {
             .is_err());
         assert!(AutoShape::with_sample(&scene, 0).is_err());
         assert!(AutoShape::with_sample(&scene, 1025).is_err());
+    }
+
+    #[test]
+    fn estimates_are_the_tests_of_a_closest_hit_traversal() {
+        // Incoherent rays (single-ray candidates with lane masks), a batch sampled whole: each
+        // shape's estimate is its bounds plus the final tests of every candidate's rays,
+        // exactly what a closest-hit traversal with that shape counts.
+        use crate::intersect::brute::{tests as brute_tests, BruteForce};
+        let scene = Arc::new(crsh_scene::builtin::build("office-boxes").unwrap());
+        let rays = brute_tests::random_rays(&scene, 5, 900);
+        let order: Vec<u32> = (0..rays.len() as u32).collect();
+        let auto = AutoShape::with_sample(&scene, 64).unwrap();
+        let kind = RayKind::from_u32(rays[0].kind).unwrap();
+        let c = auto.pre_pass(&rays, &order, kind).unwrap();
+        assert_eq!(c.sample_rays, rays.len());
+        let brute = BruteForce::from_scene(&scene);
+        let dual = Dual::with_options(&scene, "lbvh", 64.0).unwrap();
+        let mut masked = false;
+        for (&(sub, depth), &estimate) in SHAPES.iter().zip(&c.estimates) {
+            let h = SphereConeBuilder::with_params(sub, depth)
+                .unwrap()
+                .build(&Cpu, &rays, order.clone(), &mut Stats::default())
+                .unwrap();
+            let (_, _, stats, _) = crate::traverse::crsh::tests::trace_with(
+                &brute,
+                &rays,
+                &h,
+                crsh_core::HitMode::Closest,
+                |kind, sink, stats| {
+                    dual.traverse_with_report(
+                        &rays,
+                        kind,
+                        &h,
+                        &mut |b, s| {
+                            masked |= b
+                                .lanes
+                                .as_ref()
+                                .is_some_and(|l| l.iter().any(|&m| m != ALL_LANES));
+                            sink(b, s)
+                        },
+                        stats,
+                    )
+                },
+            );
+            let tests = stats.tests.bounds + stats.tests.ray_triangle;
+            assert_eq!(estimate, tests as f64 / rays.len() as f64, "{sub}/{depth}");
+        }
+        assert!(masked, "no single-ray candidate: not a test of the masks");
     }
 }
