@@ -603,15 +603,6 @@ impl Lbvh {
             Node(usize),
             Prims(usize, usize),
         }
-        let mut inner: Vec<Inner> = Vec::with_capacity(n - 1);
-        let mut leaf_tris: Vec<u32> = Vec::with_capacity(n);
-        let mut preorder: Vec<u32> = Vec::with_capacity(n - 1);
-        let mut max_depth = 0usize;
-        let blank = Inner {
-            sphere: Sphere::new(Vec3::ZERO, 0.0),
-            bx: Aabb::EMPTY,
-            children: [0, 0],
-        };
         // An obvhs node: inner (no primitives) or a leaf's run of primitives.
         let part_of = |i: usize| {
             let node = &bvh.nodes[i];
@@ -621,12 +612,9 @@ impl Lbvh {
                 Part::Prims(node.first_index as usize, node.prim_count as usize)
             }
         };
-        inner.push(blank);
-        let mut stack: Vec<(Part, u32, usize)> = vec![(part_of(0), 0, 0)];
-        while let Some((part, index, depth)) = stack.pop() {
-            preorder.push(index);
-            max_depth = max_depth.max(depth + 1);
-            let halves: [Part; 2] = match part {
+        let (inner, leaf_tris, preorder, max_depth) = lay_out(
+            part_of(0),
+            |part| match part {
                 Part::Node(i) => {
                     let f = bvh.nodes[i].first_index as usize;
                     [part_of(f), part_of(f + 1)]
@@ -638,27 +626,12 @@ impl Lbvh {
                         Part::Prims(start + half, count - half),
                     ]
                 }
-            };
-            let mut children = [0u32; 2];
-            let mut later = Vec::with_capacity(2);
-            for (k, half) in halves.into_iter().enumerate() {
-                children[k] = match half {
-                    Part::Prims(start, 1) => {
-                        leaf_tris.push(bvh.primitive_indices[start]);
-                        LEAF | (leaf_tris.len() - 1) as u32
-                    }
-                    other => {
-                        inner.push(blank);
-                        let c = (inner.len() - 1) as u32;
-                        later.push((other, c, depth + 1));
-                        c
-                    }
-                };
-            }
-            inner[index as usize].children = children;
-            // Right first, so that the left subtree's leaves come first.
-            stack.extend(later.into_iter().rev());
-        }
+            },
+            |part| match part {
+                Part::Prims(start, 1) => Some(bvh.primitive_indices[*start]),
+                _ => None,
+            },
+        );
         if leaf_tris.len() != n || inner.len() != n - 1 {
             return Err(CoreError::InvalidInput(format!(
                 "the obvhs BVH over {n} triangles has {} leaves and {} inner nodes",
@@ -716,17 +689,6 @@ impl Lbvh {
                 }
             }
         };
-        let mut inner: Vec<Inner> = Vec::with_capacity(entries - 1);
-        let mut leaf_tris: Vec<u32> = Vec::with_capacity(entries);
-        let mut leaf_cells: Vec<u32> = Vec::with_capacity(entries);
-        let mut preorder: Vec<u32> = Vec::with_capacity(entries - 1);
-        let mut max_depth = 0usize;
-        let blank = Inner {
-            sphere: Sphere::new(Vec3::ZERO, 0.0),
-            bx: Aabb::EMPTY,
-            children: [0, 0],
-        };
-        inner.push(blank);
         let root = settle([0; 3], dims);
         if let Part::Entries(_, _, 1) = root {
             // Two or more triangles are two or more entries.
@@ -734,11 +696,9 @@ impl Lbvh {
                 "the grid over {n} triangles has one entry"
             )));
         }
-        let mut stack: Vec<(Part, u32, usize)> = vec![(root, 0, 0)];
-        while let Some((part, index, depth)) = stack.pop() {
-            preorder.push(index);
-            max_depth = max_depth.max(depth + 1);
-            let two: [Part; 2] = match part {
+        let (inner, entry_leaves, preorder, max_depth) = lay_out(
+            root,
+            |part| match part {
                 Part::Cells(lo, hi) => {
                     let (l, r) = halves(lo, hi).expect("a settled range splits");
                     [settle(l.0, l.1), settle(r.0, r.1)]
@@ -750,27 +710,13 @@ impl Lbvh {
                         Part::Entries(cell, start + half, count - half),
                     ]
                 }
-            };
-            let mut children = [0u32; 2];
-            let mut later = Vec::with_capacity(2);
-            for (k, half) in two.into_iter().enumerate() {
-                children[k] = match half {
-                    Part::Entries(cell, start, 1) => {
-                        leaf_tris.push(grid.cell_tris[start]);
-                        leaf_cells.push(cell);
-                        LEAF | (leaf_tris.len() - 1) as u32
-                    }
-                    other => {
-                        inner.push(blank);
-                        let c = (inner.len() - 1) as u32;
-                        later.push((other, c, depth + 1));
-                        c
-                    }
-                };
-            }
-            inner[index as usize].children = children;
-            stack.extend(later.into_iter().rev());
-        }
+            },
+            |part| match part {
+                Part::Entries(cell, start, 1) => Some((grid.cell_tris[*start], *cell)),
+                _ => None,
+            },
+        );
+        let (leaf_tris, leaf_cells): (Vec<u32>, Vec<u32>) = entry_leaves.into_iter().unzip();
         if leaf_tris.len() != entries || inner.len() != entries - 1 {
             return Err(CoreError::InvalidInput(format!(
                 "the grid's {entries} entries gave {} leaves and {} inner nodes",
@@ -963,6 +909,53 @@ pub fn entry_region(tri: [Vec3; 3], lo: Vec3, hi: Vec3) -> Aabb {
         min: Vec3::new(x.0, y.0, z.0),
         max: Vec3::new(x.1, y.1, z.1),
     }
+}
+
+/// Lays out the binary tree that `split` unfolds from `root` (which is not a leaf): a part for
+/// which `leaf` gives a payload is a leaf, every other part an internal node split in two.
+/// Returns the internal nodes (children set, bounds blank; the root is 0), the leaves'
+/// payloads in left-to-right order (a leaf reference is [`LEAF`] | its position), the
+/// internal nodes in an order where a parent precedes its children, and the depth of the
+/// deepest leaf.
+fn lay_out<P, L>(
+    root: P,
+    mut split: impl FnMut(P) -> [P; 2],
+    mut leaf: impl FnMut(&P) -> Option<L>,
+) -> (Vec<Inner>, Vec<L>, Vec<u32>, usize) {
+    let blank = Inner {
+        sphere: Sphere::new(Vec3::ZERO, 0.0),
+        bx: Aabb::EMPTY,
+        children: [0, 0],
+    };
+    let mut inner = vec![blank];
+    let mut leaves = Vec::new();
+    let mut preorder = Vec::new();
+    let mut max_depth = 0usize;
+    let mut stack: Vec<(P, u32, usize)> = vec![(root, 0, 0)];
+    while let Some((part, index, depth)) = stack.pop() {
+        preorder.push(index);
+        max_depth = max_depth.max(depth + 1);
+        let mut children = [0u32; 2];
+        let mut later = Vec::with_capacity(2);
+        for (k, half) in split(part).into_iter().enumerate() {
+            children[k] = match leaf(&half) {
+                Some(payload) => {
+                    leaves.push(payload);
+                    LEAF | (leaves.len() - 1) as u32
+                }
+                None => {
+                    inner.push(blank);
+                    let c = (inner.len() - 1) as u32;
+                    later.push((half, c, depth + 1));
+                    c
+                }
+            };
+        }
+        inner[index as usize].children = children;
+        // Right first, so that the left subtree's leaves come first.
+        stack.extend(later.into_iter().rev());
+    }
+    (inner, leaves, preorder, max_depth)
 }
 
 /// A range of grid cells: lowest corner, highest corner exclusive.
