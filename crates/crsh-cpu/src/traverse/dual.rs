@@ -263,17 +263,17 @@ pub fn info() -> StageVariantInfo {
     .param(ParamInfo::bool(
         "box_test",
         true,
-        "with `objects = lbvh`, test a pair's boxes before the cone-sphere test: the box of \
-         the ray node's segments (clipped to the scene) against the object node's box; \
-         false: the cone-sphere test alone",
+        "with `objects = lbvh`, `bvh` or `grid`, test a pair's boxes before the cone-sphere \
+         test: the box of the ray node's segments (clipped to the scene) against the object \
+         node's box; false: the cone-sphere test alone",
     ))
     .param(ParamInfo::bool(
         "single_rays",
         true,
-        "with `objects = lbvh`, a lowest ray node whose rays spread wider than an object \
-         node descends to its single rays, each tested against the object nodes' boxes \
-         below (incoherent rays: reflections off curved surfaces); false: lowest nodes \
-         stay whole",
+        "with `objects = lbvh`, `bvh` or `grid`, a lowest ray node whose rays spread wider \
+         than an object node descends to its single rays, each tested against the object \
+         nodes' boxes below (incoherent rays: reflections off curved surfaces); false: \
+         lowest nodes stay whole",
     ))
     .param(
         ParamInfo::float(
@@ -826,7 +826,8 @@ impl Lbvh {
         }
     }
 
-    /// Triangles (leaves).
+    /// Leaves: the triangles, or with [`Lbvh::build_grid`] the grid's (cell, triangle)
+    /// entries (a triangle in several cells is several leaves).
     pub fn triangles(&self) -> usize {
         self.leaf_tris.len()
     }
@@ -1335,7 +1336,7 @@ fn push_candidate(out: &mut Vec<(Candidate, u32)>, cap: usize, c: Candidate, lan
 
 impl Dual {
     /// The traverser over `scene` with `spec`'s `objects` and `candidate_budget_mb`; with
-    /// `objects = lbvh` it builds the object hierarchy now.
+    /// `objects = lbvh`, `bvh` or `grid` it builds the object hierarchy now.
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<Dual> {
         let objects = spec.str("objects")?;
         let mb = spec.f64("candidate_budget_mb")?;
@@ -1423,7 +1424,7 @@ impl Dual {
         }
     }
 
-    /// Whether lowest nodes may descend to single rays (`objects = lbvh` with
+    /// Whether lowest nodes may descend to single rays (`objects = lbvh`, `bvh` or `grid` with
     /// `single_rays`).
     pub fn single_rays(&self) -> bool {
         matches!(
@@ -1435,7 +1436,7 @@ impl Dual {
         )
     }
 
-    /// Whether pairs are box-tested first (`objects = lbvh` with `box_test`).
+    /// Whether pairs are box-tested first (`objects = lbvh`, `bvh` or `grid` with `box_test`).
     pub fn box_test(&self) -> bool {
         matches!(self.objects, Objects::Lbvh { box_test: true, .. })
     }
@@ -1448,7 +1449,7 @@ impl Dual {
         }
     }
 
-    /// The object hierarchy (`objects = lbvh`).
+    /// The object hierarchy (`objects = lbvh`, `bvh` or `grid`; `None` for `meshes`).
     pub fn lbvh(&self) -> Option<&Lbvh> {
         match &self.objects {
             Objects::Lbvh { tree, .. } => Some(tree),
