@@ -642,26 +642,33 @@ fn offsets_hierarchy_gives_the_brute_force_hits() {
             ];
             let pairs = vec![Candidate { node: 1, tri: 0 }];
             let batch = CandidateBatch::new(b.upload(&pairs).unwrap());
-            for o in &bad_offsets {
-                let h: RayHierarchy<Wgpu> = RayHierarchy {
+            // The one-level hierarchy with leaf offsets `o`, and a candidate query on it.
+            let with_offsets = |o: &[u32]| -> RayHierarchy<Wgpu> {
+                RayHierarchy {
                     order: b.upload(&order).unwrap(),
                     levels: vec![b.upload(&nodes).unwrap()],
                     subdivision: 256,
                     leaf_offsets: Some(b.upload(o).unwrap()),
                     reach: Vec::new(),
-                };
+                }
+            };
+            let query = |h: &RayHierarchy<Wgpu>, batch: &CandidateBatch<Wgpu>| {
                 let mut hits = b.filled(rays.len(), Hit::MISS).unwrap();
-                let r = gpu.intersect(
+                gpu.intersect(
                     &b,
                     &buf,
                     Query::Candidates {
-                        hierarchy: &h,
-                        batch: &batch,
+                        hierarchy: h,
+                        batch,
                     },
                     mode,
                     &mut hits,
                     &mut Stats::default(),
-                );
+                )
+            };
+            for o in &bad_offsets {
+                let h = with_offsets(o);
+                let r = query(&h, &batch);
                 assert!(
                     matches!(&r, Err(CoreError::InvalidInput(m)) if m.contains("offsets")),
                     "{o:?}: {r:?}"
@@ -690,25 +697,7 @@ fn offsets_hierarchy_gives_the_brute_force_hits() {
             // Lane masks (only the CPU `dual` sends them) are refused, not ignored.
             let masked =
                 CandidateBatch::with_lanes(b.upload(&pairs).unwrap(), b.upload(&[1u32]).unwrap());
-            let h: RayHierarchy<Wgpu> = RayHierarchy {
-                order: b.upload(&order).unwrap(),
-                levels: vec![b.upload(&nodes).unwrap()],
-                subdivision: 256,
-                leaf_offsets: Some(b.upload(&offsets).unwrap()),
-                reach: Vec::new(),
-            };
-            let mut hits = b.filled(rays.len(), Hit::MISS).unwrap();
-            let r = gpu.intersect(
-                &b,
-                &buf,
-                Query::Candidates {
-                    hierarchy: &h,
-                    batch: &masked,
-                },
-                mode,
-                &mut hits,
-                &mut Stats::default(),
-            );
+            let r = query(&with_offsets(&offsets), &masked);
             assert!(matches!(&r, Err(CoreError::Unsupported { .. })), "{r:?}");
         }
     }
