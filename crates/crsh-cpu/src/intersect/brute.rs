@@ -415,14 +415,8 @@ impl BruteForce {
             let mut v: Vec<(Candidate, u32)> =
                 pairs.iter().copied().zip(lanes.iter().copied()).collect();
             v.par_sort_unstable_by_key(|e| e.0);
-            let mut merged: Vec<(Candidate, u32)> = Vec::with_capacity(v.len());
-            for (c, m) in v {
-                match merged.last_mut() {
-                    Some(last) if last.0 == c => last.1 |= m,
-                    _ => merged.push((c, m)),
-                }
-            }
-            (owned, owned_lanes) = merged.into_iter().unzip();
+            merge_repeats(&mut v);
+            (owned, owned_lanes) = v.into_iter().unzip();
             (&owned, Some(&owned_lanes))
         } else {
             let mut v = pairs.to_vec();
@@ -432,6 +426,18 @@ impl BruteForce {
             (&owned, None)
         };
         let groups = node_runs(sorted, hierarchy.subdivision, offsets, n_rays);
+        if let Some(lanes) = lanes {
+            // A node of more than 32 rays has no mask but "all of them".
+            for g in groups.iter().filter(|g| g.leaves > 32) {
+                if let Some(&m) = lanes[g.pairs.clone()].iter().find(|&&m| m != ALL_LANES) {
+                    return Err(CoreError::InvalidInput(format!(
+                        "candidate of hierarchy node {} has lane mask {m:#x}, but the node \
+                         has {} rays (more than 32: only the all-rays mask)",
+                        sorted[g.pairs.start].node, g.leaves
+                    )));
+                }
+            }
+        }
 
         // Each active node gets one slot of `local` per leaf (`groups[i].slot ..`): its rays'
         // current hits are gathered, updated in parallel, and scattered back.
@@ -456,13 +462,11 @@ impl BruteForce {
             .map(|((gi, g), out)| {
                 let leaves = &order[g.first_leaf..g.first_leaf + g.leaves];
                 let usable = leaves.iter().all(|&r| rays[r as usize].is_valid());
-                let node_lanes = lanes.map(|l| &l[g.pairs.clone()]);
-                // A node of more than 32 rays has no mask but "all of them".
-                let masks_fit =
-                    g.leaves <= 32 || node_lanes.is_none_or(|l| l.iter().all(|&m| m == ALL_LANES));
-                if !usable || !masks_fit {
+                if !usable {
                     return (0, 0, gi);
                 }
+                let node_pairs = &sorted[g.pairs.clone()];
+                let node_lanes = lanes.map(|l| &l[g.pairs.clone()]);
                 for (slot, &r) in out.iter_mut().zip(leaves) {
                     *slot = current[r as usize];
                 }
@@ -470,7 +474,6 @@ impl BruteForce {
                 let mut found = 0u64;
                 for (k, (ids, best)) in leaves.chunks(LANES).zip(out.chunks_mut(LANES)).enumerate()
                 {
-                    let node_pairs = &sorted[g.pairs.clone()];
                     let (t, f) = node_packet::<T>(
                         rays,
                         ids,
@@ -490,18 +493,6 @@ impl BruteForce {
                 |a, b| (a.0 + b.0, a.1 + b.1, a.2.min(b.2)),
             );
         if bad != usize::MAX {
-            let g = &groups[bad];
-            if g.leaves > 32 {
-                if let Some(l) = lanes {
-                    if let Some(&m) = l[g.pairs.clone()].iter().find(|&&m| m != ALL_LANES) {
-                        return Err(CoreError::InvalidInput(format!(
-                            "candidate of hierarchy node {} has lane mask {m:#x}, but the node \
-                             has {} rays (more than 32: only the all-rays mask)",
-                            sorted[g.pairs.start].node, g.leaves
-                        )));
-                    }
-                }
-            }
             // A ray changed in place since it was validated: report it as `check_rays` does.
             self.validated
                 .lock()
@@ -628,6 +619,18 @@ fn node_packet<T: TriangleTest>(
         }
     }
     (tests, found)
+}
+
+/// Merges the repeats of a candidate in `v` (sorted by candidate) into one, for the union of
+/// their lane masks ([`CandidateBatch::lanes`]).
+pub(crate) fn merge_repeats(v: &mut Vec<(Candidate, u32)>) {
+    v.dedup_by(|next, kept| {
+        let same = next.0 == kept.0;
+        if same {
+            kept.1 |= next.1;
+        }
+        same
+    });
 }
 
 /// Pairs per chunk of the parallel scans.

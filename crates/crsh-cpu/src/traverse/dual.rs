@@ -214,6 +214,7 @@ use rayon::prelude::*;
 
 use super::crsh::{budget_bytes, prepare_nodes, Crsh, NodeBound, ABS_MARGIN, REL_MARGIN};
 use crate::backend::Cpu;
+use crate::intersect::brute::merge_repeats;
 use crate::intersect::bvh::{build_bvh2, obvhs_triangle, BuildQuality};
 use crate::intersect::grid::{GridData, MAX_DENSITY, MIN_DENSITY};
 use obvhs::triangle::Triangle;
@@ -724,17 +725,17 @@ impl Lbvh {
                 inner.len()
             )));
         }
-        // Each entry's region: its cell, closed, widened by its triangle's box margins.
+        // Each entry's cell, closed.
         let g = &grid.geometry;
-        let regions: Vec<Aabb> = leaf_cells
+        let (nx, ny) = (g.dims[0], g.dims[1]);
+        let cells: Vec<Aabb> = leaf_cells
             .par_iter()
-            .zip(&leaf_tris)
-            .map(|(&cell, &t)| {
-                let (nx, ny) = (g.dims[0], g.dims[1]);
+            .map(|&cell| {
                 let c = [cell % nx, (cell / nx) % ny, cell / (nx * ny)];
-                let lo = Vec3::from_array([0, 1, 2].map(|a| g.planes[a][c[a] as usize]));
-                let hi = Vec3::from_array([0, 1, 2].map(|a| g.planes[a][c[a] as usize + 1]));
-                entry_region(scene.triangle(t as usize), lo, hi)
+                Aabb {
+                    min: Vec3::from_array([0, 1, 2].map(|a| g.planes[a][c[a] as usize])),
+                    max: Vec3::from_array([0, 1, 2].map(|a| g.planes[a][c[a] as usize + 1])),
+                }
             })
             .collect();
         Ok(Lbvh::with_topology(
@@ -743,22 +744,22 @@ impl Lbvh {
             leaf_tris,
             &preorder,
             max_depth,
-            Some(&regions),
+            Some(&cells),
         ))
     }
 
     /// The hierarchy with the given topology (`inner` nodes' children set, leaves' triangle
     /// ids, the inner nodes in an order where a parent precedes its children): leaf spheres
-    /// and boxes from the scene, inner bounds bottom-up. With `regions` (one per leaf, the
-    /// grid's: [`entry_region`]), a leaf's box is its triangle's box within its region, and
-    /// its sphere the smaller of the triangle's and the one around that box.
+    /// and boxes from the scene, inner bounds bottom-up. With `cells` (one per leaf, the
+    /// grid's), a leaf's box is its triangle's box within the cell's [`entry_region`], and its
+    /// sphere the smaller of the triangle's and the one around that box.
     fn with_topology(
         scene: &Scene,
         mut inner: Vec<Inner>,
         leaf_tris: Vec<u32>,
         preorder: &[u32],
         max_depth: usize,
-        regions: Option<&[Aabb]>,
+        cells: Option<&[Aabb]>,
     ) -> Lbvh {
         let spheres = &scene.tri_spheres;
         let leaves: Vec<Leaf> = leaf_tris
@@ -766,10 +767,12 @@ impl Lbvh {
             .enumerate()
             .map(|(i, &t)| {
                 let sphere = spheres[t as usize];
-                let bx = triangle_box(scene.triangle(t as usize));
-                let Some(region) = regions.map(|r| r[i]) else {
+                let tri = scene.triangle(t as usize);
+                let bx = triangle_box(tri);
+                let Some(cell) = cells.map(|c| &c[i]) else {
                     return Leaf { sphere, bx };
                 };
+                let region = entry_region(tri, &bx, cell);
                 let clipped = Aabb {
                     min: bx.min.max(region.min),
                     max: bx.max.min(region.max),
@@ -887,14 +890,14 @@ impl Lbvh {
     }
 }
 
-/// Where a hit on `tri` reported in grid cell `[lo, hi]` (closed) can lie: the cell widened on
-/// each side by the margin [`triangle_box`] adds on that side, rounded outwards. A hit is
-/// within [`triangle_box`], so within that margin of the point `q` of the triangle's vertex
-/// box nearest to it, and the grid lists the triangle in the cell holding `q` (it bins the
-/// triangle in every cell its widened vertex box meets); so the entry of that cell keeps the
-/// hit inside its clipped box.
-pub fn entry_region(tri: [Vec3; 3], lo: Vec3, hi: Vec3) -> Aabb {
-    let tb = triangle_box(tri);
+/// Where a hit on `tri` reported in grid cell `cell` (closed) can lie: the cell widened on
+/// each side by the margin `tb` (the triangle's [`triangle_box`]) adds on that side, rounded
+/// outwards. A hit is within [`triangle_box`], so within that margin of the point `q` of the
+/// triangle's vertex box nearest to it, and the grid lists the triangle in the cell holding
+/// `q` (it bins the triangle in every cell its widened vertex box meets); so the entry of that
+/// cell keeps the hit inside its clipped box.
+pub fn entry_region(tri: [Vec3; 3], tb: &Aabb, cell: &Aabb) -> Aabb {
+    let (lo, hi) = (cell.min, cell.max);
     let (vlo, vhi) = (
         tri[0].min(tri[1]).min(tri[2]),
         tri[0].max(tri[1]).max(tri[2]),
@@ -1311,13 +1314,7 @@ impl Task {
 fn sort_and_merge(out: &mut Vec<(Candidate, u32)>) {
     // (node, triangle) order, as one 64-bit key (the same order as `Candidate`'s `Ord`).
     out.sort_unstable_by_key(|(c, _)| (c.node as u64) << 32 | c.tri as u64);
-    out.dedup_by(|next, kept| {
-        let same = next.0 == kept.0;
-        if same {
-            kept.1 |= next.1;
-        }
-        same
-    });
+    merge_repeats(out);
 }
 
 /// Appends a candidate and its lane mask to a task's array, growing it by at least 256 pairs
@@ -1356,19 +1353,13 @@ impl Dual {
     /// `objects = grid` builds the grid at [`GRID_DENSITY`] ([`Dual::over_grid`] for
     /// another).
     pub fn with_options(scene: &Arc<Scene>, objects: &str, budget_mb: f64) -> Result<Dual> {
-        let tree = |source: &'static str, tree: Lbvh| -> Result<Objects> {
-            Ok(Objects::Lbvh {
-                budget_bytes: budget_bytes(budget_mb)?,
-                tree: Box::new(tree),
-                source,
-                box_test: true,
-                single_rays: true,
-            })
-        };
         let objects = match objects {
-            "lbvh" => tree("lbvh", Lbvh::build(scene)?)?,
-            "bvh" => tree("bvh", Lbvh::build_bvh2(scene, BuildQuality::Fast)?)?,
-            "grid" => tree("grid", Lbvh::build_grid(scene, GRID_DENSITY)?)?,
+            "lbvh" => return Dual::over_tree("lbvh", Lbvh::build(scene)?, budget_mb),
+            "bvh" => {
+                let tree = Lbvh::build_bvh2(scene, BuildQuality::Fast)?;
+                return Dual::over_tree("bvh", tree, budget_mb);
+            }
+            "grid" => return Dual::over_grid(scene, GRID_DENSITY, budget_mb),
             "meshes" => Objects::Meshes(Crsh::with_options(scene, true, budget_mb)?),
             other => {
                 return Err(CoreError::InvalidParam {
@@ -1389,11 +1380,17 @@ impl Dual {
                 reason: format!("{k} is not in {MIN_DENSITY} ..= {MAX_DENSITY}"),
             });
         }
+        Dual::over_tree("grid", Lbvh::build_grid(scene, k)?, budget_mb)
+    }
+
+    /// The traverser over the object hierarchy `tree` built for `objects = source`, box test
+    /// and single rays on.
+    fn over_tree(source: &'static str, tree: Lbvh, budget_mb: f64) -> Result<Dual> {
         Ok(Dual {
             objects: Objects::Lbvh {
                 budget_bytes: budget_bytes(budget_mb)?,
-                tree: Box::new(Lbvh::build_grid(scene, k)?),
-                source: "grid",
+                tree: Box::new(tree),
+                source,
                 box_test: true,
                 single_rays: true,
             },
@@ -1571,9 +1568,12 @@ impl Dual {
             }
             // Counted before the sink runs, as `crsh` does per batch.
             counts.record(kind, stats);
-            report.peak_candidate_bytes = report
-                .peak_candidate_bytes
-                .max(held * PAIR_BYTES + (pairs.capacity() * 8 + lanes.capacity() * 4) as u64);
+            report.peak_candidate_bytes = report.peak_candidate_bytes.max(
+                held * PAIR_BYTES
+                    + (pairs.capacity() * std::mem::size_of::<Candidate>()
+                        + lanes.capacity() * std::mem::size_of::<u32>())
+                        as u64,
+            );
             drop(results);
             active.retain(|t| !t.stack.is_empty());
             report.suspensions += active.len();
