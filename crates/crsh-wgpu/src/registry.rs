@@ -47,6 +47,7 @@ impl BuiltinVariants for Wgpu {
         crate::hierarchy::sphere_cone::register(registry)?;
         crate::hierarchy::tile_cone::register(registry)?;
         crate::traverse::crsh::register(registry)?;
+        crate::traverse::dual::register(registry)?;
         crate::intersect::brute::register(registry)?;
         crate::intersect::bvh::register(registry)?;
         crate::intersect::grid::register(registry)?;

@@ -351,3 +351,265 @@ fn traversal_keeps_every_cpu_candidate() {
         }
     }
 }
+
+fn dual_spec(objects: &str, box_test: bool, single_rays: bool, budget_mb: f64) -> StageSpec {
+    use crsh_core::ParamValue;
+    let mut s = crsh_cpu::traverse::dual::info().defaults();
+    s.params
+        .insert("objects".into(), ParamValue::Str(objects.into()));
+    s.params
+        .insert("box_test".into(), ParamValue::Bool(box_test));
+    s.params
+        .insert("single_rays".into(), ParamValue::Bool(single_rays));
+    s.params
+        .insert("candidate_budget_mb".into(), ParamValue::Float(budget_mb));
+    s
+}
+
+/// The sum of `rows`' tests and whether every row has `tests = hits + misses`.
+fn row_sum(rows: &[crsh_core::LevelStats]) -> u64 {
+    for r in rows {
+        assert_eq!(r.tests, r.hits + r.misses, "{r:?}");
+    }
+    rows.iter().map(|r| r.tests).sum()
+}
+
+/// The GPU `dual` traversal against its CPU twin on the CPU's own hierarchy (uploaded), each
+/// followed by its backend's brute-force candidate query, for every object side (`lbvh`,
+/// `bvh`, `grid`, and `meshes`), with and without boxes and single rays, and under a tiny
+/// budget: exactly the hits of the GPU's own whole-scene brute force, the CPU twin's hits,
+/// batches strictly increasing with a non-empty lane mask per pair, counter rows on both sides
+/// that account for every test and stay within a few percent of the CPU's, several batches
+/// under the tiny budget.
+#[test]
+fn dual_traversal_gives_the_brute_force_hits() {
+    use crsh_core::{Candidate, Hit, HitMode, Intersector, Query, Traverser};
+    use crsh_wgpu::intersect::brute::BruteForce;
+    let Some(b) = crsh_wgpu::testing::shared_backend("dual_traversal_gives_the_brute_force_hits")
+    else {
+        return;
+    };
+    let mut brute_spec = StageSpec::new("brute");
+    brute_spec
+        .params
+        .insert("test".into(), crsh_core::ParamValue::Str("mt".into()));
+    for name in ["cornell-mirrors", "office-boxes"] {
+        let s = scene(name);
+        let g = GpuScene::new(&b, &s).unwrap();
+        let gpu_brute = BruteForce::new(&g, &brute_spec).unwrap();
+        let cpu_brute = crsh_wgpu::testing::cpu_intersector(&StageSpec::new("brute"), &s);
+        for (kind, mode) in [
+            (RayKind::Shadow, HitMode::Any),
+            (RayKind::Reflection, HitMode::Closest),
+        ] {
+            let (rays, order) = cpu_rays(&s, kind);
+            let cpu_h = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(8, 2)
+                .unwrap()
+                .build(&Cpu, &rays, order, &mut Stats::default())
+                .unwrap();
+            let gpu_h: RayHierarchy<Wgpu> = RayHierarchy {
+                leaf_offsets: None,
+                order: b.upload(&cpu_h.order).unwrap(),
+                levels: cpu_h.levels.iter().map(|l| b.upload(l).unwrap()).collect(),
+                subdivision: cpu_h.subdivision,
+                reach: cpu_h.reach.iter().map(|l| b.upload(l).unwrap()).collect(),
+            };
+            let gpu_rays = b.upload(&rays).unwrap();
+            let mut scene_hits = b.filled(rays.len(), Hit::MISS).unwrap();
+            gpu_brute
+                .intersect(
+                    &b,
+                    &gpu_rays,
+                    Query::Scene,
+                    mode,
+                    &mut scene_hits,
+                    &mut Stats::default(),
+                )
+                .unwrap();
+            let scene_hits = b.download(&scene_hits).unwrap();
+            assert!(scene_hits.iter().any(|h| h.is_hit()), "{name}: no hits");
+            for (objects, boxes, single, budget) in [
+                ("lbvh", true, true, 64.0),
+                ("bvh", true, true, 64.0),
+                ("grid", true, true, 64.0),
+                ("lbvh", false, false, 64.0),
+                ("lbvh", false, true, 64.0),
+                ("lbvh", true, true, 0.002),
+                ("grid", true, true, 0.002),
+                ("meshes", true, true, 64.0),
+            ] {
+                let what =
+                    format!("{name} {kind:?} {objects} boxes {boxes} single {single} {budget}");
+                let spec = dual_spec(objects, boxes, single, budget);
+                let cpu = crsh_cpu::traverse::dual::Dual::new(&s, &spec).unwrap();
+                let mut want = vec![Hit::MISS; rays.len()];
+                let mut cpu_stats = Stats::default();
+                cpu.traverse(
+                    &Cpu,
+                    &rays,
+                    kind,
+                    &cpu_h,
+                    &mut |batch, st| {
+                        let q = Query::Candidates {
+                            hierarchy: &cpu_h,
+                            batch: &batch,
+                        };
+                        cpu_brute.intersect(&Cpu, &rays, q, mode, &mut want, st)
+                    },
+                    &mut cpu_stats,
+                )
+                .unwrap();
+                let gpu = crsh_wgpu::traverse::dual::Dual::new(&g, &spec).unwrap();
+                assert_eq!(gpu.objects(), objects);
+                let mut hits = b.filled(rays.len(), Hit::MISS).unwrap();
+                let mut gpu_stats = Stats::default();
+                let mut batches = 0;
+                gpu.traverse(
+                    &b,
+                    &gpu_rays,
+                    kind,
+                    &gpu_h,
+                    &mut |batch, st| {
+                        let pairs: Vec<Candidate> = b.download(&batch.pairs).unwrap();
+                        assert!(
+                            pairs.windows(2).all(|w| w[0] < w[1]),
+                            "{what}: pairs not increasing"
+                        );
+                        if let Some(l) = &batch.lanes {
+                            assert!(single, "{what}: lane masks without single rays");
+                            let l = b.download(l).unwrap();
+                            assert_eq!(l.len(), pairs.len());
+                            assert!(l.iter().all(|&m| m != 0), "{what}: an empty lane mask");
+                        }
+                        batches += 1;
+                        let q = Query::Candidates {
+                            hierarchy: &gpu_h,
+                            batch: &batch,
+                        };
+                        gpu_brute.intersect(&b, &gpu_rays, q, mode, &mut hits, st)
+                    },
+                    &mut gpu_stats,
+                )
+                .unwrap_or_else(|e| panic!("{what}: {e}"));
+                let got = b.download(&hits).unwrap();
+                for (i, (g, w)) in got.iter().zip(&scene_hits).enumerate() {
+                    match mode {
+                        HitMode::Any => assert_eq!(g.is_hit(), w.is_hit(), "{what}: ray {i}"),
+                        _ => assert_eq!(g, w, "{what}: ray {i}"),
+                    }
+                }
+                let agree = got
+                    .iter()
+                    .zip(&want)
+                    .filter(|(g, w)| {
+                        g.is_hit() == w.is_hit() && (mode == HitMode::Any || g.tri == w.tri)
+                    })
+                    .count();
+                assert!(
+                    agree * 1000 >= rays.len() * 999,
+                    "{what}: {agree} of {} agree with the CPU",
+                    rays.len()
+                );
+                if budget < 1.0 {
+                    assert!(batches > 1, "{what}: one batch");
+                }
+                let (gb, cb) = (gpu_stats.tests.bounds, cpu_stats.tests.bounds);
+                println!(
+                    "{what}: bounds GPU {gb} CPU {cb}, ray-triangle GPU {} CPU {}, {batches} \
+                     batches",
+                    gpu_stats.tests.ray_triangle, cpu_stats.tests.ray_triangle
+                );
+                assert!(
+                    (gb as f64 - cb as f64).abs() <= 0.05 * cb as f64 + 50.0,
+                    "{what}: bounds tests GPU {gb} CPU {cb}"
+                );
+                // (Under the tiny budget the batches differ: a grid triangle's repeats split
+                // over two batches are tested twice, and any-hit rays skip what an earlier
+                // batch hit, so only whole batches compare.)
+                let rt = |st: &Stats| st.tests.ray_triangle as f64;
+                assert!(
+                    budget < 1.0
+                        || (rt(&gpu_stats) - rt(&cpu_stats)).abs() <= 0.05 * rt(&cpu_stats) + 50.0,
+                    "{what}: ray-triangle tests"
+                );
+                if objects == "meshes" {
+                    assert!(gpu_stats.object_levels.is_empty());
+                    assert!(!gpu_stats.mesh_culling.is_empty());
+                    continue;
+                }
+                // Both tables account for every test (level 0 is the final tests' row).
+                let ray_rows: Vec<_> = gpu_stats
+                    .levels
+                    .iter()
+                    .filter(|r| r.level > 0)
+                    .cloned()
+                    .collect();
+                assert_eq!(row_sum(&ray_rows), gb, "{what}: ray rows");
+                assert_eq!(row_sum(&gpu_stats.object_levels), gb, "{what}: object rows");
+                assert_eq!(
+                    gpu_stats.object_levels.len(),
+                    cpu_stats.object_levels.len(),
+                    "{what}"
+                );
+            }
+        }
+    }
+}
+
+/// A bad hierarchy is an error, no rays call no sink, and the GPU `dual` is what the wgpu
+/// registry builds for `traverse.kind = dual`.
+#[test]
+fn dual_traversal_refuses_bad_hierarchies() {
+    use crsh_core::{SphereCone, Traverser};
+    let Some(b) = crsh_wgpu::testing::shared_backend("dual_traversal_refuses_bad_hierarchies")
+    else {
+        return;
+    };
+    let s = scene("cornell-mirrors");
+    let g = GpuScene::new(&b, &s).unwrap();
+    let (rays, order) = cpu_rays(&s, RayKind::Shadow);
+    let cpu_h = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(8, 2)
+        .unwrap()
+        .build(&Cpu, &rays, order, &mut Stats::default())
+        .unwrap();
+    let trav =
+        crsh_wgpu::traverse::dual::Dual::new(&g, &dual_spec("lbvh", true, true, 64.0)).unwrap();
+    let mut levels: Vec<Vec<SphereCone>> = cpu_h.levels.clone();
+    levels[1][0].sphere.radius = f32::NAN;
+    let h: RayHierarchy<Wgpu> = RayHierarchy {
+        leaf_offsets: None,
+        order: b.upload(&cpu_h.order).unwrap(),
+        levels: levels.iter().map(|l| b.upload(l).unwrap()).collect(),
+        subdivision: cpu_h.subdivision,
+        reach: Vec::new(),
+    };
+    let r = trav.traverse(
+        &b,
+        &b.upload(&rays).unwrap(),
+        RayKind::Shadow,
+        &h,
+        &mut |_, _| Ok(()),
+        &mut Stats::default(),
+    );
+    assert!(
+        matches!(&r, Err(crsh_core::CoreError::InvalidInput(m)) if m.contains("non-finite")),
+        "{r:?}"
+    );
+    let empty: Vec<Ray> = Vec::new();
+    let h0: RayHierarchy<Wgpu> = RayHierarchy {
+        leaf_offsets: None,
+        order: b.upload::<u32>(&[]).unwrap(),
+        levels: vec![b.upload::<SphereCone>(&[]).unwrap()],
+        subdivision: 8,
+        reach: Vec::new(),
+    };
+    trav.traverse(
+        &b,
+        &b.upload(&empty).unwrap(),
+        RayKind::Shadow,
+        &h0,
+        &mut |_, _| panic!("a sink call without rays"),
+        &mut Stats::default(),
+    )
+    .unwrap();
+}

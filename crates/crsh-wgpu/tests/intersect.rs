@@ -205,7 +205,8 @@ fn brute_scene_queries_match_the_cpu() {
 }
 
 /// Candidate queries on the CPU's own hierarchy and candidates, uploaded: the same hits and
-/// level-0 counts as the CPU's candidate mode, batch after batch.
+/// level-0 counts as the CPU's candidate mode, batch after batch, without lane masks and with
+/// random ones (all rays, none, random lanes; reversed batches with repeats whose masks merge).
 #[test]
 fn brute_candidate_queries_match_the_cpu() {
     let Some(b) = crsh_wgpu::testing::shared_backend("brute_candidate_queries_match_the_cpu")
@@ -250,54 +251,82 @@ fn brute_candidate_queries_match_the_cpu() {
                 subdivision: h_cpu.subdivision,
                 reach: h_cpu.reach.iter().map(|l| b.upload(l).unwrap()).collect(),
             };
-            let mut want = vec![Hit::MISS; rays.len()];
-            let mut cpu_stats = Stats::default();
-            let buf = b.upload(&rays).unwrap();
-            let mut hits = b.filled(rays.len(), Hit::MISS).unwrap();
-            let mut stats = Stats::default();
-            for (i, pairs) in batches.iter().enumerate() {
-                let cb = CandidateBatch::new(pairs.clone());
-                cpu.intersect(
-                    &Cpu,
-                    &rays,
-                    Query::Candidates {
-                        hierarchy: &h_cpu,
-                        batch: &cb,
-                    },
-                    mode,
-                    &mut want,
-                    &mut cpu_stats,
-                )
-                .unwrap();
-                // Every other batch reversed: the GPU intersector must sort it first.
-                let mut p = pairs.clone();
-                if i % 2 == 1 {
-                    p.reverse();
+            for masked in [false, true] {
+                let what = format!("{name} {kind:?} masks {masked}");
+                let mut want = vec![Hit::MISS; rays.len()];
+                let mut cpu_stats = Stats::default();
+                let buf = b.upload(&rays).unwrap();
+                let mut hits = b.filled(rays.len(), Hit::MISS).unwrap();
+                let mut stats = Stats::default();
+                for (i, pairs) in batches.iter().enumerate() {
+                    // Masks: all lanes, none, or hashed bits of the node's 4 lanes.
+                    let masks: Vec<u32> = (0..pairs.len())
+                        .map(|k| match (k * 7 + i) % 4 {
+                            0 => crsh_core::ALL_LANES,
+                            1 => 0,
+                            _ => ((k as u32).wrapping_mul(2_654_435_761) >> 7) & 0xf,
+                        })
+                        .collect();
+                    let cb = if masked {
+                        CandidateBatch::with_lanes(pairs.clone(), masks.clone())
+                    } else {
+                        CandidateBatch::new(pairs.clone())
+                    };
+                    cpu.intersect(
+                        &Cpu,
+                        &rays,
+                        Query::Candidates {
+                            hierarchy: &h_cpu,
+                            batch: &cb,
+                        },
+                        mode,
+                        &mut want,
+                        &mut cpu_stats,
+                    )
+                    .unwrap();
+                    // Every other batch reversed: the GPU intersector must sort it first; with
+                    // masks, its pairs also come twice, split over two masks whose union is the
+                    // CPU's.
+                    let mut p = pairs.clone();
+                    let mut m = masks.clone();
+                    if i % 2 == 1 {
+                        p.reverse();
+                        m.reverse();
+                        if masked {
+                            let n = p.len();
+                            for k in 0..n {
+                                p.push(p[k]);
+                                m.push(m[k] & 0b1010);
+                                m[k] &= !0b1010;
+                            }
+                        }
+                    }
+                    let gb = if masked {
+                        CandidateBatch::with_lanes(b.upload(&p).unwrap(), b.upload(&m).unwrap())
+                    } else {
+                        CandidateBatch::new(b.upload(&p).unwrap())
+                    };
+                    gpu.intersect(
+                        &b,
+                        &buf,
+                        Query::Candidates {
+                            hierarchy: &h_gpu,
+                            batch: &gb,
+                        },
+                        mode,
+                        &mut hits,
+                        &mut stats,
+                    )
+                    .unwrap();
                 }
-                let gb = CandidateBatch::new(b.upload(&p).unwrap());
-                gpu.intersect(
-                    &b,
-                    &buf,
-                    Query::Candidates {
-                        hierarchy: &h_gpu,
-                        batch: &gb,
-                    },
-                    mode,
-                    &mut hits,
-                    &mut stats,
-                )
-                .unwrap();
-            }
-            let got = b.download(&hits).unwrap();
-            let bad = compare(&s, &rays, &got, &want, mode);
-            assert!(
-                bad * 10_000 <= rays.len(),
-                "{name} {kind:?}: {bad} mismatches"
-            );
-            assert!(got.iter().any(|h| h.is_hit()));
-            if bad == 0 {
-                assert_eq!(stats.tests, cpu_stats.tests, "{name} {kind:?}");
-                assert_eq!(stats.levels, cpu_stats.levels, "{name} {kind:?}");
+                let got = b.download(&hits).unwrap();
+                let bad = compare(&s, &rays, &got, &want, mode);
+                assert!(bad * 10_000 <= rays.len(), "{what}: {bad} mismatches");
+                assert!(got.iter().any(|h| h.is_hit()), "{what}: no hits");
+                if bad == 0 {
+                    assert_eq!(stats.tests, cpu_stats.tests, "{what}");
+                    assert_eq!(stats.levels, cpu_stats.levels, "{what}");
+                }
             }
         }
     }
@@ -694,11 +723,32 @@ fn offsets_hierarchy_gives_the_brute_force_hits() {
                     "traversal {o:?}: {r:?}"
                 );
             }
-            // Lane masks (only the CPU `dual` sends them) are refused, not ignored.
-            let masked =
-                CandidateBatch::with_lanes(b.upload(&pairs).unwrap(), b.upload(&[1u32]).unwrap());
+            // Lane masks that do not fit: a partial mask on a node of more than 32 rays, and
+            // a mask array of another length than the pairs'.
+            let big = (0..offsets.len() - 1)
+                .find(|&n| offsets[n + 1] - offsets[n] > 32)
+                .expect("a node of more than 32 rays");
+            let pair = b
+                .upload(&[Candidate {
+                    node: big as u32,
+                    tri: 0,
+                }])
+                .unwrap();
+            let masked = CandidateBatch::with_lanes(pair, b.upload(&[1u32]).unwrap());
             let r = query(&with_offsets(&offsets), &masked);
-            assert!(matches!(&r, Err(CoreError::Unsupported { .. })), "{r:?}");
+            assert!(
+                matches!(&r, Err(CoreError::InvalidInput(m)) if m.contains("lane mask")),
+                "{r:?}"
+            );
+            let masked = CandidateBatch::with_lanes(
+                b.upload(&pairs).unwrap(),
+                b.upload(&[1u32, 2]).unwrap(),
+            );
+            let r = query(&with_offsets(&offsets), &masked);
+            assert!(
+                matches!(&r, Err(CoreError::InvalidInput(m)) if m.contains("lane masks")),
+                "{r:?}"
+            );
         }
     }
 }

@@ -623,7 +623,7 @@ fn node_packet<T: TriangleTest>(
 
 /// Merges the repeats of a candidate in `v` (sorted by candidate) into one, for the union of
 /// their lane masks ([`CandidateBatch::lanes`]).
-pub(crate) fn merge_repeats(v: &mut Vec<(Candidate, u32)>) {
+pub fn merge_repeats(v: &mut Vec<(Candidate, u32)>) {
     v.dedup_by(|next, kept| {
         let same = next.0 == kept.0;
         if same {

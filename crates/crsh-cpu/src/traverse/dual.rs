@@ -329,6 +329,19 @@ pub struct Lbvh {
     max_depth: usize,
 }
 
+/// One node of an [`Lbvh`] in its flat layout ([`Lbvh::flat`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FlatNode {
+    /// Contains the sphere of every triangle below (a leaf: its triangle's, or the entry's).
+    pub sphere: Sphere,
+    /// Contains the box of every triangle below ([`triangle_box`], clipped for grid entries).
+    pub bx: Aabb,
+    /// An internal node's two children (indices in the flat array); `None` for a leaf.
+    pub children: Option<[u32; 2]>,
+    /// A leaf's triangle id (`u32::MAX` for an internal node).
+    pub triangle: u32,
+}
+
 /// Spreads the low 21 bits of `v` to every third bit.
 fn spread3(v: u64) -> u64 {
     let mut x = v & 0x1f_ffff;
@@ -875,6 +888,39 @@ impl Lbvh {
             Some(r) => *self.bx(r),
             None => Aabb::EMPTY,
         }
+    }
+
+    /// The hierarchy as one array, the layout the wgpu twin uploads: the internal nodes
+    /// first (Karras numbering, the root at 0 when there are two leaves or more), then the
+    /// leaves in sorted order; with the root's index (`None` without triangles). An internal
+    /// node's [`FlatNode::children`] index the same array; a leaf has none and names its
+    /// triangle.
+    pub fn flat(&self) -> (Vec<FlatNode>, Option<u32>) {
+        let n_inner = self.inner.len() as u32;
+        let index = |r: u32| {
+            if r & LEAF != 0 {
+                n_inner + (r & !LEAF)
+            } else {
+                r
+            }
+        };
+        let inner = self.inner.iter().map(|n| FlatNode {
+            sphere: n.sphere,
+            bx: n.bx,
+            children: Some(n.children.map(index)),
+            triangle: u32::MAX,
+        });
+        let leaves = self
+            .leaves
+            .iter()
+            .zip(&self.leaf_tris)
+            .map(|(l, &t)| FlatNode {
+                sphere: l.sphere,
+                bx: l.bx,
+                children: None,
+                triangle: t,
+            });
+        (inner.chain(leaves).collect(), self.root().map(index))
     }
 
     /// Every triangle id below `node`, for tests.

@@ -38,11 +38,12 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 use crsh_core::{
     Candidate, CoreError, Hit, HitMode, Intersector, Query, Ray, RayKind, Registry, Result,
-    StageSpec, Stats,
+    StageSpec, Stats, ALL_LANES,
 };
 
 #[cfg(doc)]
 use crsh_core::RayHierarchy;
+use crsh_cpu::intersect::brute::merge_repeats;
 use crsh_cpu::triangle::{PreparedTriangle, TriangleSet};
 
 use crate::adapter::GpuContext;
@@ -66,7 +67,8 @@ struct Params {
     has_offsets: u32,
     n_nodes: u32,
     n_leaves: u32,
-    pad: [u32; 3],
+    has_lanes: u32,
+    pad: [u32; 2],
 }
 
 /// The compiled kernels (one per device).
@@ -89,6 +91,7 @@ impl BruteKernels {
                     Slot::Read,
                     Slot::ReadWrite,
                     Slot::ReadWrite,
+                    Slot::Read,
                     Slot::Read,
                     Slot::Read,
                     Slot::Read,
@@ -163,7 +166,8 @@ impl BruteForce {
                     has_offsets: 0,
                     n_nodes: 0,
                     n_leaves: 0,
-                    pad: [0; 3],
+                    has_lanes: 0,
+                    pad: [0; 2],
                 };
                 let u = uniform(ctx, "crsh brute params", &params);
                 k.kernel.bind_group(
@@ -174,6 +178,7 @@ impl BruteForce {
                         self.tris.binding(),
                         hits.slice_binding(range.clone()),
                         counters.binding(),
+                        dummy.binding(),
                         dummy.binding(),
                         dummy.binding(),
                         dummy.binding(),
@@ -199,6 +204,7 @@ impl BruteForce {
         subdivision: u32,
         offsets: Option<&GpuBuffer<u32>>,
         pairs: &GpuBuffer<Candidate>,
+        lanes: Option<&GpuBuffer<u32>>,
         any_hit: bool,
         hits: &GpuBuffer<Hit>,
     ) -> Result<Option<(u64, u64)>> {
@@ -227,7 +233,8 @@ impl BruteForce {
             has_offsets: u32::from(offsets.is_some()),
             n_nodes: n_nodes as u32,
             n_leaves: order.len() as u32,
-            pad: [0; 3],
+            has_lanes: u32::from(lanes.is_some()),
+            pad: [0; 2],
         };
         let bind = |p: &Params| {
             let u = uniform(ctx, "crsh brute params", p);
@@ -242,6 +249,7 @@ impl BruteForce {
                     order.binding(),
                     pairs.binding(),
                     offsets.unwrap_or(&dummy).binding(),
+                    lanes.unwrap_or(&dummy).binding(),
                 ],
             )
         };
@@ -271,6 +279,13 @@ impl BruteForce {
                 "a candidate pair is out of range ({n_nodes} nodes, {} triangles)",
                 self.n_tris
             )));
+        }
+        if flags[4] & 8 != 0 {
+            return Err(CoreError::InvalidInput(
+                "a candidate has a lane mask other than all rays on a hierarchy node of more \
+                 than 32 rays"
+                    .into(),
+            ));
         }
         if flags[4] & 1 != 0 {
             return Ok(None);
@@ -337,13 +352,14 @@ impl Intersector<Wgpu> for BruteForce {
                 self.scene_query(rays, any_hit, hits)?
             }
             Query::Candidates { hierarchy, batch } => {
-                if batch.lanes.is_some() {
-                    // No wgpu traverser culls single rays; the CPU `dual` does.
-                    return Err(CoreError::Unsupported {
-                        stage: "intersect",
-                        variant: "brute".into(),
-                        what: "candidate lane masks on the wgpu backend".into(),
-                    });
+                if let Some(l) = &batch.lanes {
+                    if l.len() != batch.pairs.len() {
+                        return Err(CoreError::InvalidInput(format!(
+                            "{} lane masks for {} candidate pairs",
+                            l.len(),
+                            batch.pairs.len()
+                        )));
+                    }
                 }
                 if batch.pairs.is_empty() || rays.is_empty() {
                     return Ok(());
@@ -373,7 +389,7 @@ impl Intersector<Wgpu> for BruteForce {
                         rays.len()
                     )));
                 }
-                let run = |pairs: &GpuBuffer<Candidate>| {
+                let run = |pairs: &GpuBuffer<Candidate>, lanes: Option<&GpuBuffer<u32>>| {
                     self.candidate_query(
                         rays,
                         &hierarchy.order,
@@ -381,21 +397,36 @@ impl Intersector<Wgpu> for BruteForce {
                         hierarchy.subdivision,
                         offsets,
                         pairs,
+                        lanes,
                         any_hit,
                         hits,
                     )
                 };
-                let (tests, found) = match run(&batch.pairs)? {
+                let (tests, found) = match run(&batch.pairs, batch.lanes.as_ref())? {
                     Some(r) => r,
                     None => {
-                        // Unsorted or repeated pairs: sort and de-duplicate on the host, as the
-                        // CPU twin does, then run again.
-                        let mut host = batch.pairs.to_vec(backend.context())?;
-                        host.sort_unstable();
-                        host.dedup();
-                        let sorted =
-                            GpuBuffer::from_slice(backend.context(), "crsh sorted pairs", &host)?;
-                        run(&sorted)?.ok_or_else(|| {
+                        // Unsorted or repeated pairs: sort and merge on the host, as the CPU
+                        // twin does (a repeat is for the union of its lane masks), then run
+                        // again.
+                        let ctx = backend.context();
+                        let pairs = batch.pairs.to_vec(ctx)?;
+                        let masks = match &batch.lanes {
+                            Some(l) => l.to_vec(ctx)?,
+                            None => vec![ALL_LANES; pairs.len()],
+                        };
+                        let mut host: Vec<(Candidate, u32)> =
+                            pairs.into_iter().zip(masks).collect();
+                        host.sort_unstable_by_key(|e| e.0);
+                        merge_repeats(&mut host);
+                        let (pairs, masks): (Vec<Candidate>, Vec<u32>) = host.into_iter().unzip();
+                        let sorted = GpuBuffer::from_slice(ctx, "crsh sorted pairs", &pairs)?;
+                        let lanes = match batch.lanes {
+                            Some(_) => {
+                                Some(GpuBuffer::from_slice(ctx, "crsh sorted lanes", &masks)?)
+                            }
+                            None => None,
+                        };
+                        run(&sorted, lanes.as_ref())?.ok_or_else(|| {
                             CoreError::Backend("sorted pairs reported unsorted".into())
                         })?
                     }

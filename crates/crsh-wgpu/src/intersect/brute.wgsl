@@ -18,7 +18,8 @@ struct Params {
     // Candidate queries: nodes of levels[0], and leaves (the order's length).
     n_nodes: u32,
     n_leaves: u32,
-    _a: u32,
+    // Candidate queries: 1 when `lanes` holds a mask per pair (bit k: the node's k-th ray).
+    has_lanes: u32,
     _b: u32,
     _c: u32,
 }
@@ -34,6 +35,8 @@ struct Params {
 @group(0) @binding(6) var<storage, read> pairs: array<Candidate>;
 // Candidate queries with has_offsets: the hierarchy's leaf offsets (n_nodes + 1 entries).
 @group(0) @binding(7) var<storage, read> offsets: array<u32>;
+// Candidate queries with has_lanes: each pair's lane mask (crsh_core::CandidateBatch::lanes).
+@group(0) @binding(8) var<storage, read> lanes: array<u32>;
 
 const LANES: u32 = 8u;
 
@@ -164,10 +167,29 @@ fn node_of_leaf(leaf: u32) -> u32 {
     return lo;
 }
 
+// The first leaf of levels[0] node `node` and its leaf count.
+fn node_leaves(node: u32) -> vec2<u32> {
+    if (p.has_offsets != 0u) {
+        return vec2<u32>(offsets[node], offsets[node + 1u] - offsets[node]);
+    }
+    let s = node * p.subdivision;
+    return vec2<u32>(s, min(s + p.subdivision, p.n_leaves) - s);
+}
+
+// Whether pair k is for the node's ray in lane `lane` (every ray without lane masks; a mask
+// other than all lanes is only on nodes of at most 32 rays, check_pairs refuses others).
+fn for_lane(k: u32, lane: u32) -> bool {
+    if (p.has_lanes == 0u || lanes[k] == 0xffffffffu) {
+        return true;
+    }
+    return lane < 32u && ((lanes[k] >> lane) & 1u) != 0u;
+}
+
 // One invocation per hierarchy leaf: its ray against the triangles paired with its node, in
 // increasing id order (pairs strictly increasing), merged into its current hit like the CPU's
-// candidate mode (any-hit: a hit ray is skipped, the first hit stops it). Counts every test
-// and every test that found an intersection (the level-0 row of the tables).
+// candidate mode (any-hit: a hit ray is skipped, the first hit stops it). With lane masks only
+// the pairs naming the leaf's lane are tested. Counts every test and every test that found an
+// intersection (the level-0 row of the tables).
 @compute @workgroup_size(WG)
 fn candidates(@builtin(global_invocation_id) gid: vec3<u32>,
               @builtin(local_invocation_index) lid: u32,
@@ -196,7 +218,11 @@ fn candidates(@builtin(global_invocation_id) gid: vec3<u32>,
         if (!ray_valid(r)) {
             atomicMax(&counters[5], 0xffffffffu - ri);
         } else if (p.any_hit == 0u || best.tri == NO_HIT) {
+            let lane = leaf - node_leaves(node).x;
             for (var k = first_pair(node); k < p.n_pairs && pairs[k].node == node; k++) {
+                if (!for_lane(k, lane)) {
+                    continue;
+                }
                 let tri = pairs[k].tri;
                 tests += 1u;
                 let h = mt_hit(tris[tri], o, d, d_len, r.t_min, r.t_max);
@@ -224,8 +250,9 @@ fn candidates(@builtin(global_invocation_id) gid: vec3<u32>,
 
 // Bits of counters[4]: 1 when the pairs are not strictly increasing (the host sorts them), 2
 // when a pair references a node or triangle out of range, 4 when the leaf offsets are not
-// 0, non-decreasing, ..., n_leaves (both reported by the host). One invocation per pair and,
-// with offsets, per offset entry.
+// 0, non-decreasing, ..., n_leaves, 8 when a pair's lane mask is partial on a node of more
+// than 32 rays (all reported by the host). One invocation per pair and, with offsets, per
+// offset entry.
 @compute @workgroup_size(WG)
 fn check_pairs(@builtin(global_invocation_id) gid: vec3<u32>,
                @builtin(num_workgroups) nwg: vec3<u32>) {
@@ -243,6 +270,8 @@ fn check_pairs(@builtin(global_invocation_id) gid: vec3<u32>,
     let c = pairs[k];
     if (c.node >= p.n_nodes || c.tri >= p.n_tris) {
         atomicOr(&counters[4], 2u);
+    } else if (p.has_lanes != 0u && lanes[k] != 0xffffffffu && node_leaves(c.node).y > 32u) {
+        atomicOr(&counters[4], 8u);
     }
     if (k + 1u < p.n_pairs) {
         let nx = pairs[k + 1u];

@@ -94,7 +94,7 @@ impl CrshKernels {
             kernel: Kernel::new(
                 ctx,
                 "crsh traversal",
-                &format!("{SHADER}\n{}", include_str!("../kernels/trig.wgsl")),
+                &format!("{SHADER}\n{}", super::NODE_BOUND_WGSL),
                 &[
                     "prepare",
                     "mesh_cull",
@@ -157,6 +157,18 @@ impl Crsh {
     /// (validated as on the CPU).
     pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<Crsh> {
         let cpu = crsh_cpu::traverse::crsh::Crsh::new(&scene.scene, spec)?;
+        Ok(Crsh {
+            scene: Arc::clone(scene),
+            mesh_culling: cpu.mesh_culling(),
+            budget_bytes: cpu.budget_bytes(),
+        })
+    }
+
+    /// The traverser with explicit options, validated as
+    /// [`crsh_cpu::traverse::crsh::Crsh::with_options`] does.
+    pub fn with_options(scene: &Arc<GpuScene>, mesh_culling: bool, budget_mb: f64) -> Result<Crsh> {
+        let cpu =
+            crsh_cpu::traverse::crsh::Crsh::with_options(&scene.scene, mesh_culling, budget_mb)?;
         Ok(Crsh {
             scene: Arc::clone(scene),
             mesh_culling: cpu.mesh_culling(),

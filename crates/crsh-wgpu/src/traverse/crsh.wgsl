@@ -1,28 +1,5 @@
 // `crsh` traversal on the device: the twin of crsh_cpu::traverse::crsh (see crsh.rs).
-// Prepended: common.wgsl.
-
-const PI: f32 = 3.14159265358979;
-// The CPU's margins (crsh_cpu::traverse::crsh::{REL_MARGIN, ABS_MARGIN, ANGLE_MARGIN}).
-const REL_MARGIN: f32 = 1e-4;
-const ABS_MARGIN: f32 = 1e-5;
-const ANGLE_MARGIN: f32 = 1e-4;
-// f32's unit roundoff (2⁻²³), for the rounding bound of the cone test (the CPU evaluates it in
-// f64).
-const EPS: f32 = 1.1920929e-7;
-// Relative widening of the reach test for f32 rounding.
-const F32_SLACK: f32 = 1e-5;
-
-// A node prepared for may_hit (crsh_cpu's NodeBound), 48 bytes.
-struct Bound {
-    center: vec3<f32>,
-    radius: f32,
-    axis: vec3<f32>,
-    cos_a: f32,
-    sin_a: f32,
-    all_dirs: u32,
-    reach: f32,
-    scale: f32,
-}
+// Prepended: common.wgsl. Appended: node_bound.wgsl, trig.wgsl.
 
 struct Params {
     // prepare: nodes of the level; top / mesh_cull: top nodes; descend: input pairs.
@@ -66,14 +43,6 @@ fn add_u64(at: u32, n: u32) {
     }
 }
 
-fn f_finite(x: f32) -> bool {
-    return (bitcast<u32>(x) & 0x7f800000u) != 0x7f800000u;
-}
-
-fn max_abs3(v: vec3<f32>) -> f32 {
-    return max(abs(v.x), max(abs(v.y), abs(v.z)));
-}
-
 // crsh_cpu's NodeBound::new (with_reach when the level has bounds).
 @compute @workgroup_size(WG)
 fn prepare(@builtin(global_invocation_id) gid: vec3<u32>,
@@ -82,81 +51,15 @@ fn prepare(@builtin(global_invocation_id) gid: vec3<u32>,
     if (i >= p.n) {
         return;
     }
-    let node = level_nodes[i];
-    var b: Bound;
-    b.center = node.center;
-    b.radius = node.radius;
-    b.scale = max(1.0, max_abs3(node.center));
-    b.reach = inf();
+    var reach = 0.0;
     if (p.has_reach != 0u) {
-        let r = level_reach[i];
-        if (f_finite(r) && r >= 0.0) {
-            b.reach = r;
-        }
+        reach = level_reach[i];
     }
-    let bad_sphere = !f_finite(node.center.x) || !f_finite(node.center.y) || !f_finite(node.center.z)
-        || !f_finite(node.radius) || node.radius < 0.0;
-    let bad_cone = !f_finite(node.half_angle) || node.half_angle < 0.0 || !f_finite(node.axis.x)
-        || !f_finite(node.axis.y) || !f_finite(node.axis.z);
-    let alpha = node.half_angle + ANGLE_MARGIN;
-    b.axis = vec3<f32>(1.0, 0.0, 0.0);
-    b.cos_a = -1.0;
-    b.sin_a = 0.0;
-    b.all_dirs = 1u;
-    var bad = bad_sphere || bad_cone;
-    if (!bad && alpha < PI) {
-        let len = length(node.axis);
-        if (!(len >= 1e-12)) {
-            bad = true;
-        } else {
-            b.axis = node.axis / len;
-            b.cos_a = cos_accurate(alpha);
-            b.sin_a = sin_accurate(alpha);
-            b.all_dirs = 0u;
-        }
-    }
-    if (bad) {
+    let b = bound_of(level_nodes[i], reach, p.has_reach != 0u);
+    if (bound_is_bad(b)) {
         atomicMax(&counters[3], 0xffffffffu - i);
     }
     bounds[i] = b;
-}
-
-// crsh_cpu's NodeBound::may_hit in f32, with F32_SLACK on top of the CPU's margins.
-fn may_hit(b: Bound, sphere: vec4<f32>) -> bool {
-    let pc = sphere.xyz;
-    let v = pc - b.center;
-    let d2 = dot(v, v);
-    let scale = max(b.scale, max_abs3(pc));
-    let rho = (sphere.w + b.radius) * (1.0 + REL_MARGIN) + ABS_MARGIN * scale;
-    if (b.reach < inf()) {
-        let limit = (b.reach + rho) * (1.0 + REL_MARGIN) + ABS_MARGIN * scale;
-        if (d2 > limit * limit * (1.0 + F32_SLACK)) {
-            return false;
-        }
-    }
-    if (b.all_dirs != 0u) {
-        return true;
-    }
-    let rho2 = rho * rho;
-    if (d2 <= rho2) {
-        return true;
-    }
-    if (b.cos_a < 0.0 && rho2 >= d2 * b.sin_a * b.sin_a * (1.0 - F32_SLACK)) {
-        return true;
-    }
-    // a·v ≥ cos α·√(D² − ρ²) − sin α·ρ, accepting the worst rounding of both sides: the
-    // radicand is off by at most e = 8ε(D² + ρ²), so its root by min(√e, e / (2√(D² − ρ²)));
-    // the products and sums by a few ε of their magnitudes.
-    let dist = sqrt(d2);
-    let s2 = max(d2 - rho2, 0.0);
-    let s = sqrt(s2);
-    let e = 8.0 * EPS * (d2 + rho2);
-    var root_err = sqrt(e);
-    if (s > 0.0) {
-        root_err = min(root_err, e / (2.0 * s));
-    }
-    let slack = abs(b.cos_a) * root_err + 16.0 * EPS * (dist + rho) + 4e-7 * (s + rho);
-    return dot(b.axis, v) >= b.cos_a * s - b.sin_a * rho - slack;
 }
 
 // Mesh culling: keep[node * meshes + m] for every top node and mesh.

@@ -1,0 +1,736 @@
+//! `dual` traversal on the wgpu backend: the ray hierarchy and an object hierarchy over the
+//! triangles descended together, breadth first with stream compaction (seed 000 §3.2.8 with
+//! §5.1's "deeper object hierarchy").
+//!
+//! The twin is [`crsh_cpu::traverse::dual::Dual`]: the same parameters (`objects`,
+//! `grid_density`, `box_test`, `single_rays`, `candidate_budget_mb`), the same object
+//! hierarchy (built on the host by the CPU's own code when the stage is constructed, once per
+//! frame, and uploaded: [`Lbvh::flat`]), the same pair test, the same rule for which side of a
+//! pair to split, single rays with lane masks, and the same counters. `objects = meshes` is
+//! the wgpu [`crate::traverse::crsh::Crsh`] with mesh culling, as on the CPU.
+//!
+//! # The device algorithm
+//!
+//! 1. `prepare`: every ray node becomes the CPU's `NodeBound` (`node_bound.wgsl`, all levels
+//!    in one array); a non-finite or negative node is an error. `lowest_boxes` and
+//!    `upper_boxes`: every node's segment box (the union of its rays' segment boxes,
+//!    [`crsh_cpu::traverse::dual::segment_box`], then of its children's).
+//! 2. Per chunk of top-level ray nodes, the pairs (top node, object root) are the first
+//!    frontier. Each round, `test_pairs` tests every pair of the frontier with the CPU task's
+//!    rules (box overlap, then `may_hit` against the object node's sphere; a single-ray pair
+//!    tests each live ray's segment against the object node's box), counts it in its ray
+//!    level's and object depth's rows, and decides what follows: nothing, a candidate, the
+//!    pair as single rays, the ray node's children or the object node's two children. The
+//!    children and candidate counts are scanned ([`crate::kernels::scan`]) and `emit_pairs`
+//!    writes the next frontier and the round's candidates. A chunk ends when its frontier is
+//!    empty.
+//! 3. A batch of candidates (a chunk's, or earlier when they fill a quarter of the budget) is
+//!    sorted by `(node, triangle)` ([`crate::sort::radix::stable_radix_order`] on
+//!    `node << tri_bits | triangle`), and repeats (a triangle reached through several grid
+//!    cells) merged into one candidate for the union of their lane masks (`merge_heads`,
+//!    scan, `merge_emit`), so the intersector gets strictly increasing pairs as from the CPU.
+//!
+//! # What differs from the CPU
+//!
+//! - The node test runs in `f32` with the rounding acceptance of the wgpu `crsh` (its module
+//!   doc), the segment boxes and the single-ray slabs in `f32` widened to contain the CPU's
+//!   `f64` ones (`dual.wgsl` states the bounds). Every test keeps what the CPU's keeps, so no
+//!   hit is lost, and a few more pairs pass. The choice of the side to split is a size
+//!   comparison evaluated in `f32`: where it comes out differently from the CPU's the pairs
+//!   take another path down both trees. The candidates then differ slightly, and so do the
+//!   counts; the hits do not (the tests compare them with the CPU's and brute force's).
+//! - Memory: the CPU runs depth-first tasks in rounds. Here the frontier of a chunk of top
+//!   nodes grows and shrinks breadth first: a round that would hold more than the budget
+//!   (frontier in and out, candidates held, the round's per-pair arrays) abandons its chunk
+//!   if no batch of it has been handed on yet, and the chunk is retried at half the size (the
+//!   abandoned rounds' tests still count: they were done); a single top node proceeds
+//!   whatever its size. Chunks double again while they stay under half the budget.
+//!   `peak_candidate_bytes` counts the pairs alive at once (frontiers and candidates).
+
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+use crsh_core::{
+    Aabb, CandidateBatch, CoreError, Ray, RayHierarchy, RayKind, Registry, Result, StageSpec,
+    Stats, Traverser,
+};
+#[cfg(doc)]
+use crsh_cpu::traverse::dual::Lbvh;
+
+use crate::adapter::GpuContext;
+use crate::backend::{GpuBuffer, Wgpu};
+use crate::error::GpuResult;
+use crate::kernel::{encoder, submit, uniform, Kernel, Slot};
+use crate::kernels::scan::ScanKernel;
+use crate::scene::GpuScene;
+use crate::sort::radix::stable_radix_order;
+
+const SHADER: &str = include_str!("dual.wgsl");
+/// Bytes of a pair record (frontier pairs and raw candidates).
+const PAIR_BYTES: u64 = std::mem::size_of::<GpuPair>() as u64;
+/// Bytes per frontier pair of a round's per-pair arrays (outcome, children, candidates).
+const ROUND_BYTES: u64 = 16;
+/// Top nodes per chunk at first: the budget over this many bytes.
+const FIRST_CHUNK_BYTES: u64 = 2 * PAIR_BYTES * 256;
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct Params {
+    n: u32,
+    first: u32,
+    has_reach: u32,
+    sub: u32,
+    n_rays: u32,
+    n_lowest: u32,
+    n_levels: u32,
+    has_offsets: u32,
+    n_depths: u32,
+    box_test: u32,
+    single_rays: u32,
+    root: u32,
+    scene_lo: [f32; 3],
+    tri_bits: u32,
+    scene_hi: [f32; 3],
+    child_first: u32,
+}
+
+/// `ObjNode` in WGSL (48 bytes): [`crsh_cpu::traverse::dual::FlatNode`].
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct GpuObjNode {
+    sphere: [f32; 4],
+    lo: [f32; 3],
+    a: u32,
+    hi: [f32; 3],
+    b: u32,
+}
+
+/// `Pair` in WGSL (16 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct GpuPair {
+    node: u32,
+    obj: u32,
+    mask: u32,
+    info: u32,
+}
+
+/// `Bound` in WGSL (48 bytes).
+type BoundWords = [u32; 12];
+/// `RBox` in WGSL (32 bytes).
+type BoxWords = [u32; 8];
+
+struct DualKernels {
+    kernel: Kernel,
+}
+
+impl DualKernels {
+    fn new(ctx: &GpuContext) -> GpuResult<DualKernels> {
+        use Slot::{Read, ReadWrite, Uniform};
+        let slots = [
+            Uniform, Read, Read, ReadWrite, ReadWrite, Read, Read, Read, Read, Read, Read,
+            ReadWrite, ReadWrite, ReadWrite, ReadWrite, ReadWrite, ReadWrite, ReadWrite, ReadWrite,
+            Read, ReadWrite,
+        ];
+        Ok(DualKernels {
+            kernel: Kernel::new(
+                ctx,
+                "dual traversal",
+                &format!(
+                    "{SHADER}\n{}\n{}",
+                    crate::intersect::MT_WGSL,
+                    super::NODE_BOUND_WGSL
+                ),
+                &[
+                    "prepare",
+                    "lowest_boxes",
+                    "upper_boxes",
+                    "seed",
+                    "test_pairs",
+                    "emit_pairs",
+                    "cand_keys",
+                    "merge_heads",
+                    "merge_emit",
+                ],
+                &slots,
+            )?,
+        })
+    }
+}
+
+/// The buffers one dispatch binds (unused slots get placeholders).
+#[derive(Clone, Copy, Default)]
+struct Binds<'a> {
+    level_nodes: Option<&'a GpuBuffer<crsh_core::SphereCone>>,
+    level_reach: Option<&'a GpuBuffer<f32>>,
+    bounds: Option<&'a GpuBuffer<BoundWords>>,
+    boxes: Option<&'a GpuBuffer<BoxWords>>,
+    level_first: Option<&'a GpuBuffer<u32>>,
+    rays: Option<&'a GpuBuffer<Ray>>,
+    order: Option<&'a GpuBuffer<u32>>,
+    offsets: Option<&'a GpuBuffer<u32>>,
+    pairs_in: Option<&'a GpuBuffer<GpuPair>>,
+    outcome: Option<&'a GpuBuffer<[u32; 2]>>,
+    n_children: Option<&'a GpuBuffer<u32>>,
+    n_cands: Option<&'a GpuBuffer<u32>>,
+    pairs_out: Option<&'a GpuBuffer<GpuPair>>,
+    raw: Option<&'a GpuBuffer<GpuPair>>,
+    cands: Option<&'a GpuBuffer<crsh_core::Candidate>>,
+    lanes: Option<&'a GpuBuffer<u32>>,
+    keys: Option<&'a GpuBuffer<u64>>,
+    sorted: Option<&'a GpuBuffer<u32>>,
+    counters: Option<&'a GpuBuffer<u32>>,
+}
+
+/// The GPU `dual` traverser.
+pub struct Dual {
+    objects: Objects,
+}
+
+enum Objects {
+    /// An object hierarchy (`lbvh`, `bvh` or `grid`) on the device.
+    Tree(Box<Tree>),
+    /// `meshes`: the wgpu `crsh` with mesh culling.
+    Meshes(crate::traverse::crsh::Crsh),
+}
+
+struct Tree {
+    scene: Arc<GpuScene>,
+    source: &'static str,
+    objs: GpuBuffer<GpuObjNode>,
+    /// The root's index (`None` without triangles).
+    root: Option<u32>,
+    /// The box of every triangle (margins included).
+    bounds: Aabb,
+    max_depth: usize,
+    budget_bytes: u64,
+    box_test: bool,
+    single_rays: bool,
+}
+
+/// Registers the wgpu `dual` under its CPU twin's catalogue entry (same name, parameters,
+/// defaults and documentation).
+pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
+    registry.add_traverser(crsh_cpu::traverse::dual::info(), |ctx, spec| {
+        Ok(Box::new(Dual::new(ctx.scene, spec)?))
+    })?;
+    Ok(())
+}
+
+/// Bits to hold every value below `n` (at least 1).
+fn bits_for(n: usize) -> u32 {
+    (usize::BITS - n.saturating_sub(1).leading_zeros()).max(1)
+}
+
+impl Dual {
+    /// The traverser over `scene` with `spec`'s parameters (validated as on the CPU); with
+    /// `objects = lbvh`, `bvh` or `grid` the object hierarchy is built now, on the host by the
+    /// CPU twin's code, and uploaded.
+    pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<Dual> {
+        let cpu = crsh_cpu::traverse::dual::Dual::new(&scene.scene, spec)?;
+        let Some(tree) = cpu.lbvh() else {
+            let crsh = crate::traverse::crsh::Crsh::with_options(
+                scene,
+                true,
+                spec.f64("candidate_budget_mb")?,
+            )?;
+            return Ok(Dual {
+                objects: Objects::Meshes(crsh),
+            });
+        };
+        let (flat, root) = tree.flat();
+        let nodes: Vec<GpuObjNode> = flat
+            .iter()
+            .map(|n| {
+                let (a, b) = match n.children {
+                    Some([l, r]) => (l, r),
+                    None => (n.triangle, u32::MAX),
+                };
+                GpuObjNode {
+                    sphere: n.sphere.center.extend(n.sphere.radius).to_array(),
+                    lo: n.bx.min.to_array(),
+                    a,
+                    hi: n.bx.max.to_array(),
+                    b,
+                }
+            })
+            .collect();
+        let ctx = scene.ctx();
+        ctx.check_storage_binding("object hierarchy", (nodes.len() * 48) as u64)?;
+        Ok(Dual {
+            objects: Objects::Tree(Box::new(Tree {
+                scene: Arc::clone(scene),
+                source: cpu.objects(),
+                objs: GpuBuffer::from_slice(ctx, "dual object hierarchy", &nodes)?,
+                root,
+                bounds: tree.bounds(),
+                max_depth: tree.max_depth(),
+                budget_bytes: cpu.budget_bytes(),
+                box_test: cpu.box_test(),
+                single_rays: cpu.single_rays(),
+            })),
+        })
+    }
+
+    /// The object side (one of [`crsh_cpu::traverse::dual::OBJECTS`]).
+    pub fn objects(&self) -> &'static str {
+        match &self.objects {
+            Objects::Tree(t) => t.source,
+            Objects::Meshes(_) => "meshes",
+        }
+    }
+}
+
+/// One traversal's fixed state.
+struct Run<'a> {
+    tree: &'a Tree,
+    k: &'a Kernel,
+    base: Params,
+    rays: &'a GpuBuffer<Ray>,
+    order: &'a GpuBuffer<u32>,
+    offsets: Option<&'a GpuBuffer<u32>>,
+    bounds: GpuBuffer<BoundWords>,
+    boxes: GpuBuffer<BoxWords>,
+    level_first: GpuBuffer<u32>,
+    kind: RayKind,
+    key_bits: u32,
+}
+
+/// What a chunk of top nodes did.
+enum Chunk {
+    Done { peak: u64, worst: u64 },
+    Abandoned { needed: u64 },
+}
+
+impl Tree {
+    fn bind(&self, k: &Kernel, params: &Params, b: &Binds<'_>) -> GpuResult<wgpu::BindGroup> {
+        let ctx = self.scene.ctx();
+        let u = uniform(ctx, "dual traversal params", params);
+        let nodes0 = GpuBuffer::<crsh_core::SphereCone>::zeroed(ctx, "dual unused", 0)?;
+        let f0 = GpuBuffer::<f32>::zeroed(ctx, "dual unused", 0)?;
+        let bw0 = GpuBuffer::<BoundWords>::zeroed(ctx, "dual unused", 0)?;
+        let bx0 = GpuBuffer::<BoxWords>::zeroed(ctx, "dual unused", 0)?;
+        let r0 = GpuBuffer::<Ray>::zeroed(ctx, "dual unused", 0)?;
+        let o0 = GpuBuffer::<[u32; 2]>::zeroed(ctx, "dual unused", 0)?;
+        let c0 = GpuBuffer::<crsh_core::Candidate>::zeroed(ctx, "dual unused", 0)?;
+        let k0 = GpuBuffer::<u64>::zeroed(ctx, "dual unused", 0)?;
+        let u32s: Vec<GpuBuffer<u32>> = (0..8)
+            .map(|_| GpuBuffer::<u32>::zeroed(ctx, "dual unused", 0))
+            .collect::<GpuResult<_>>()?;
+        let p32s: Vec<GpuBuffer<GpuPair>> = (0..3)
+            .map(|_| GpuBuffer::<GpuPair>::zeroed(ctx, "dual unused", 0))
+            .collect::<GpuResult<_>>()?;
+        Ok(k.bind_group(
+            ctx,
+            &[
+                u.as_entire_binding(),
+                b.level_nodes.unwrap_or(&nodes0).binding(),
+                b.level_reach.unwrap_or(&f0).binding(),
+                b.bounds.unwrap_or(&bw0).binding(),
+                b.boxes.unwrap_or(&bx0).binding(),
+                b.level_first.unwrap_or(&u32s[0]).binding(),
+                b.rays.unwrap_or(&r0).binding(),
+                b.order.unwrap_or(&u32s[1]).binding(),
+                b.offsets.unwrap_or(&u32s[2]).binding(),
+                self.objs.binding(),
+                b.pairs_in.unwrap_or(&p32s[0]).binding(),
+                b.outcome.unwrap_or(&o0).binding(),
+                b.n_children.unwrap_or(&u32s[3]).binding(),
+                b.n_cands.unwrap_or(&u32s[4]).binding(),
+                b.pairs_out.unwrap_or(&p32s[1]).binding(),
+                b.raw.unwrap_or(&p32s[2]).binding(),
+                b.cands.unwrap_or(&c0).binding(),
+                b.lanes.unwrap_or(&u32s[5]).binding(),
+                b.keys.unwrap_or(&k0).binding(),
+                b.sorted.unwrap_or(&u32s[6]).binding(),
+                b.counters.unwrap_or(&u32s[7]).binding(),
+            ],
+        ))
+    }
+
+    /// Records one dispatch of `entry` over `n` items.
+    fn dispatch(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        k: &Kernel,
+        entry: &str,
+        params: &Params,
+        binds: &Binds<'_>,
+    ) -> Result<()> {
+        let ctx = self.scene.ctx();
+        let bg = self.bind(k, params, binds)?;
+        let mut pass = ctx.compute_pass(enc, entry);
+        k.dispatch(ctx, &mut pass, entry, &bg, params.n)?;
+        Ok(())
+    }
+}
+
+impl Run<'_> {
+    fn ctx(&self) -> &GpuContext {
+        self.tree.scene.ctx()
+    }
+
+    fn binds(&self) -> Binds<'_> {
+        Binds {
+            bounds: Some(&self.bounds),
+            boxes: Some(&self.boxes),
+            level_first: Some(&self.level_first),
+            rays: Some(self.rays),
+            order: Some(self.order),
+            offsets: self.offsets,
+            ..Binds::default()
+        }
+    }
+
+    /// Reads a chunk's row counters into `stats` (bounds, ray-level rows, object-depth rows).
+    fn record(&self, counters: &GpuBuffer<u32>, stats: &mut Stats) -> Result<()> {
+        let c = counters.to_vec(self.ctx())?;
+        let word = |i: usize| u64::from(c[i]) | (u64::from(c[i + 1]) << 32);
+        let levels = self.base.n_levels as usize;
+        let rows: Vec<(u64, u64)> = (0..levels + self.base.n_depths as usize)
+            .map(|r| (word(4 + 4 * r), word(6 + 4 * r)))
+            .collect();
+        stats.add_bounds(rows[..levels].iter().map(|r| r.0).sum());
+        for (li, r) in rows[..levels].iter().enumerate() {
+            stats.add_level(self.kind, li as u32 + 1, r.0, r.1);
+        }
+        for (depth, r) in rows[levels..].iter().enumerate() {
+            stats.add_object_level(self.kind, depth as u32, r.0, r.1);
+        }
+        Ok(())
+    }
+
+    /// Sorts and merges raw candidates and hands them on as one batch.
+    fn flush(
+        &self,
+        held: &mut Vec<GpuBuffer<GpuPair>>,
+        sink: &mut dyn FnMut(CandidateBatch<Wgpu>, &mut Stats) -> Result<()>,
+        stats: &mut Stats,
+    ) -> Result<()> {
+        if held.is_empty() {
+            return Ok(());
+        }
+        let ctx = self.ctx();
+        let raw = GpuBuffer::concat(ctx, "dual raw candidates", std::mem::take(held))?;
+        let n = raw.len();
+        ctx.check_storage_binding("dual raw candidates", raw.byte_len())?;
+        let keys = GpuBuffer::<u64>::zeroed(ctx, "dual candidate keys", n)?;
+        let params = Params {
+            n: n as u32,
+            ..self.base
+        };
+        let mut enc = encoder(ctx, "dual candidate keys");
+        self.tree.dispatch(
+            &mut enc,
+            self.k,
+            "cand_keys",
+            &params,
+            &Binds {
+                raw: Some(&raw),
+                keys: Some(&keys),
+                ..Binds::default()
+            },
+        )?;
+        submit(ctx, "dual candidate keys", enc)?;
+        let sorted = stable_radix_order(ctx, &keys, self.key_bits)?;
+        let heads = GpuBuffer::<u32>::zeroed(ctx, "dual candidate heads", n)?;
+        let total = GpuBuffer::<u32>::zeroed(ctx, "dual candidate total", 1)?;
+        let binds = Binds {
+            raw: Some(&raw),
+            keys: Some(&keys),
+            sorted: Some(&sorted),
+            n_cands: Some(&heads),
+            ..Binds::default()
+        };
+        let mut enc = encoder(ctx, "dual merge heads");
+        self.tree
+            .dispatch(&mut enc, self.k, "merge_heads", &params, &binds)?;
+        ctx.kernel(ScanKernel::new)?.encode_in_place(
+            ctx,
+            &mut enc,
+            &heads,
+            Some((total.buffer(), 0)),
+        )?;
+        submit(ctx, "dual merge heads", enc)?;
+        let unique = total.to_vec(ctx)?[0] as usize;
+        let cands = GpuBuffer::<crsh_core::Candidate>::zeroed(ctx, "dual candidates", unique)?;
+        let lanes = GpuBuffer::<u32>::zeroed(ctx, "dual candidate lanes", unique)?;
+        let mut enc = encoder(ctx, "dual merge");
+        self.tree.dispatch(
+            &mut enc,
+            self.k,
+            "merge_emit",
+            &params,
+            &Binds {
+                cands: Some(&cands),
+                lanes: Some(&lanes),
+                ..binds
+            },
+        )?;
+        submit(ctx, "dual merge", enc)?;
+        let batch = if self.tree.single_rays {
+            CandidateBatch::with_lanes(cands, lanes)
+        } else {
+            CandidateBatch::new(cands)
+        };
+        sink(batch, stats)
+    }
+
+    /// Traverses top nodes `t0 .. t1` (all of them unless abandoned).
+    fn chunk(
+        &self,
+        t0: usize,
+        t1: usize,
+        sink: &mut dyn FnMut(CandidateBatch<Wgpu>, &mut Stats) -> Result<()>,
+        stats: &mut Stats,
+    ) -> Result<Chunk> {
+        let ctx = self.ctx();
+        let budget = self.tree.budget_bytes;
+        let rows = (self.base.n_levels + self.base.n_depths) as usize;
+        let mut counters = GpuBuffer::<u32>::zeroed(ctx, "dual counters", 4 + 4 * rows)?;
+        let mut frontier = GpuBuffer::<GpuPair>::zeroed(ctx, "dual frontier", t1 - t0)?;
+        let mut enc = encoder(ctx, "dual seed");
+        self.tree.dispatch(
+            &mut enc,
+            self.k,
+            "seed",
+            &Params {
+                n: (t1 - t0) as u32,
+                first: t0 as u32,
+                ..self.base
+            },
+            &Binds {
+                pairs_out: Some(&frontier),
+                ..Binds::default()
+            },
+        )?;
+        submit(ctx, "dual seed", enc)?;
+        let mut held: Vec<GpuBuffer<GpuPair>> = Vec::new();
+        let mut held_len = 0u64;
+        let mut flushed = false;
+        let (mut peak, mut worst) = (0u64, 0u64);
+        let scan = ctx.kernel(ScanKernel::new)?;
+        while !frontier.is_empty() {
+            let n = frontier.len();
+            ctx.check_storage_binding("dual frontier", frontier.byte_len())?;
+            let outcome = GpuBuffer::<[u32; 2]>::zeroed(ctx, "dual outcome", n)?;
+            let n_children = GpuBuffer::<u32>::zeroed(ctx, "dual children", n)?;
+            let n_cands = GpuBuffer::<u32>::zeroed(ctx, "dual round candidates", n)?;
+            let totals = GpuBuffer::<u32>::zeroed(ctx, "dual totals", 2)?;
+            let params = Params {
+                n: n as u32,
+                ..self.base
+            };
+            let binds = Binds {
+                pairs_in: Some(&frontier),
+                outcome: Some(&outcome),
+                n_children: Some(&n_children),
+                n_cands: Some(&n_cands),
+                counters: Some(&counters),
+                ..self.binds()
+            };
+            let mut enc = encoder(ctx, "dual test pairs");
+            self.tree
+                .dispatch(&mut enc, self.k, "test_pairs", &params, &binds)?;
+            scan.encode_in_place(ctx, &mut enc, &n_children, Some((totals.buffer(), 0)))?;
+            scan.encode_in_place(ctx, &mut enc, &n_cands, Some((totals.buffer(), 4)))?;
+            submit(ctx, "dual test pairs", enc)?;
+            let t = totals.to_vec(ctx)?;
+            let (children, found) = (t[0] as u64, t[1] as u64);
+            let needed = (n as u64 + children) * PAIR_BYTES
+                + n as u64 * ROUND_BYTES
+                + (held_len + found) * PAIR_BYTES;
+            worst = worst.max(needed);
+            if needed > budget && t1 - t0 > 1 && !flushed {
+                self.record(&counters, stats)?;
+                return Ok(Chunk::Abandoned { needed });
+            }
+            peak = peak.max((n as u64 + children + held_len + found) * PAIR_BYTES);
+            let next = GpuBuffer::<GpuPair>::zeroed(ctx, "dual frontier", children as usize)?;
+            let raw = GpuBuffer::<GpuPair>::zeroed(ctx, "dual raw candidates", found as usize)?;
+            let mut enc = encoder(ctx, "dual emit pairs");
+            self.tree.dispatch(
+                &mut enc,
+                self.k,
+                "emit_pairs",
+                &params,
+                &Binds {
+                    pairs_out: Some(&next),
+                    raw: Some(&raw),
+                    ..binds
+                },
+            )?;
+            submit(ctx, "dual emit pairs", enc)?;
+            if found > 0 {
+                held.push(raw);
+                held_len += found;
+            }
+            frontier = next;
+            if held_len * PAIR_BYTES >= budget / 4 {
+                // Counted before the sink runs, as on the CPU.
+                self.record(&counters, stats)?;
+                counters = GpuBuffer::<u32>::zeroed(ctx, "dual counters", 4 + 4 * rows)?;
+                self.flush(&mut held, sink, stats)?;
+                held_len = 0;
+                flushed = true;
+            }
+        }
+        self.record(&counters, stats)?;
+        self.flush(&mut held, sink, stats)?;
+        Ok(Chunk::Done { peak, worst })
+    }
+}
+
+impl Traverser<Wgpu> for Dual {
+    fn name(&self) -> &str {
+        "dual"
+    }
+
+    fn traverse(
+        &self,
+        backend: &Wgpu,
+        rays: &GpuBuffer<Ray>,
+        kind: RayKind,
+        h: &RayHierarchy<Wgpu>,
+        sink: &mut dyn FnMut(CandidateBatch<Wgpu>, &mut Stats) -> Result<()>,
+        stats: &mut Stats,
+    ) -> Result<()> {
+        let tree = match &self.objects {
+            Objects::Meshes(crsh) => return crsh.traverse(backend, rays, kind, h, sink, stats),
+            Objects::Tree(t) => t,
+        };
+        let ctx = backend.context();
+        let n_rays = rays.len();
+        if n_rays == 0 {
+            return Ok(());
+        }
+        let sub = h.subdivision;
+        let level_lens: Vec<usize> = h.levels.iter().map(|l| l.len()).collect();
+        let reach_lens: Vec<usize> = h.reach.iter().map(|r| r.len()).collect();
+        crsh_cpu::traverse::crsh::check_shape(
+            n_rays,
+            sub,
+            h.order.len(),
+            &level_lens,
+            &reach_lens,
+            h.leaf_offsets.as_ref().map(|o| o.len()),
+        )?;
+        if let Some(offsets) = &h.leaf_offsets {
+            let host = offsets.to_vec(ctx)?;
+            crsh_core::check_leaf_offsets(&host, level_lens[0], n_rays)?;
+        }
+        if level_lens.len() > 0xfffe {
+            return Err(CoreError::InvalidInput(format!(
+                "{} hierarchy levels: the dual traversal takes fewer than 65535",
+                level_lens.len()
+            )));
+        }
+        let k = ctx.kernel(DualKernels::new)?;
+        let mut firsts = vec![0u32];
+        for len in &level_lens {
+            firsts.push(firsts.last().copied().unwrap_or(0) + *len as u32);
+        }
+        let total_nodes = *firsts.last().unwrap_or(&0) as usize;
+        let bounds = GpuBuffer::<BoundWords>::zeroed(ctx, "dual node bounds", total_nodes)?;
+        let boxes = GpuBuffer::<BoxWords>::zeroed(ctx, "dual node boxes", total_nodes)?;
+        ctx.check_storage_binding("dual node bounds", bounds.byte_len())?;
+        let level_first = GpuBuffer::from_slice(ctx, "dual level starts", &firsts)?;
+        let n_tris = tree.scene.triangle_count();
+        let b = tree.bounds;
+        let base = Params {
+            sub,
+            n_rays: n_rays as u32,
+            n_lowest: level_lens[0] as u32,
+            n_levels: level_lens.len() as u32,
+            has_offsets: u32::from(h.leaf_offsets.is_some()),
+            n_depths: tree.max_depth as u32 + 1,
+            box_test: u32::from(tree.box_test),
+            single_rays: u32::from(tree.single_rays),
+            root: tree.root.unwrap_or(0),
+            scene_lo: b.min.to_array(),
+            tri_bits: bits_for(n_tris),
+            scene_hi: b.max.to_array(),
+            ..Params::default()
+        };
+        let run = Run {
+            tree,
+            k: &k.kernel,
+            base,
+            rays,
+            order: &h.order,
+            offsets: h.leaf_offsets.as_ref(),
+            bounds,
+            boxes,
+            level_first,
+            kind,
+            key_bits: bits_for(level_lens[0]) + base.tri_bits,
+        };
+        // Bounds and boxes of every level.
+        let reports = GpuBuffer::<u32>::zeroed(ctx, "dual reports", 4)?;
+        let mut enc = encoder(ctx, "dual prepare");
+        for (li, level) in h.levels.iter().enumerate() {
+            let params = Params {
+                n: level.len() as u32,
+                first: firsts[li],
+                has_reach: u32::from(!h.reach.is_empty()),
+                ..base
+            };
+            let binds = Binds {
+                level_nodes: Some(level),
+                level_reach: h.reach.get(li),
+                counters: Some(&reports),
+                ..run.binds()
+            };
+            tree.dispatch(&mut enc, run.k, "prepare", &params, &binds)?;
+        }
+        let lowest = Params {
+            n: level_lens[0] as u32,
+            ..base
+        };
+        tree.dispatch(&mut enc, run.k, "lowest_boxes", &lowest, &run.binds())?;
+        for li in 1..level_lens.len() {
+            let params = Params {
+                n: level_lens[li] as u32,
+                first: firsts[li],
+                child_first: firsts[li - 1],
+                ..base
+            };
+            tree.dispatch(&mut enc, run.k, "upper_boxes", &params, &run.binds())?;
+        }
+        submit(ctx, "dual prepare", enc)?;
+        if reports.to_vec(ctx)?[0] != 0 {
+            return Err(CoreError::InvalidInput(
+                "hierarchy has a node with a non-finite or negative sphere or cone, or a zero \
+                 cone axis"
+                    .into(),
+            ));
+        }
+        if tree.root.is_none() {
+            return Ok(());
+        }
+        let n_top = *level_lens.last().expect("checked non-empty");
+        let budget = tree.budget_bytes;
+        let max_chunk = n_top.max(1);
+        let mut chunk = ((budget / FIRST_CHUNK_BYTES).max(1) as usize).min(max_chunk);
+        let mut peak_all = 0u64;
+        let mut t0 = 0usize;
+        while t0 < n_top {
+            let t1 = (t0 + chunk).min(n_top);
+            match run.chunk(t0, t1, sink, stats)? {
+                Chunk::Abandoned { needed } => {
+                    let scaled = ((t1 - t0) as f64 * budget as f64 / needed as f64) as usize;
+                    chunk = scaled.min((t1 - t0) / 2).max(1);
+                }
+                Chunk::Done { peak, worst } => {
+                    peak_all = peak_all.max(peak);
+                    if worst <= budget / 2 {
+                        chunk = (chunk * 2).min(max_chunk);
+                    }
+                    t0 = t1;
+                }
+            }
+        }
+        stats.peak_candidate_bytes = stats.peak_candidate_bytes.max(peak_all);
+        Ok(())
+    }
+}
