@@ -76,11 +76,21 @@ fn cpu_frame(
     (r.image, r.stats)
 }
 
-/// Every preset on `scene`: GPU vs CPU rays, agreement and image.
+/// Stage variants checked beyond the presets: (preset, settings).
+const GPU_VARIANTS: [(&str, &[&str]); 3] = [
+    ("crsh", &["traverse.kind=dual"]),
+    ("crsh", &["traverse.kind=dual", "traverse.objects=grid"]),
+    ("crsh", &["traverse.kind=dual", "traverse.objects=meshes"]),
+];
+
+/// Every preset on `scene`, and the variants of [`GPU_VARIANTS`]: GPU vs CPU rays, agreement
+/// and image.
 fn check_presets_agree(b: &Wgpu, scene: &Arc<Scene>, depth: u32) {
     let o = opts(depth);
-    for name in GPU_PRESETS {
-        let cfg = config(name, &[]);
+    let presets = GPU_PRESETS.iter().map(|&p| (p, &[][..]));
+    for (name, sets) in presets.chain(GPU_VARIANTS) {
+        let cfg = config(name, sets);
+        let name = format!("{name} {sets:?}");
         let (gpu_image, gpu) = gpu_frame(b, scene, &cfg, &o, "brute");
         let (cpu_image, cpu) = cpu_frame(scene, &cfg, &o);
         let acc = gpu.accuracy.clone().expect("reference given");
@@ -244,6 +254,7 @@ fn gpu_frames_of_the_animated_scene_agree_with_brute_force_on_every_frame() {
         ("bvh", &["intersect.update=refit"][..]),
         ("bvh", &["intersect.kind=grid"][..]),
         ("crsh", &[][..]),
+        ("crsh", &["traverse.kind=dual"][..]),
         ("rah", &[][..]),
     ] {
         let cfg = config(name, sets);

@@ -752,3 +752,127 @@ fn offsets_hierarchy_gives_the_brute_force_hits() {
         }
     }
 }
+
+/// Long loops: with 70,002 triangles, the only ones the rays can hit last, the whole-scene
+/// query and a candidate query whose nodes each hold every triangle find every hit and count
+/// what the CPU counts. (Mesa's lavapipe ends an invocation's loops after 65,535 iterations in
+/// all, silently; the GPU `brute` splits its sweeps into windows so that none is cut.)
+#[test]
+fn brute_reaches_triangles_beyond_65535_iterations() {
+    let Some(b) =
+        crsh_wgpu::testing::shared_backend("brute_reaches_triangles_beyond_65535_iterations")
+    else {
+        return;
+    };
+    let mut builder = crsh_scene::SceneBuilder::new("long");
+    let m = builder.material(crsh_scene::Material::default());
+    builder.camera(crsh_scene::Camera {
+        eye: Vec3::new(0.0, 0.0, 5.0),
+        target: Vec3::ZERO,
+        up: Vec3::Y,
+        vfov_deg: 45.0,
+        aspect: None,
+    });
+    // 70,000 small triangles off to the side, then a quad across the rays' path.
+    let n_far = 70_000u32;
+    let mut p = Vec::new();
+    let mut idx = Vec::new();
+    for i in 0..n_far {
+        let c = Vec3::new(10.0 + (i % 300) as f32 * 0.01, (i / 300) as f32 * 0.01, 0.0);
+        idx.push([p.len() as u32, p.len() as u32 + 1, p.len() as u32 + 2]);
+        p.extend([c, c + Vec3::X * 0.005, c + Vec3::Y * 0.005]);
+    }
+    builder.mesh("far", &p, None, &idx, m);
+    let quad = [
+        Vec3::new(-1.0, -1.0, 0.0),
+        Vec3::new(1.0, -1.0, 0.0),
+        Vec3::new(1.0, 1.0, 0.0),
+        Vec3::new(-1.0, 1.0, 0.0),
+    ];
+    builder.mesh("quad", &quad, None, &[[0, 1, 2], [0, 2, 3]], m);
+    let s = Arc::new(builder.build("long").unwrap());
+    let n_tris = s.triangle_count();
+    assert_eq!(n_tris, n_far as usize + 2);
+    let g = gpu_scene(&b, &s);
+    let gpu = BruteForce::new(&g, &brute_spec("mt")).unwrap();
+    let cpu = crsh_wgpu::testing::cpu_intersector(&StageSpec::new("brute"), &s);
+    let mut lcg = Lcg(5);
+    let rays: Vec<Ray> = (0..64)
+        .map(|i| {
+            let o = Vec3::new(lcg.unit() * 0.9, lcg.unit() * 0.9, 5.0);
+            Ray {
+                origin: o,
+                t_min: 0.0,
+                dir: -Vec3::Z,
+                t_max: f32::INFINITY,
+                throughput: Vec3::ONE,
+                kind: RayKind::Shadow as u32,
+                pixel: i,
+                light: 0,
+                depth: 1,
+                source: i,
+            }
+        })
+        .collect();
+    let buf = b.upload(&rays).unwrap();
+    // Eight nodes of eight rays, each paired with every triangle.
+    let nodes: Vec<crsh_core::SphereCone> = vec![bytemuck::Zeroable::zeroed(); 8];
+    let order: Vec<u32> = (0..64).collect();
+    let pairs: Vec<crsh_core::Candidate> = (0..8u32)
+        .flat_map(|node| (0..n_tris as u32).map(move |tri| crsh_core::Candidate { node, tri }))
+        .collect();
+    let h_cpu: RayHierarchy<Cpu> = RayHierarchy {
+        order: order.clone(),
+        levels: vec![nodes.clone()],
+        subdivision: 8,
+        leaf_offsets: None,
+        reach: Vec::new(),
+    };
+    let h_gpu: RayHierarchy<Wgpu> = RayHierarchy {
+        order: b.upload(&order).unwrap(),
+        levels: vec![b.upload(&nodes).unwrap()],
+        subdivision: 8,
+        leaf_offsets: None,
+        reach: Vec::new(),
+    };
+    for mode in [HitMode::Closest, HitMode::Any] {
+        for candidates in [false, true] {
+            let what = format!("{mode:?} candidates {candidates}");
+            let mut want = vec![Hit::MISS; rays.len()];
+            let mut cpu_stats = Stats::default();
+            let mut got = b.filled(rays.len(), Hit::MISS).unwrap();
+            let mut stats = Stats::default();
+            if candidates {
+                let cb = CandidateBatch::new(pairs.clone());
+                let q = Query::Candidates {
+                    hierarchy: &h_cpu,
+                    batch: &cb,
+                };
+                cpu.intersect(&Cpu, &rays, q, mode, &mut want, &mut cpu_stats)
+                    .unwrap();
+                let gb = CandidateBatch::new(b.upload(&pairs).unwrap());
+                let q = Query::Candidates {
+                    hierarchy: &h_gpu,
+                    batch: &gb,
+                };
+                gpu.intersect(&b, &buf, q, mode, &mut got, &mut stats)
+                    .unwrap();
+            } else {
+                cpu.intersect(&Cpu, &rays, Query::Scene, mode, &mut want, &mut cpu_stats)
+                    .unwrap();
+                gpu.intersect(&b, &buf, Query::Scene, mode, &mut got, &mut stats)
+                    .unwrap();
+            }
+            let got = b.download(&got).unwrap();
+            assert!(
+                want.iter().all(|h| h.tri >= n_far && h.is_hit()),
+                "{what}: CPU hits"
+            );
+            for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+                assert_eq!(g.tri, w.tri, "{what}: ray {i}");
+                assert_eq!(g.t, w.t, "{what}: ray {i}");
+            }
+            assert_eq!(stats.tests, cpu_stats.tests, "{what}");
+        }
+    }
+}

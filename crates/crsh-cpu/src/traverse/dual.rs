@@ -195,6 +195,14 @@
 //! tests per ray from 61,147 to 730. The object hierarchy's build is part of the stage's
 //! construction: about 27 ms for Sponza (stage builds 79 ms against `crsh`'s 53 ms).
 //!
+//! # The wgpu twin
+//!
+//! `crsh_wgpu::traverse::dual` uploads this module's object hierarchy ([`Lbvh::flat`]) and
+//! runs the same pair test and split rule breadth first on the device (one round per level
+//! of the pairs, stream compaction between rounds), with the candidates of a batch sorted and
+//! merged there; its module doc lists what differs (`f32` tests that keep what these keep,
+//! chunks of top nodes for the budget).
+//!
 //! # Errors
 //!
 //! As [`super::crsh`]: [`CoreError::InvalidParam`] for a budget that is not a finite positive
@@ -1908,6 +1916,43 @@ pub(crate) mod tests {
                     assert!(held, "{what}: triangle {t}, point {p}");
                 }
             }
+        }
+    }
+
+    /// The flat layout the wgpu twin uploads: from the root every node is reached once, the
+    /// leaves name the tree's triangles (grid entries included) and the bounds are the tree's.
+    #[test]
+    fn flat_layout_is_the_tree() {
+        let scene = Arc::new(crsh_scene::builtin::build("office-boxes").unwrap());
+        for tree in [
+            Lbvh::build(&scene).unwrap(),
+            Lbvh::build_grid(&scene, 1.0).unwrap(),
+        ] {
+            let (flat, root) = tree.flat();
+            assert_eq!(flat.len(), tree.inner.len() + tree.leaves.len());
+            let mut seen = vec![0u32; flat.len()];
+            let mut stack = vec![root.unwrap()];
+            let mut leaves = Vec::new();
+            while let Some(i) = stack.pop() {
+                seen[i as usize] += 1;
+                let n = &flat[i as usize];
+                match n.children {
+                    Some([a, b]) => {
+                        for c in [a, b] {
+                            let cb = &flat[c as usize].bx;
+                            assert!(n.bx.contains(cb.min) && n.bx.contains(cb.max));
+                        }
+                        stack.extend([a, b]);
+                    }
+                    None => leaves.push(n.triangle),
+                }
+            }
+            assert!(seen.iter().all(|&c| c == 1), "a node not reached once");
+            let mut want = tree.leaf_tris.clone();
+            want.sort_unstable();
+            leaves.sort_unstable();
+            assert_eq!(leaves, want);
+            assert_eq!(flat[root.unwrap() as usize].bx, tree.bounds());
         }
     }
 

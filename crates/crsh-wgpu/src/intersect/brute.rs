@@ -28,6 +28,17 @@
 //!   the pairs (`levels[0].len() + 1` entries on the host; 0 first, the ray count last,
 //!   non-decreasing) and a violation is a [`CoreError::InvalidInput`] naming it.
 //!
+//! - **Lane masks** ([`crsh_core::CandidateBatch::lanes`], sent by `dual` with single rays): a
+//!   pair tests only the rays of its node its mask names (the leaf's lane within its node); a
+//!   mask other than all lanes on a node of more than 32 rays, or a mask array of another
+//!   length than the pairs', is an error, as on the CPU; unsorted batches are sorted on the
+//!   host with their repeats merged into one pair for the union of their masks.
+//! - **Windows**: no invocation loops over more than [`SPAN`] triangles (whole-scene queries)
+//!   or pairs of its node (candidate queries) in one dispatch; longer sweeps are split into
+//!   windows, one dispatch each, merging into the hits the last one left, with the counts
+//!   adding up to the CPU's. Mesa's lavapipe silently ends an invocation's loops after 65,535
+//!   iterations in all, which cut every sweep past 65,536 triangles before.
+//!
 //! Rays are bound in chunks of one storage binding for whole-scene queries; candidate queries
 //! bind the whole ray buffer (a leaf may name any ray) and fail with
 //! [`crate::GpuError::TooLarge`] above the binding limit. Only the Möller-Trumbore test
@@ -54,6 +65,13 @@ use crate::scene::GpuScene;
 
 const SHADER: &str = include_str!("brute.wgsl");
 
+/// The most triangles (whole-scene queries) or pairs of one node (candidate queries) one
+/// invocation loops over in one dispatch: Mesa's lavapipe ends the loops of an invocation
+/// after 65,535 iterations in all (`LP_MAX_TGSI_LOOP_ITERATIONS`, shared by every loop of a
+/// shader), silently; a multiple of 256 (the workgroup's triangle tile) and of 8 (the CPU's
+/// test blocks, so the any-hit counts add up across windows).
+pub const SPAN: u32 = 32_768;
+
 /// Uniform block of `brute.wgsl`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
@@ -68,7 +86,8 @@ struct Params {
     n_nodes: u32,
     n_leaves: u32,
     has_lanes: u32,
-    pad: [u32; 2],
+    start: u32,
+    span: u32,
 }
 
 /// The compiled kernels (one per device).
@@ -147,45 +166,50 @@ impl BruteForce {
     ) -> Result<u64> {
         let ctx = self.scene.ctx();
         let k = self.kernels()?;
-        let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh brute counters", 6)?;
+        let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh brute counters", 8)?;
         let dummy = GpuBuffer::<u32>::zeroed(ctx, "crsh brute unused", 4)?;
-        dispatch_chunks::<Ray>(
-            ctx,
-            &k.kernel,
-            "crsh brute scene query",
-            "scene_query",
-            rays.len(),
-            |range| {
-                let params = Params {
-                    n: range.len() as u32,
-                    n_tris: self.n_tris,
-                    any_hit: u32::from(any_hit),
-                    n_pairs: 0,
-                    subdivision: 1,
-                    first: range.start as u32,
-                    has_offsets: 0,
-                    n_nodes: 0,
-                    n_leaves: 0,
-                    has_lanes: 0,
-                    pad: [0; 2],
-                };
-                let u = uniform(ctx, "crsh brute params", &params);
-                k.kernel.bind_group(
-                    ctx,
-                    &[
-                        u.as_entire_binding(),
-                        rays.slice_binding(range.clone()),
-                        self.tris.binding(),
-                        hits.slice_binding(range.clone()),
-                        counters.binding(),
-                        dummy.binding(),
-                        dummy.binding(),
-                        dummy.binding(),
-                        dummy.binding(),
-                    ],
-                )
-            },
-        )?;
+        // One dispatch per window of SPAN triangles (at least one: it also reports invalid
+        // rays), each merging into the hits the previous left.
+        for start in (0..self.n_tris.max(1)).step_by(SPAN as usize) {
+            dispatch_chunks::<Ray>(
+                ctx,
+                &k.kernel,
+                "crsh brute scene query",
+                "scene_query",
+                rays.len(),
+                |range| {
+                    let params = Params {
+                        n: range.len() as u32,
+                        n_tris: self.n_tris,
+                        any_hit: u32::from(any_hit),
+                        n_pairs: 0,
+                        subdivision: 1,
+                        first: range.start as u32,
+                        has_offsets: 0,
+                        n_nodes: 0,
+                        n_leaves: 0,
+                        has_lanes: 0,
+                        start,
+                        span: SPAN,
+                    };
+                    let u = uniform(ctx, "crsh brute params", &params);
+                    k.kernel.bind_group(
+                        ctx,
+                        &[
+                            u.as_entire_binding(),
+                            rays.slice_binding(range.clone()),
+                            self.tris.binding(),
+                            hits.slice_binding(range.clone()),
+                            counters.binding(),
+                            dummy.binding(),
+                            dummy.binding(),
+                            dummy.binding(),
+                            dummy.binding(),
+                        ],
+                    )
+                },
+            )?;
+        }
         let c = counters.to_vec(ctx)?;
         check_invalid(c[5])?;
         Ok(u64::from(c[0]) | (u64::from(c[1]) << 32))
@@ -216,7 +240,7 @@ impl BruteForce {
         if let Some(o) = offsets {
             ctx.check_storage_binding("hierarchy leaf offsets", o.byte_len())?;
         }
-        let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh brute counters", 6)?;
+        let counters = GpuBuffer::<u32>::zeroed(ctx, "crsh brute counters", 8)?;
         let dummy = GpuBuffer::<u32>::zeroed(ctx, "crsh brute unused", 4)?;
         // With offsets every leaf belongs to a node (the last offset is the ray count).
         let leaves = match offsets {
@@ -234,7 +258,8 @@ impl BruteForce {
             n_nodes: n_nodes as u32,
             n_leaves: order.len() as u32,
             has_lanes: u32::from(lanes.is_some()),
-            pad: [0; 2],
+            start: 0,
+            span: SPAN,
         };
         let bind = |p: &Params| {
             let u = uniform(ctx, "crsh brute params", p);
@@ -290,15 +315,26 @@ impl BruteForce {
         if flags[4] & 1 != 0 {
             return Ok(None);
         }
-        let bg = check_bg;
-        let mut enc = encoder(ctx, "crsh brute candidates");
-        {
-            let mut pass = ctx.compute_pass(&mut enc, "crsh brute candidates");
-            k.kernel
-                .dispatch(ctx, &mut pass, "candidates", &bg, leaves as u32)?;
-        }
-        submit(ctx, "crsh brute candidates", enc)?;
-        let c = counters.to_vec(ctx)?;
+        // Windows of SPAN pairs per node, until no node has pairs beyond the last window.
+        let mut bg = check_bg;
+        let mut start = 0u32;
+        let c = loop {
+            let mut enc = encoder(ctx, "crsh brute candidates");
+            {
+                let mut pass = ctx.compute_pass(&mut enc, "crsh brute candidates");
+                k.kernel
+                    .dispatch(ctx, &mut pass, "candidates", &bg, leaves as u32)?;
+            }
+            submit(ctx, "crsh brute candidates", enc)?;
+            let c = counters.to_vec(ctx)?;
+            if c[6] == 0 || start >= params.n_pairs {
+                break c;
+            }
+            ctx.queue()
+                .write_buffer(counters.buffer(), 6 * 4, bytemuck::bytes_of(&0u32));
+            start += SPAN;
+            bg = bind(&Params { start, ..params });
+        };
         check_invalid(c[5])?;
         Ok(Some((
             u64::from(c[0]) | (u64::from(c[1]) << 32),

@@ -20,15 +20,19 @@ struct Params {
     n_leaves: u32,
     // Candidate queries: 1 when `lanes` holds a mask per pair (bit k: the node's k-th ray).
     has_lanes: u32,
-    _b: u32,
-    _c: u32,
+    // The window of this dispatch: scene queries test triangles [start, min(start + span,
+    // n_tris)); candidate queries the pairs of each node from its start-th on, at most span
+    // (no invocation loops more than a span: lavapipe ends every loop of an invocation after
+    // 65535 iterations in all, see brute.rs).
+    start: u32,
+    span: u32,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> rays: array<Ray>;
 @group(0) @binding(2) var<storage, read> tris: array<MtTri>;
 @group(0) @binding(3) var<storage, read_write> hits: array<Hit>;
-// [tests lo, tests hi, found lo, found hi]
+// [tests lo, tests hi, found lo, found hi, check flags, first invalid ray, more pairs, 0]
 @group(0) @binding(4) var<storage, read_write> counters: array<atomic<u32>>;
 // Candidate queries: the hierarchy's order (leaf -> ray) and the sorted pairs.
 @group(0) @binding(5) var<storage, read> order: array<u32>;
@@ -83,7 +87,8 @@ fn scene_query(@builtin(global_invocation_id) gid: vec3<u32>,
         atomicStore(&wg_tests, 0u);
     }
     workgroupBarrier();
-    for (var base = 0u; base < p.n_tris; base += WG) {
+    let end = min(p.start + p.span, p.n_tris);
+    for (var base = p.start; base < end; base += WG) {
         if (p.any_hit != 0u) {
             if (lid == 0u) {
                 atomicStore(&live, 0u);
@@ -101,12 +106,12 @@ fn scene_query(@builtin(global_invocation_id) gid: vec3<u32>,
             }
         }
         workgroupBarrier();
-        if (base + lid < p.n_tris) {
+        if (base + lid < end) {
             tile[lid] = tris[base + lid];
         }
         workgroupBarrier();
         if (searching) {
-            let m = min(WG, p.n_tris - base);
+            let m = min(WG, end - base);
             for (var k = 0u; k < m; k++) {
                 let h = mt_hit(tile[k], o, d, d_len, t_min, t_max);
                 if (h.x < inf()) {
@@ -114,7 +119,7 @@ fn scene_query(@builtin(global_invocation_id) gid: vec3<u32>,
                     if (p.any_hit != 0u) {
                         best = Hit(h.x, tri, h.y, h.z);
                         searching = false;
-                        tests = min((tri / LANES + 1u) * LANES, p.n_tris);
+                        tests = min((tri / LANES + 1u) * LANES, p.n_tris) - p.start;
                         break;
                     } else if (closer_than(h.x, tri, best)) {
                         best = Hit(h.x, tri, h.y, h.z);
@@ -125,7 +130,7 @@ fn scene_query(@builtin(global_invocation_id) gid: vec3<u32>,
     }
     if (i < p.n) {
         if (was_active && (p.any_hit == 0u || searching)) {
-            tests = p.n_tris;
+            tests = end - p.start;
         }
         hits[i] = best;
     }
@@ -219,7 +224,10 @@ fn candidates(@builtin(global_invocation_id) gid: vec3<u32>,
             atomicMax(&counters[5], 0xffffffffu - ri);
         } else if (p.any_hit == 0u || best.tri == NO_HIT) {
             let lane = leaf - node_leaves(node).x;
-            for (var k = first_pair(node); k < p.n_pairs && pairs[k].node == node; k++) {
+            let first = first_pair(node) + p.start;
+            let limit = min(p.n_pairs, first + p.span);
+            var k = first;
+            for (; k < limit && pairs[k].node == node; k++) {
                 if (!for_lane(k, lane)) {
                     continue;
                 }
@@ -235,6 +243,11 @@ fn candidates(@builtin(global_invocation_id) gid: vec3<u32>,
                         best = Hit(h.x, tri, h.y, h.z);
                     }
                 }
+            }
+            if (k == limit && k < p.n_pairs && pairs[k].node == node
+                && (p.any_hit == 0u || best.tri == NO_HIT)) {
+                // The node has pairs beyond this window: the host dispatches the next.
+                atomicOr(&counters[6], 1u);
             }
             hits[ri] = best;
         }
