@@ -1958,3 +1958,25 @@ fn with_scenes(shipped: &str, scenes: &[&str]) -> String {
         &shipped[end..]
     )
 }
+
+/// The shipped dual-traversal plans validate with `--dry-run`: the CPU one and its wgpu twin
+/// (every cell on the wgpu backend, the same scenes, `dual` against `crsh` and `bvh`).
+#[test]
+fn dual_plans_validate() {
+    let dir = scratch("dual-plans");
+    for (plan, cells) in [("plans/dual.toml", 42), ("plans/dual-wgpu.toml", 27)] {
+        let path = repo_root().join(plan);
+        let shipped = std::fs::read_to_string(&path).unwrap();
+        assert!(shipped.contains("\"traverse.kind\" = \"dual\""), "{plan}");
+        if plan.contains("wgpu") {
+            assert!(shipped.contains("backends = [\"wgpu\"]"), "{plan}");
+        }
+        let o = crsh(
+            &dir,
+            &["ablate", "--plan", path.to_str().unwrap(), "--dry-run"],
+        );
+        assert_ok(&o);
+        let out = text(&o.stdout);
+        assert!(out.contains(&format!("{cells} cells")), "{plan}: {out}");
+    }
+}
