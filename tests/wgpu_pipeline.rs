@@ -198,14 +198,21 @@ fn gpu_frames_are_deterministic_and_timed() {
         return;
     };
     let scene = builtin("cornell-mirrors");
-    let cfg = config("crsh", &[]);
-    let (a, sa) = gpu_frame(&b, &scene, &cfg, &opts(2), "brute");
-    let (c, sc) = gpu_frame(&b, &scene, &cfg, &opts(2), "brute");
     let bits = |im: &[[f32; 4]]| im.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
-    assert!(bits(&a) == bits(&c), "two GPU frames differ");
-    assert_eq!(sa.tests, sc.tests);
-    assert_eq!(sa.rays, sc.rays);
-    assert_eq!(sa.levels, sc.levels);
+    // `dual` too: its rounds, sorts and merges, and its object-depth rows.
+    for sets in [&[][..], &["traverse.kind=dual"][..]] {
+        let cfg = config("crsh", sets);
+        let (a, sa) = gpu_frame(&b, &scene, &cfg, &opts(2), "brute");
+        let (c, sc) = gpu_frame(&b, &scene, &cfg, &opts(2), "brute");
+        assert!(bits(&a) == bits(&c), "{sets:?}: two GPU frames differ");
+        assert_eq!(sa.tests, sc.tests, "{sets:?}");
+        assert_eq!(sa.rays, sc.rays, "{sets:?}");
+        assert_eq!(sa.levels, sc.levels, "{sets:?}");
+        assert_eq!(sa.object_levels, sc.object_levels, "{sets:?}");
+        assert_eq!(sets.is_empty(), sa.object_levels.is_empty(), "{sets:?}");
+    }
+    let cfg = config("crsh", &[]);
+    let (_, sa) = gpu_frame(&b, &scene, &cfg, &opts(2), "brute");
     let keys = [
         "primary",
         "ray_creation",
