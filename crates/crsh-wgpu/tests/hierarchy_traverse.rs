@@ -512,6 +512,12 @@ fn dual_traversal_gives_the_brute_force_hits() {
                 );
                 if budget < 1.0 {
                     assert!(batches > 1, "{what}: one batch");
+                } else {
+                    let peak = gpu_stats.peak_candidate_bytes;
+                    assert!(
+                        peak > 0 && peak as f64 <= budget * 1024.0 * 1024.0,
+                        "{what}: peak {peak} bytes"
+                    );
                 }
                 let (gb, cb) = (gpu_stats.tests.bounds, cpu_stats.tests.bounds);
                 println!(

@@ -15,16 +15,16 @@
 //!    in one array); a non-finite or negative node is an error. `lowest_boxes` and
 //!    `upper_boxes`: every node's segment box (the union of its rays' segment boxes,
 //!    [`crsh_cpu::traverse::dual::segment_box`], then of its children's).
-//! 2. Per chunk of top-level ray nodes, the pairs (top node, object root) are the first
+//! 2. The pairs (top node, object root) of every top-level ray node are the first
 //!    frontier. Each round, `test_pairs` tests every pair of the frontier with the CPU task's
 //!    rules (box overlap, then `may_hit` against the object node's sphere; a single-ray pair
 //!    tests each live ray's segment against the object node's box), counts it in its ray
 //!    level's and object depth's rows, and decides what follows: nothing, a candidate, the
 //!    pair as single rays, the ray node's children or the object node's two children. The
 //!    children and candidate counts are scanned ([`crate::kernels::scan`]) and `emit_pairs`
-//!    writes the next frontier and the round's candidates. A chunk ends when its frontier is
-//!    empty.
-//! 3. A batch of candidates (a chunk's, or earlier when they fill a quarter of the budget) is
+//!    writes the next frontier and the round's candidates (and counts the tests). The
+//!    traversal ends when no frontier is left.
+//! 3. A batch of candidates (at the end, or earlier when they fill a quarter of the budget) is
 //!    sorted by `(node, triangle)` ([`crate::sort::radix::stable_radix_order`] on
 //!    `node << tri_bits | triangle`), and repeats (a triangle reached through several grid
 //!    cells) merged into one candidate for the union of their lane masks (`merge_heads`,
@@ -39,13 +39,16 @@
 //!   comparison evaluated in `f32`: where it comes out differently from the CPU's the pairs
 //!   take another path down both trees. The candidates then differ slightly, and so do the
 //!   counts; the hits do not (the tests compare them with the CPU's and brute force's).
-//! - Memory: the CPU runs depth-first tasks in rounds. Here the frontier of a chunk of top
-//!   nodes grows and shrinks breadth first: a round that would hold more than the budget
-//!   (frontier in and out, candidates held, the round's per-pair arrays) abandons its chunk
-//!   if no batch of it has been handed on yet, and the chunk is retried at half the size (the
-//!   abandoned rounds' tests still count: they were done); a single top node proceeds
-//!   whatever its size. Chunks double again while they stay under half the budget.
-//!   `peak_candidate_bytes` counts the pairs alive at once (frontiers and candidates).
+//! - Memory: the CPU runs depth-first tasks in rounds. Here the frontier grows and shrinks
+//!   breadth first: a round that would hold more than the budget (frontier in and out,
+//!   candidates held, the round's per-pair arrays) is not emitted; its frontier is split in
+//!   halves, the second set aside, and the first tested again (a half of one pair proceeds
+//!   whatever its size). Halves set aside are taken up last in, first out, so the traversal
+//!   goes depth first over them and no test is done twice: the emit pass counts, once per
+//!   pair. `peak_candidate_bytes` counts the pairs alive at once: frontiers, halves set aside
+//!   and candidates held; the halves set aside come on top of the budget. Measured with the
+//!   default 64 MiB on lavapipe: no split on Sponza and the dining room at 512 px; two
+//!   splits, one half set aside at a time and a peak of 55 MB on Sponza at 1024 px.
 
 use std::sync::Arc;
 
@@ -70,8 +73,6 @@ const SHADER: &str = include_str!("dual.wgsl");
 const PAIR_BYTES: u64 = std::mem::size_of::<GpuPair>() as u64;
 /// Bytes per frontier pair of a round's per-pair arrays (outcome, children, candidates).
 const ROUND_BYTES: u64 = 16;
-/// Top nodes per chunk at first: the budget over this many bytes.
-const FIRST_CHUNK_BYTES: u64 = 2 * PAIR_BYTES * 256;
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
@@ -296,12 +297,6 @@ struct Run<'a> {
     key_bits: u32,
 }
 
-/// What a chunk of top nodes did.
-enum Chunk {
-    Done { peak: u64, worst: u64 },
-    Abandoned { needed: u64 },
-}
-
 impl Tree {
     fn bind(&self, k: &Kernel, params: &Params, b: &Binds<'_>) -> GpuResult<wgpu::BindGroup> {
         let ctx = self.scene.ctx();
@@ -382,7 +377,7 @@ impl Run<'_> {
         }
     }
 
-    /// Reads a chunk's row counters into `stats` (bounds, ray-level rows, object-depth rows).
+    /// Reads row counters into `stats` (bounds, ray-level rows, object-depth rows).
     fn record(&self, counters: &GpuBuffer<u32>, stats: &mut Stats) -> Result<()> {
         let c = counters.to_vec(self.ctx())?;
         let word = |i: usize| u64::from(c[i]) | (u64::from(c[i + 1]) << 32);
@@ -476,108 +471,132 @@ impl Run<'_> {
         sink(batch, stats)
     }
 
-    /// Traverses top nodes `t0 .. t1` (all of them unless abandoned).
-    fn chunk(
+    /// The two halves of `frontier`, copied into new buffers.
+    fn halves(
         &self,
-        t0: usize,
-        t1: usize,
+        frontier: GpuBuffer<GpuPair>,
+    ) -> Result<(GpuBuffer<GpuPair>, GpuBuffer<GpuPair>)> {
+        let ctx = self.ctx();
+        let n = frontier.len();
+        let a = GpuBuffer::<GpuPair>::zeroed(ctx, "dual frontier", n / 2)?;
+        let b = GpuBuffer::<GpuPair>::zeroed(ctx, "dual frontier", n - n / 2)?;
+        let mut enc = encoder(ctx, "dual split frontier");
+        enc.copy_buffer_to_buffer(frontier.buffer(), 0, a.buffer(), 0, a.byte_len());
+        enc.copy_buffer_to_buffer(frontier.buffer(), a.byte_len(), b.buffer(), 0, b.byte_len());
+        submit(ctx, "dual split frontier", enc)?;
+        Ok((a, b))
+    }
+
+    /// Traverses from every top node; returns the most bytes of pairs alive at once.
+    fn traverse_all(
+        &self,
+        n_top: usize,
         sink: &mut dyn FnMut(CandidateBatch<Wgpu>, &mut Stats) -> Result<()>,
         stats: &mut Stats,
-    ) -> Result<Chunk> {
+    ) -> Result<u64> {
         let ctx = self.ctx();
         let budget = self.tree.budget_bytes;
         let rows = (self.base.n_levels + self.base.n_depths) as usize;
         let mut counters = GpuBuffer::<u32>::zeroed(ctx, "dual counters", 4 + 4 * rows)?;
-        let mut frontier = GpuBuffer::<GpuPair>::zeroed(ctx, "dual frontier", t1 - t0)?;
+        let seed = GpuBuffer::<GpuPair>::zeroed(ctx, "dual frontier", n_top)?;
         let mut enc = encoder(ctx, "dual seed");
         self.tree.dispatch(
             &mut enc,
             self.k,
             "seed",
             &Params {
-                n: (t1 - t0) as u32,
-                first: t0 as u32,
+                n: n_top as u32,
+                first: 0,
                 ..self.base
             },
             &Binds {
-                pairs_out: Some(&frontier),
+                pairs_out: Some(&seed),
                 ..Binds::default()
             },
         )?;
         submit(ctx, "dual seed", enc)?;
+        // Frontiers waiting for their turn (halves split off), last in first out.
+        let mut pending: Vec<GpuBuffer<GpuPair>> = vec![seed];
+        let mut pending_len = n_top as u64;
         let mut held: Vec<GpuBuffer<GpuPair>> = Vec::new();
         let mut held_len = 0u64;
-        let mut flushed = false;
-        let (mut peak, mut worst) = (0u64, 0u64);
+        let mut peak = 0u64;
         let scan = ctx.kernel(ScanKernel::new)?;
-        while !frontier.is_empty() {
-            let n = frontier.len();
-            ctx.check_storage_binding("dual frontier", frontier.byte_len())?;
-            let outcome = GpuBuffer::<[u32; 2]>::zeroed(ctx, "dual outcome", n)?;
-            let n_children = GpuBuffer::<u32>::zeroed(ctx, "dual children", n)?;
-            let n_cands = GpuBuffer::<u32>::zeroed(ctx, "dual round candidates", n)?;
-            let totals = GpuBuffer::<u32>::zeroed(ctx, "dual totals", 2)?;
-            let params = Params {
-                n: n as u32,
-                ..self.base
-            };
-            let binds = Binds {
-                pairs_in: Some(&frontier),
-                outcome: Some(&outcome),
-                n_children: Some(&n_children),
-                n_cands: Some(&n_cands),
-                counters: Some(&counters),
-                ..self.binds()
-            };
-            let mut enc = encoder(ctx, "dual test pairs");
-            self.tree
-                .dispatch(&mut enc, self.k, "test_pairs", &params, &binds)?;
-            scan.encode_in_place(ctx, &mut enc, &n_children, Some((totals.buffer(), 0)))?;
-            scan.encode_in_place(ctx, &mut enc, &n_cands, Some((totals.buffer(), 4)))?;
-            submit(ctx, "dual test pairs", enc)?;
-            let t = totals.to_vec(ctx)?;
-            let (children, found) = (t[0] as u64, t[1] as u64);
-            let needed = (n as u64 + children) * PAIR_BYTES
-                + n as u64 * ROUND_BYTES
-                + (held_len + found) * PAIR_BYTES;
-            worst = worst.max(needed);
-            if needed > budget && t1 - t0 > 1 && !flushed {
-                self.record(&counters, stats)?;
-                return Ok(Chunk::Abandoned { needed });
-            }
-            peak = peak.max((n as u64 + children + held_len + found) * PAIR_BYTES);
-            let next = GpuBuffer::<GpuPair>::zeroed(ctx, "dual frontier", children as usize)?;
-            let raw = GpuBuffer::<GpuPair>::zeroed(ctx, "dual raw candidates", found as usize)?;
-            let mut enc = encoder(ctx, "dual emit pairs");
-            self.tree.dispatch(
-                &mut enc,
-                self.k,
-                "emit_pairs",
-                &params,
-                &Binds {
-                    pairs_out: Some(&next),
-                    raw: Some(&raw),
-                    ..binds
-                },
-            )?;
-            submit(ctx, "dual emit pairs", enc)?;
-            if found > 0 {
-                held.push(raw);
-                held_len += found;
-            }
-            frontier = next;
-            if held_len * PAIR_BYTES >= budget / 4 {
-                // Counted before the sink runs, as on the CPU.
-                self.record(&counters, stats)?;
-                counters = GpuBuffer::<u32>::zeroed(ctx, "dual counters", 4 + 4 * rows)?;
-                self.flush(&mut held, sink, stats)?;
-                held_len = 0;
-                flushed = true;
+        while let Some(mut frontier) = pending.pop() {
+            pending_len -= frontier.len() as u64;
+            while !frontier.is_empty() {
+                let n = frontier.len();
+                ctx.check_storage_binding("dual frontier", frontier.byte_len())?;
+                let outcome = GpuBuffer::<[u32; 2]>::zeroed(ctx, "dual outcome", n)?;
+                let n_children = GpuBuffer::<u32>::zeroed(ctx, "dual children", n)?;
+                let n_cands = GpuBuffer::<u32>::zeroed(ctx, "dual round candidates", n)?;
+                let totals = GpuBuffer::<u32>::zeroed(ctx, "dual totals", 2)?;
+                let params = Params {
+                    n: n as u32,
+                    ..self.base
+                };
+                let binds = Binds {
+                    pairs_in: Some(&frontier),
+                    outcome: Some(&outcome),
+                    n_children: Some(&n_children),
+                    n_cands: Some(&n_cands),
+                    counters: Some(&counters),
+                    ..self.binds()
+                };
+                let mut enc = encoder(ctx, "dual test pairs");
+                self.tree
+                    .dispatch(&mut enc, self.k, "test_pairs", &params, &binds)?;
+                scan.encode_in_place(ctx, &mut enc, &n_children, Some((totals.buffer(), 0)))?;
+                scan.encode_in_place(ctx, &mut enc, &n_cands, Some((totals.buffer(), 4)))?;
+                submit(ctx, "dual test pairs", enc)?;
+                let t = totals.to_vec(ctx)?;
+                let (children, found) = (t[0] as u64, t[1] as u64);
+                let needed = (n as u64 + children) * PAIR_BYTES
+                    + n as u64 * ROUND_BYTES
+                    + (held_len + found) * PAIR_BYTES;
+                if needed > budget && n > 1 {
+                    // Too big for the budget: test the halves one after the other (nothing
+                    // was counted yet: the emit pass counts).
+                    let (a, b) = self.halves(frontier)?;
+                    pending_len += b.len() as u64;
+                    pending.push(b);
+                    frontier = a;
+                    continue;
+                }
+                peak =
+                    peak.max((n as u64 + children + held_len + found + pending_len) * PAIR_BYTES);
+                let next = GpuBuffer::<GpuPair>::zeroed(ctx, "dual frontier", children as usize)?;
+                let raw = GpuBuffer::<GpuPair>::zeroed(ctx, "dual raw candidates", found as usize)?;
+                let mut enc = encoder(ctx, "dual emit pairs");
+                self.tree.dispatch(
+                    &mut enc,
+                    self.k,
+                    "emit_pairs",
+                    &params,
+                    &Binds {
+                        pairs_out: Some(&next),
+                        raw: Some(&raw),
+                        ..binds
+                    },
+                )?;
+                submit(ctx, "dual emit pairs", enc)?;
+                if found > 0 {
+                    held.push(raw);
+                    held_len += found;
+                }
+                frontier = next;
+                if held_len * PAIR_BYTES >= budget / 4 {
+                    // Counted before the sink runs, as on the CPU.
+                    self.record(&counters, stats)?;
+                    counters = GpuBuffer::<u32>::zeroed(ctx, "dual counters", 4 + 4 * rows)?;
+                    self.flush(&mut held, sink, stats)?;
+                    held_len = 0;
+                }
             }
         }
         self.record(&counters, stats)?;
         self.flush(&mut held, sink, stats)?;
-        Ok(Chunk::Done { peak, worst })
+        Ok(peak)
     }
 }
 
@@ -709,27 +728,7 @@ impl Traverser<Wgpu> for Dual {
             return Ok(());
         }
         let n_top = *level_lens.last().expect("checked non-empty");
-        let budget = tree.budget_bytes;
-        let max_chunk = n_top.max(1);
-        let mut chunk = ((budget / FIRST_CHUNK_BYTES).max(1) as usize).min(max_chunk);
-        let mut peak_all = 0u64;
-        let mut t0 = 0usize;
-        while t0 < n_top {
-            let t1 = (t0 + chunk).min(n_top);
-            match run.chunk(t0, t1, sink, stats)? {
-                Chunk::Abandoned { needed } => {
-                    let scaled = ((t1 - t0) as f64 * budget as f64 / needed as f64) as usize;
-                    chunk = scaled.min((t1 - t0) / 2).max(1);
-                }
-                Chunk::Done { peak, worst } => {
-                    peak_all = peak_all.max(peak);
-                    if worst <= budget / 2 {
-                        chunk = (chunk * 2).min(max_chunk);
-                    }
-                    t0 = t1;
-                }
-            }
-        }
+        let peak_all = run.traverse_all(n_top, sink, stats)?;
         stats.peak_candidate_bytes = stats.peak_candidate_bytes.max(peak_all);
         Ok(())
     }

@@ -116,9 +116,9 @@ fn node_leaves(n: u32) -> vec2<u32> {
 }
 
 // crsh_cpu's dual::clip in f32: [t0, t1] of a valid ray's interval within box [lo, hi], with
-// the slab distances widened by a relative 1e-5 (f32 rounding of the subtraction, the division
-// and the product, a few ulps, against the CPU's f64 and 1e-9), so it contains the CPU's.
-// t0 > t1 when empty.
+// the slab distances widened by a relative 1e-6, so it contains the CPU's: (lo − o)·(1/d) is
+// off by at most 7u relative (u = 2⁻²⁴: the subtraction and the product u each, WGSL's
+// reciprocal 2.5 ulp), 4.2e-7, and the CPU's own widening is 1e-9. t0 > t1 when empty.
 fn clip(o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32, lo: vec3<f32>, hi: vec3<f32>) -> vec2<f32> {
     var t0 = t_min;
     var t1 = t_max;
@@ -134,8 +134,8 @@ fn clip(o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32, lo: vec3<f32>, hi: v
         let c = (hi[axis] - o[axis]) * inv;
         let near = min(a, c);
         let far = max(a, c);
-        t0 = max(t0, near - 1e-5 * abs(near));
-        t1 = min(t1, far + 1e-5 * abs(far));
+        t0 = max(t0, near - 1e-6 * abs(near));
+        t1 = min(t1, far + 1e-6 * abs(far));
     }
     if (t0 <= t1) {
         return vec2<f32>(t0, t1);
@@ -144,8 +144,10 @@ fn clip(o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32, lo: vec3<f32>, hi: v
 }
 
 // crsh_cpu's dual::segment_box in f32: the end points of the ray's interval (clipped to the
-// scene's box when unbounded), padded by 8ε of the magnitudes they are computed from plus an
-// absolute 1e-8·max(1, |p|∞), which covers the CPU's f64 points and their 1e-9 padding.
+// scene's box when unbounded), padded by 4ε·(|o| + |d|·|t|) + 2e-9·max(1, |p|∞), twice what
+// covers the CPU's box: the point o + d·t is off by at most 2u·(|o| + |d·t|) (u = ε/2, with or
+// without a fused multiply-add), the CPU's exact point rounded outwards to f32 by at most
+// 2u·|p|, and the CPU pads by 1e-9 of the scale.
 fn segment_box(r: Ray) -> RBox {
     if (!ray_valid(r)) {
         return RBox(vec3<f32>(-inf()), 0u, vec3<f32>(inf()), 0u);
@@ -169,7 +171,7 @@ fn segment_box(r: Ray) -> RBox {
     let hi = max(p0, p1);
     let mag = abs(o) + abs(d) * max(abs(t.x), abs(t.y));
     let scale = max(1.0, max(max_abs3(lo), max_abs3(hi)));
-    let pad = 8.0 * EPS * mag + vec3<f32>(1e-8 * scale);
+    let pad = 4.0 * EPS * mag + vec3<f32>(2e-9 * scale);
     return RBox(lo - pad, 0u, hi + pad, 0u);
 }
 
@@ -246,8 +248,10 @@ fn seed(@builtin(global_invocation_id) gid: vec3<u32>,
     pairs_out[i] = Pair(p.first + i, p.root, 0u, p.n_levels - 1u);
 }
 
-// crsh_cpu's dual Task::run for one pair: the test, its counts, and what follows from it.
-// Returns (code, live mask); a candidate's mask is its lanes.
+// crsh_cpu's dual Task::run for one pair: the test and what follows from it. Returns (code,
+// live mask); a candidate's mask is its lanes, a single-ray pair's the rays that passed.
+// (Counted by emit_pairs, which runs once per tested frontier: a frontier too big for the
+// budget is tested again in halves.)
 fn test_pair(q: Pair) -> vec2<u32> {
     let level = q.info & 0xffffu;
     let depth = q.info >> 16u;
@@ -267,10 +271,6 @@ fn test_pair(q: Pair) -> vec2<u32> {
                 live = live | (1u << i);
             }
         }
-        let tested = countOneBits(q.mask);
-        let passed = countOneBits(live);
-        count_row(0u, tested, passed);
-        count_row(p.n_levels + depth, tested, passed);
         if (live == 0u) {
             return vec2<u32>(DROP, 0u);
         }
@@ -289,9 +289,6 @@ fn test_pair(q: Pair) -> vec2<u32> {
     if (ok && !may_hit(nb, o.sphere)) {
         ok = false;
     }
-    let passed = select(0u, 1u, ok);
-    count_row(level, 1u, passed);
-    count_row(p.n_levels + depth, 1u, passed);
     if (!ok) {
         return vec2<u32>(DROP, 0u);
     }
@@ -364,6 +361,18 @@ fn emit_pairs(@builtin(global_invocation_id) gid: vec3<u32>,
     let at = n_children[k];
     let level = q.info & 0xffffu;
     let depth = q.info >> 16u;
+    // The test's counts, in its ray level's row (a single-ray pair: each ray tested, in the
+    // lowest level's) and its object depth's.
+    if (level == SINGLE) {
+        let tested = countOneBits(q.mask);
+        let passed = countOneBits(r.y);
+        count_row(0u, tested, passed);
+        count_row(p.n_levels + depth, tested, passed);
+    } else {
+        let passed = select(1u, 0u, r.x == DROP);
+        count_row(level, 1u, passed);
+        count_row(p.n_levels + depth, 1u, passed);
+    }
     switch (r.x) {
         case 1u: {
             raw[n_cands[k]] = Pair(q.node, objs[q.obj].a, r.y, 0u);
