@@ -619,3 +619,153 @@ fn dual_traversal_refuses_bad_hierarchies() {
     )
     .unwrap();
 }
+
+/// The `f32` node test of the GPU traversals keeps every pair the CPU's `f64` test keeps, on
+/// pairs placed at its boundary: for each triangle sphere of a scene, nodes whose cone axis
+/// makes exactly the angle α + β with the direction to the sphere (β = asin(ρ / D), ρ the
+/// CPU's margin-widened radius sum), give or take 1e-7 to 1e-3 rad, with half-angles from
+/// 1e-5 rad to nearly π, distances from just above ρ to 2000 and centres far from the origin;
+/// and nodes whose sphere almost reaches the triangle's (D = ρ·(1 ± 1e-6)), some behind their
+/// apex. A one-level hierarchy without mesh culling makes the candidates exactly the pairs
+/// that pass. The GPU may keep a few more, not many.
+#[test]
+fn gpu_node_test_keeps_every_pair_the_cpu_keeps_at_the_boundary() {
+    use crsh_core::glam::{DVec3, Vec3};
+    use crsh_core::{Candidate, Cone, Sphere, SphereCone, Traverser};
+    let Some(b) = crsh_wgpu::testing::shared_backend(
+        "gpu_node_test_keeps_every_pair_the_cpu_keeps_at_the_boundary",
+    ) else {
+        return;
+    };
+    let s = scene("office-boxes");
+    let g = GpuScene::new(&b, &s).unwrap();
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut unit = move || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut nodes: Vec<SphereCone> = Vec::new();
+    let tris = &s.tri_spheres;
+    for k in 0..3000 {
+        let t = &tris[(k * 7919) % tris.len()];
+        let p = t.center.as_dvec3();
+        // A random direction from the sphere to the node's centre, at distance d.
+        let dir = DVec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5).normalize();
+        let r = [0.0, 0.01, 0.3][k % 3] * unit();
+        let half = [1e-5, 1e-3, 0.05, 0.7, 1.5, 2.5, 3.0][k % 7] as f32;
+        let alpha = half as f64 + 1e-4;
+        let d_far = [2.0, 30.0, 2000.0][(k / 7) % 3] * (0.5 + unit());
+        let c0 = p + dir * d_far;
+        let scale = |c: DVec3| c.abs().max_element().max(p.abs().max_element()).max(1.0);
+        let rho = (t.radius as f64 + r) * (1.0 + 1e-4) + 1e-5 * scale(c0);
+        let (c, d) = if k % 11 == 0 {
+            // The node's sphere almost reaching the triangle's.
+            let d = rho * (1.0 + [-1e-6, 1e-6, 3e-6][k % 3]);
+            (p + dir * d, d)
+        } else {
+            (c0, d_far)
+        };
+        let v = (p - c).normalize();
+        let beta = (rho / d).min(1.0).asin();
+        let delta = [1e-7, 1e-6, 1e-5, 1e-3][k % 4] * if k % 2 == 0 { 1.0 } else { -1.0 };
+        let phi = (alpha + beta + delta).clamp(0.0, std::f64::consts::PI);
+        // An axis at angle phi from v.
+        let w = v
+            .cross(DVec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5))
+            .normalize();
+        let axis = v * phi.cos() + w * phi.sin();
+        nodes.push(SphereCone {
+            sphere: Sphere {
+                center: c.as_vec3(),
+                radius: r as f32,
+            },
+            cone: Cone {
+                axis: axis.as_vec3(),
+                half_angle: half,
+            },
+        });
+    }
+    let n = nodes.len();
+    let order: Vec<u32> = (0..n as u32).collect();
+    let cpu_h: RayHierarchy<Cpu> = RayHierarchy {
+        order: order.clone(),
+        levels: vec![nodes.clone()],
+        subdivision: 1,
+        leaf_offsets: None,
+        reach: Vec::new(),
+    };
+    let gpu_h: RayHierarchy<Wgpu> = RayHierarchy {
+        order: b.upload(&order).unwrap(),
+        levels: vec![b.upload(&nodes).unwrap()],
+        subdivision: 1,
+        leaf_offsets: None,
+        reach: Vec::new(),
+    };
+    // The traversal reads no ray; the hierarchy's shape needs one per leaf.
+    let ray = Ray {
+        origin: Vec3::ZERO,
+        t_min: 0.0,
+        dir: Vec3::X,
+        t_max: 1.0,
+        throughput: Vec3::ONE,
+        kind: RayKind::Shadow as u32,
+        pixel: 0,
+        light: 0,
+        depth: 1,
+        source: 0,
+    };
+    let rays = vec![ray; n];
+    let spec = traverse_spec(false, 64.0);
+    let cpu = crsh_cpu::traverse::crsh::Crsh::new(&s, &spec).unwrap();
+    let mut want: Vec<Candidate> = Vec::new();
+    cpu.traverse(
+        &Cpu,
+        &rays,
+        RayKind::Shadow,
+        &cpu_h,
+        &mut |batch, _| {
+            want.extend(batch.pairs);
+            Ok(())
+        },
+        &mut Stats::default(),
+    )
+    .unwrap();
+    let gpu = crsh_wgpu::traverse::crsh::Crsh::new(&g, &spec).unwrap();
+    let mut got: Vec<Candidate> = Vec::new();
+    gpu.traverse(
+        &b,
+        &b.upload(&rays).unwrap(),
+        RayKind::Shadow,
+        &gpu_h,
+        &mut |batch, _| {
+            got.extend(b.download(&batch.pairs).unwrap());
+            Ok(())
+        },
+        &mut Stats::default(),
+    )
+    .unwrap();
+    let have: std::collections::HashSet<Candidate> = got.iter().copied().collect();
+    let missing: Vec<&Candidate> = want.iter().filter(|c| !have.contains(c)).collect();
+    println!(
+        "{n} nodes × {} triangles: CPU keeps {}, GPU {}",
+        tris.len(),
+        want.len(),
+        got.len()
+    );
+    assert!(
+        missing.is_empty(),
+        "{} pairs the CPU keeps are culled on the GPU, e.g. {:?}",
+        missing.len(),
+        &missing[..missing.len().min(5)]
+    );
+    // Pairs placed just inside and just outside: the GPU passes at most a few more.
+    assert!(want.len() > n / 4, "too few pairs at the boundary pass");
+    assert!(
+        got.len() as f64 <= want.len() as f64 * 1.01 + 10.0,
+        "GPU keeps {} pairs, CPU {}",
+        got.len(),
+        want.len()
+    );
+}

@@ -26,12 +26,15 @@
 //! direction passes).
 //!
 //! What differs: the node-sphere test runs in `f32` (the CPU's in `f64`) with the CPU's
-//! margins plus an acceptance that bounds the test's own rounding (the radicand of
-//! `√(D² − ρ²)` off by at most `8ε(D² + ρ²)`, the products and sums by a few `ε`), with `sin`
-//! and `cos` from `kernels/trig.wgsl` (WGSL's may be off by 2⁻¹¹), so the device keeps every
-//! pair the CPU keeps and a few more (a superset of the CPU's candidates, which the tests
-//! check, and never a missed intersection); level counts are therefore close to the CPU's,
-//! not equal. `peak_candidate_bytes` counts the
+//! margins plus an acceptance that bounds the test's own rounding, with `sin` and `cos` from
+//! `kernels/trig.wgsl` (WGSL's may be off by 2⁻¹¹), so the device keeps every pair the CPU
+//! keeps and a few more (a superset of the CPU's candidates, which the tests check, also on
+//! pairs placed at the test's boundary, and never a missed intersection). The cone condition
+//! is evaluated as the distance of the sphere's centre from the cone (`node_bound.wgsl`:
+//! `D·sin(θ − α) ≤ ρ` in front of the apex, from `a·v` and `|a × v|`), which stays
+//! well-conditioned for narrow cones where the CPU's form, a difference of two near-equal
+//! lengths, would need a slack as wide as a shadow node's cone in `f32`. Level counts are
+//! close to the CPU's, not equal. `peak_candidate_bytes` counts the
 //! input and output pair arrays of a level (the device needs no final concatenation); the
 //! survivor flags (4 bytes per tested pair) come on top and must fit one storage binding.
 

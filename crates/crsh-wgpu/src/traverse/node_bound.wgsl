@@ -94,25 +94,29 @@ fn may_hit(b: Bound, sphere: vec4<f32>) -> bool {
         return true;
     }
     let rho2 = rho * rho;
-    if (d2 <= rho2) {
+    // D ≤ ρ: the CPU's d2 ≤ ρ² in f64; both sides here within a few ε.
+    if (d2 <= rho2 * (1.0 + 16.0 * EPS)) {
         return true;
     }
     if (b.cos_a < 0.0 && rho2 >= d2 * b.sin_a * b.sin_a * (1.0 - F32_SLACK)) {
         return true;
     }
-    // a·v ≥ cos α·√(D² − ρ²) − sin α·ρ, accepting the worst rounding of both sides: the
-    // radicand is off by at most e = 8ε(D² + ρ²), so its root by min(√e, e / (2√(D² − ρ²)));
-    // the products and sums by a few ε of their magnitudes.
-    let dist = sqrt(d2);
-    let s2 = max(d2 - rho2, 0.0);
-    let s = sqrt(s2);
-    let e = 8.0 * EPS * (d2 + rho2);
-    var root_err = sqrt(e);
-    if (s > 0.0) {
-        root_err = min(root_err, e / (2.0 * s));
-    }
-    let slack = abs(b.cos_a) * root_err + 16.0 * EPS * (dist + rho) + 4e-7 * (s + rho);
-    return dot(b.axis, v) >= b.cos_a * s - b.sin_a * rho - slack;
+    // The CPU's a·v ≥ cos α·√(D² − ρ²) − sin α·ρ is θ ≤ α + β (θ the angle between the axis
+    // and v, sin β = ρ/D). Here it is the distance of the sphere's centre from the cone: with
+    // x = a·v, y = |a × v|, E = y cos α − x sin α = D sin(θ − α) and F = x cos α + y sin α =
+    // D cos(θ − α), pass when E ≤ 0 (inside the cone) or when E ≤ ρ and F ≥ 0 (within ρ of its
+    // surface, in front of its apex). The difference of two near-equal lengths above cancels
+    // for narrow cones (its rounding, a few ε·D, spans an angle of ε·D / (D·sin(α + β)), as
+    // wide as the cone of a shadow node); E and F do not. Each is off by at most about
+    // 16.5ε·D + 1.4·D·(ε + 3e-7): x by 3.5ε·D, y by 12ε·D (the cross product, and WGSL's sqrt
+    // of 4.5 ulp), the products by ε, cos α and sin α by 3e-7 (trig.wgsl's 1e-7 and α's
+    // rounding). The slack takes (32ε + 4e-7)·(|x| + y), at least that much since |x| + y ≥ D.
+    let x = dot(b.axis, v);
+    let y = length(cross(b.axis, v));
+    let slack = (32.0 * EPS + 4e-7) * (abs(x) + y);
+    let e = y * b.cos_a - x * b.sin_a;
+    let f = x * b.cos_a + y * b.sin_a;
+    return e <= slack || (e <= rho * (1.0 + 4.0 * EPS) + slack && f >= -slack);
 }
 
 // crsh_cpu's NodeBound::spreads_wider_than in f32: whether the node's rays spread wider at
