@@ -3,8 +3,9 @@
 
 use std::sync::{Arc, OnceLock};
 
+use crsh_core::glam::Vec3;
 use crsh_core::{
-    FrameSize, Intersector, PipelineConfig, Registry, StageContext, StageSpec, Stages,
+    FrameSize, Intersector, PipelineConfig, Ray, RayKind, Registry, StageContext, StageSpec, Stages,
 };
 use crsh_cpu::Cpu;
 use crsh_scene::Scene;
@@ -72,4 +73,21 @@ pub fn shared_context(test: &str) -> Option<Arc<GpuContext>> {
 /// [`shared_context`] as a [`Wgpu`] backend.
 pub fn shared_backend(test: &str) -> Option<Wgpu> {
     shared_context(test).map(Wgpu::from_context)
+}
+
+/// A ray of `kind` from `origin` along `dir` over `[t_min, t_max]`, pixel and source `i`,
+/// depth 1, throughput one, light 0.
+pub fn ray(origin: Vec3, dir: Vec3, t_min: f32, t_max: f32, kind: RayKind, i: u32) -> Ray {
+    Ray {
+        origin,
+        t_min,
+        dir,
+        t_max,
+        throughput: Vec3::ONE,
+        kind: kind as u32,
+        pixel: i,
+        light: 0,
+        depth: 1,
+        source: i,
+    }
 }

@@ -216,6 +216,17 @@ fn hierarchy_over_segment_starts_matches_the_cpu() {
     }
 }
 
+/// The CPU hierarchy `h` on the device.
+fn upload_hierarchy(b: &Wgpu, h: &RayHierarchy<Cpu>) -> RayHierarchy<Wgpu> {
+    RayHierarchy {
+        leaf_offsets: None,
+        order: b.upload(&h.order).unwrap(),
+        levels: h.levels.iter().map(|l| b.upload(l).unwrap()).collect(),
+        subdivision: h.subdivision,
+        reach: h.reach.iter().map(|l| b.upload(l).unwrap()).collect(),
+    }
+}
+
 fn traverse_spec(mesh_culling: bool, budget_mb: f64) -> StageSpec {
     let mut s = StageSpec::new("crsh");
     s.params.insert(
@@ -248,13 +259,7 @@ fn traversal_keeps_every_cpu_candidate() {
                 .unwrap()
                 .build(&Cpu, &rays, order, &mut Stats::default())
                 .unwrap();
-            let gpu_h: RayHierarchy<Wgpu> = RayHierarchy {
-                leaf_offsets: None,
-                order: b.upload(&cpu_h.order).unwrap(),
-                levels: cpu_h.levels.iter().map(|l| b.upload(l).unwrap()).collect(),
-                subdivision: cpu_h.subdivision,
-                reach: cpu_h.reach.iter().map(|l| b.upload(l).unwrap()).collect(),
-            };
+            let gpu_h = upload_hierarchy(&b, &cpu_h);
             let gpu_rays = b.upload(&rays).unwrap();
             for (culling, budget) in [(true, 64.0), (false, 64.0), (true, 0.002)] {
                 let what = format!("{name} {kind:?} culling {culling} budget {budget}");
@@ -407,13 +412,7 @@ fn dual_traversal_gives_the_brute_force_hits() {
                 .unwrap()
                 .build(&Cpu, &rays, order, &mut Stats::default())
                 .unwrap();
-            let gpu_h: RayHierarchy<Wgpu> = RayHierarchy {
-                leaf_offsets: None,
-                order: b.upload(&cpu_h.order).unwrap(),
-                levels: cpu_h.levels.iter().map(|l| b.upload(l).unwrap()).collect(),
-                subdivision: cpu_h.subdivision,
-                reach: cpu_h.reach.iter().map(|l| b.upload(l).unwrap()).collect(),
-            };
+            let gpu_h = upload_hierarchy(&b, &cpu_h);
             let gpu_rays = b.upload(&rays).unwrap();
             let mut scene_hits = b.filled(rays.len(), Hit::MISS).unwrap();
             gpu_brute
@@ -574,21 +573,14 @@ fn dual_traversal_refuses_bad_hierarchies() {
     let s = scene("cornell-mirrors");
     let g = GpuScene::new(&b, &s).unwrap();
     let (rays, order) = cpu_rays(&s, RayKind::Shadow);
-    let cpu_h = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(8, 2)
+    let mut cpu_h = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(8, 2)
         .unwrap()
         .build(&Cpu, &rays, order, &mut Stats::default())
         .unwrap();
     let trav =
         crsh_wgpu::traverse::dual::Dual::new(&g, &dual_spec("lbvh", true, true, 64.0)).unwrap();
-    let mut levels: Vec<Vec<SphereCone>> = cpu_h.levels.clone();
-    levels[1][0].sphere.radius = f32::NAN;
-    let h: RayHierarchy<Wgpu> = RayHierarchy {
-        leaf_offsets: None,
-        order: b.upload(&cpu_h.order).unwrap(),
-        levels: levels.iter().map(|l| b.upload(l).unwrap()).collect(),
-        subdivision: cpu_h.subdivision,
-        reach: Vec::new(),
-    };
+    cpu_h.levels[1][0].sphere.radius = f32::NAN;
+    let h = upload_hierarchy(&b, &cpu_h);
     let r = trav.traverse(
         &b,
         &b.upload(&rays).unwrap(),
@@ -696,26 +688,9 @@ fn gpu_node_test_keeps_every_pair_the_cpu_keeps_at_the_boundary() {
         leaf_offsets: None,
         reach: Vec::new(),
     };
-    let gpu_h: RayHierarchy<Wgpu> = RayHierarchy {
-        order: b.upload(&order).unwrap(),
-        levels: vec![b.upload(&nodes).unwrap()],
-        subdivision: 1,
-        leaf_offsets: None,
-        reach: Vec::new(),
-    };
+    let gpu_h = upload_hierarchy(&b, &cpu_h);
     // The traversal reads no ray; the hierarchy's shape needs one per leaf.
-    let ray = Ray {
-        origin: Vec3::ZERO,
-        t_min: 0.0,
-        dir: Vec3::X,
-        t_max: 1.0,
-        throughput: Vec3::ONE,
-        kind: RayKind::Shadow as u32,
-        pixel: 0,
-        light: 0,
-        depth: 1,
-        source: 0,
-    };
+    let ray = crsh_wgpu::testing::ray(Vec3::ZERO, Vec3::X, 0.0, 1.0, RayKind::Shadow, 0);
     let rays = vec![ray; n];
     let spec = traverse_spec(false, 64.0);
     let cpu = crsh_cpu::traverse::crsh::Crsh::new(&s, &spec).unwrap();

@@ -826,18 +826,7 @@ fn brute_reaches_triangles_beyond_65535_iterations() {
     let rays: Vec<Ray> = (0..64)
         .map(|i| {
             let o = Vec3::new(lcg.unit() * 0.9, lcg.unit() * 0.9, 5.0);
-            Ray {
-                origin: o,
-                t_min: 0.0,
-                dir: -Vec3::Z,
-                t_max: f32::INFINITY,
-                throughput: Vec3::ONE,
-                kind: RayKind::Shadow as u32,
-                pixel: i,
-                light: 0,
-                depth: 1,
-                source: i,
-            }
+            crsh_wgpu::testing::ray(o, -Vec3::Z, 0.0, f32::INFINITY, RayKind::Shadow, i)
         })
         .collect();
     let buf = b.upload(&rays).unwrap();

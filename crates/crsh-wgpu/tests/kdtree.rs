@@ -57,18 +57,7 @@ impl Lcg {
 }
 
 fn ray(origin: Vec3, dir: Vec3, t_min: f32, t_max: f32, i: usize) -> Ray {
-    Ray {
-        origin,
-        t_min,
-        dir,
-        t_max,
-        throughput: Vec3::ONE,
-        kind: RayKind::Reflection as u32,
-        pixel: i as u32,
-        light: 0,
-        depth: 1,
-        source: i as u32,
-    }
+    crsh_wgpu::testing::ray(origin, dir, t_min, t_max, RayKind::Reflection, i as u32)
 }
 
 /// A point of `b` at fractions `f` of its extent.

@@ -53,6 +53,8 @@ use crate::kernel::{encoder, submit, uniform, Kernel, Slot};
 use crate::kernels::scan::ScanKernel;
 use crate::scene::GpuScene;
 
+use super::BoundWords;
+
 const SHADER: &str = include_str!("crsh.wgsl");
 const PAIR_BYTES: u64 = 8;
 
@@ -68,9 +70,6 @@ struct Params {
     mesh_culling: u32,
     has_reach: u32,
 }
-
-/// `Bound` in WGSL (48 bytes).
-type BoundWords = [u32; 12];
 
 struct CrshKernels {
     kernel: Kernel,
@@ -390,22 +389,7 @@ impl Traverser<Wgpu> for Crsh {
             return Ok(());
         }
         let sub = h.subdivision;
-        let level_lens: Vec<usize> = h.levels.iter().map(|l| l.len()).collect();
-        let reach_lens: Vec<usize> = h.reach.iter().map(|r| r.len()).collect();
-        crsh_cpu::traverse::crsh::check_shape(
-            n_rays,
-            sub,
-            h.order.len(),
-            &level_lens,
-            &reach_lens,
-            h.leaf_offsets.as_ref().map(|o| o.len()),
-        )?;
-        if let Some(offsets) = &h.leaf_offsets {
-            // The traversal never reads them (its pairs name lowest nodes), but a hierarchy
-            // whose offsets the intersector would refuse is refused here, once.
-            let host = offsets.to_vec(ctx)?;
-            crsh_core::check_leaf_offsets(&host, level_lens[0], n_rays)?;
-        }
+        super::check_hierarchy(ctx, h, n_rays)?;
         let has_reach = !h.reach.is_empty();
         let k = ctx.kernel(CrshKernels::new)?;
         // Prepare every level's bounds.

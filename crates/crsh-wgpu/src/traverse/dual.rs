@@ -68,6 +68,8 @@ use crate::kernels::scan::ScanKernel;
 use crate::scene::GpuScene;
 use crate::sort::radix::stable_radix_order;
 
+use super::BoundWords;
+
 const SHADER: &str = include_str!("dual.wgsl");
 /// Bytes of a pair record (frontier pairs and raw candidates).
 const PAIR_BYTES: u64 = std::mem::size_of::<GpuPair>() as u64;
@@ -116,8 +118,6 @@ struct GpuPair {
     info: u32,
 }
 
-/// `Bound` in WGSL (48 bytes).
-type BoundWords = [u32; 12];
 /// `RBox` in WGSL (32 bytes).
 type BoxWords = [u32; 8];
 
@@ -624,20 +624,7 @@ impl Traverser<Wgpu> for Dual {
             return Ok(());
         }
         let sub = h.subdivision;
-        let level_lens: Vec<usize> = h.levels.iter().map(|l| l.len()).collect();
-        let reach_lens: Vec<usize> = h.reach.iter().map(|r| r.len()).collect();
-        crsh_cpu::traverse::crsh::check_shape(
-            n_rays,
-            sub,
-            h.order.len(),
-            &level_lens,
-            &reach_lens,
-            h.leaf_offsets.as_ref().map(|o| o.len()),
-        )?;
-        if let Some(offsets) = &h.leaf_offsets {
-            let host = offsets.to_vec(ctx)?;
-            crsh_core::check_leaf_offsets(&host, level_lens[0], n_rays)?;
-        }
+        let level_lens = super::check_hierarchy(ctx, h, n_rays)?;
         if level_lens.len() > 0xfffe {
             return Err(CoreError::InvalidInput(format!(
                 "{} hierarchy levels: the dual traversal takes fewer than 65535",
