@@ -41,8 +41,8 @@
 //!   counts; the hits do not (the tests compare them with the CPU's and brute force's).
 //! - Memory: the CPU runs depth-first tasks in rounds. Here the frontier grows and shrinks
 //!   breadth first: a round that would hold more than the budget (frontier in and out,
-//!   candidates held, the round's per-pair arrays) is not emitted; its frontier is split in
-//!   halves, the second set aside, and the first tested again (a half of one pair proceeds
+//!   candidates held, the round's per-pair arrays), or whose next frontier would not fit one
+//!   storage binding, is not emitted; its frontier is split in halves, the second set aside, and the first tested again (a half of one pair proceeds
 //!   whatever its size). Halves set aside are taken up last in, first out, so the traversal
 //!   goes depth first over them and no test is done twice: the emit pass counts, once per
 //!   pair. `peak_candidate_bytes` counts the pairs alive at once: frontiers, halves set aside
@@ -522,6 +522,10 @@ impl Run<'_> {
         let mut held_len = 0u64;
         let mut peak = 0u64;
         let scan = ctx.kernel(ScanKernel::new)?;
+        let binding = ctx.max_storage_binding_bytes();
+        // Candidates go on at a quarter of the budget, and before their sort keys and merged
+        // arrays could outgrow one binding.
+        let flush_at = (budget / 4).min(binding / 2);
         while let Some(mut frontier) = pending.pop() {
             pending_len -= frontier.len() as u64;
             while !frontier.is_empty() {
@@ -554,9 +558,10 @@ impl Run<'_> {
                 let needed = (n as u64 + children) * PAIR_BYTES
                     + n as u64 * ROUND_BYTES
                     + (held_len + found) * PAIR_BYTES;
-                if needed > budget && n > 1 {
-                    // Too big for the budget: test the halves one after the other (nothing
-                    // was counted yet: the emit pass counts).
+                // Past the budget, or a frontier past one storage binding (a budget above
+                // the adapter's binding size): test the halves one after the other (nothing
+                // was counted yet: the emit pass counts).
+                if (needed > budget || children * PAIR_BYTES > binding) && n > 1 {
                     let (a, b) = self.halves(frontier)?;
                     pending_len += b.len() as u64;
                     pending.push(b);
@@ -585,7 +590,7 @@ impl Run<'_> {
                     held_len += found;
                 }
                 frontier = next;
-                if held_len * PAIR_BYTES >= budget / 4 {
+                if held_len * PAIR_BYTES >= flush_at {
                     // Counted before the sink runs, as on the CPU.
                     self.record(&counters, stats)?;
                     counters = GpuBuffer::<u32>::zeroed(ctx, "dual counters", 4 + 4 * rows)?;
