@@ -9,9 +9,12 @@
 //! - `hashing`: `thesis` with layout `interleave` and `concat`, and `morton`;
 //! - `sorting`: `compress` and `radix` on the keys of each hasher;
 //! - `hierarchy`: `sphere_cone` (subdivision 8, depth 2) over the thesis-sorted rays;
-//! - `traversal`: the `crsh` traverser, with a sink that only counts the candidates;
-//! - `final_tests`: the `brute` intersector on the candidate batches of that traversal, with
-//!   each ray-triangle test (`intersect.test` = `mt`, `watertight`, `projected`);
+//! - `traversal`: the `crsh` traverser and the `dual` traverser with objects `lbvh` and
+//!   `grid` (object hierarchies built once, outside the timing), with a sink that only counts
+//!   the candidates;
+//! - `final_tests`: the `brute` intersector on the candidate batches of the `crsh` traversal,
+//!   with each ray-triangle test (`intersect.test` = `mt`, `watertight`, `projected`), and on
+//!   those of `dual_lbvh` (lane masks included) with `mt`;
 //! - `bvh`: the whole-scene `bvh` any-hit query of the same rays, the baseline, with each test.
 //!
 //! Run with `cargo bench -p crsh-cpu --bench stages` (add `-- --quick` for a short run, or a
@@ -26,6 +29,7 @@ use crsh_core::{
     CandidateBatch, FrameSize, Hit, PipelineConfig, Query, Ray, RayHierarchy, RayKind, Registry,
     StageContext, Stages, Stats,
 };
+use crsh_cpu::triangle::TEST_NAMES;
 use crsh_cpu::Cpu;
 use crsh_scene::Scene;
 
@@ -222,38 +226,80 @@ fn benches(c: &mut Criterion) {
     g.throughput(Throughput::Elements(n));
     g.sample_size(10);
     let traverser = st.traverser.as_ref().expect("a traverser");
-    g.bench_function(format!("crsh/{}", b.tag), |bench| {
-        bench.iter(|| {
-            let mut pairs = 0usize;
-            traverser
-                .traverse(
-                    &Cpu,
-                    &b.rays,
-                    RayKind::Shadow,
-                    &b.hierarchy,
-                    &mut |batch, _| {
-                        pairs += batch.pairs.len();
-                        Ok(())
-                    },
-                    &mut Stats::default(),
-                )
-                .unwrap();
-            pairs
-        })
-    });
+    // The dual traversals, each with its object hierarchy built once (as a frame's stage).
+    let duals: Vec<(&str, Stages<Cpu>)> = [
+        ("dual_lbvh", "traverse.objects=lbvh"),
+        ("dual_grid", "traverse.objects=grid"),
+    ]
+    .into_iter()
+    .map(|(name, set)| (name, stages(scene, &["traverse.kind=dual", set])))
+    .collect();
+    let traversers = std::iter::once(("crsh", traverser)).chain(
+        duals
+            .iter()
+            .map(|(name, st)| (*name, st.traverser.as_ref().expect("a traverser"))),
+    );
+    for (name, traverser) in traversers {
+        g.bench_function(format!("{name}/{}", b.tag), |bench| {
+            bench.iter(|| {
+                let mut pairs = 0usize;
+                traverser
+                    .traverse(
+                        &Cpu,
+                        &b.rays,
+                        RayKind::Shadow,
+                        &b.hierarchy,
+                        &mut |batch, _| {
+                            pairs += batch.pairs.len();
+                            Ok(())
+                        },
+                        &mut Stats::default(),
+                    )
+                    .unwrap();
+                pairs
+            })
+        });
+    }
     g.finish();
+    // The `dual_lbvh` traversal's candidate batches (with their lane masks).
+    let mut dual_candidates = Vec::new();
+    duals[0]
+        .1
+        .traverser
+        .as_ref()
+        .expect("a traverser")
+        .traverse(
+            &Cpu,
+            &b.rays,
+            RayKind::Shadow,
+            &b.hierarchy,
+            &mut |batch, _| {
+                dual_candidates.push(batch);
+                Ok(())
+            },
+            &mut Stats::default(),
+        )
+        .expect("dual traversal");
 
     let mut g = c.benchmark_group("final_tests");
     g.throughput(Throughput::Elements(n));
     g.sample_size(10);
     let mode = RayKind::Shadow.hit_mode();
-    for test in crsh_cpu::triangle::TEST_NAMES {
+    let runs = TEST_NAMES
+        .iter()
+        .map(|t| ("brute_candidates", *t, &b.candidates))
+        .chain(std::iter::once((
+            "brute_dual_candidates",
+            "mt",
+            &dual_candidates,
+        )));
+    for (name, test, candidates) in runs {
         let intersector = stages(scene, &[&format!("intersect.test={test}")]).intersector;
-        g.bench_function(format!("brute_candidates_{test}/{}", b.tag), |bench| {
+        g.bench_function(format!("{name}_{test}/{}", b.tag), |bench| {
             bench.iter(|| {
                 let mut hits = vec![Hit::MISS; b.rays.len()];
                 let mut stats = Stats::default();
-                for batch in &b.candidates {
+                for batch in candidates {
                     let q = Query::Candidates {
                         hierarchy: &b.hierarchy,
                         batch,
@@ -271,7 +317,7 @@ fn benches(c: &mut Criterion) {
     let mut g = c.benchmark_group("bvh");
     g.throughput(Throughput::Elements(n));
     g.sample_size(10);
-    for test in crsh_cpu::triangle::TEST_NAMES {
+    for test in TEST_NAMES {
         // A whole-scene intersector: built on its own (a pipeline with a hierarchy rejects it).
         let mut spec = crsh_core::StageSpec::new("bvh");
         spec.params
