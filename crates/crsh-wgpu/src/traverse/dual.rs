@@ -18,11 +18,11 @@
 //! 2. The pairs (top node, object root) of every top-level ray node are the first
 //!    frontier. Each round, `test_pairs` tests every pair of the frontier with the CPU task's
 //!    rules (box overlap, then `may_hit` against the object node's sphere; a single-ray pair
-//!    tests each live ray's segment against the object node's box), counts it in its ray
-//!    level's and object depth's rows, and decides what follows: nothing, a candidate, the
-//!    pair as single rays, the ray node's children or the object node's two children. The
-//!    children and candidate counts are scanned ([`crate::kernels::scan`]) and `emit_pairs`
-//!    writes the next frontier and the round's candidates (and counts the tests). The
+//!    tests each live ray's segment against the object node's box) and decides what follows:
+//!    nothing, a candidate, the pair as single rays, the ray node's children or the object
+//!    node's two children. The children and candidate counts are scanned
+//!    ([`crate::kernels::scan`]), and `emit_pairs` writes the next frontier and the round's
+//!    candidates and counts each test in its ray level's and object depth's rows. The
 //!    traversal ends when no frontier is left.
 //! 3. A batch of candidates (at the end, or earlier when they fill a quarter of the budget) is
 //!    sorted by `(node, triangle)` ([`crate::sort::radix::stable_radix_order`] on
@@ -33,22 +33,23 @@
 //! # What differs from the CPU
 //!
 //! - The node test runs in `f32` with the rounding acceptance of the wgpu `crsh` (its module
-//!   doc), the segment boxes and the single-ray slabs in `f32` widened to contain the CPU's
+//!   doc; the cone condition as a distance from the cone, well-conditioned for narrow cones), the segment boxes and the single-ray slabs in `f32` widened to contain the CPU's
 //!   `f64` ones (`dual.wgsl` states the bounds). Every test keeps what the CPU's keeps, so no
 //!   hit is lost, and a few more pairs pass. The choice of the side to split is a size
 //!   comparison evaluated in `f32`: where it comes out differently from the CPU's the pairs
 //!   take another path down both trees. The candidates then differ slightly, and so do the
 //!   counts; the hits do not (the tests compare them with the CPU's and brute force's).
 //! - Memory: the CPU runs depth-first tasks in rounds. Here the frontier grows and shrinks
-//!   breadth first: a round that would hold more than the budget (frontier in and out,
+//!   breadth first. A round that would hold more than the budget (frontier in and out,
 //!   candidates held, the round's per-pair arrays), or whose next frontier would not fit one
-//!   storage binding, is not emitted; its frontier is split in halves, the second set aside, and the first tested again (a half of one pair proceeds
-//!   whatever its size). Halves set aside are taken up last in, first out, so the traversal
-//!   goes depth first over them and no test is done twice: the emit pass counts, once per
-//!   pair. `peak_candidate_bytes` counts the pairs alive at once: frontiers, halves set aside
-//!   and candidates held; the halves set aside come on top of the budget. Measured with the
-//!   default 64 MiB on lavapipe: no split on Sponza and the dining room at 512 px; two
-//!   splits, one half set aside at a time and a peak of 55 MB on Sponza at 1024 px.
+//!   storage binding, is not emitted: its frontier is split in halves, the second set aside,
+//!   and the first tested again (a frontier of one pair proceeds whatever its size). Halves
+//!   set aside are taken up last in, first out, so the traversal goes depth first over them;
+//!   a split round's test pass runs again on each half, but only the emit pass counts, once
+//!   per pair. `peak_candidate_bytes` counts the pairs alive at once: frontiers, halves set
+//!   aside and candidates held; the halves set aside come on top of the budget. Measured
+//!   with the default 64 MiB on lavapipe: no split on Sponza and the dining room at 512 px;
+//!   two splits, one half set aside at a time and a peak of 55 MB on Sponza at 1024 px.
 
 use std::sync::Arc;
 
@@ -84,7 +85,7 @@ struct Params {
     has_reach: u32,
     sub: u32,
     n_rays: u32,
-    n_lowest: u32,
+    _pad: u32,
     n_levels: u32,
     has_offsets: u32,
     n_depths: u32,
@@ -651,7 +652,6 @@ impl Traverser<Wgpu> for Dual {
         let base = Params {
             sub,
             n_rays: n_rays as u32,
-            n_lowest: level_lens[0] as u32,
             n_levels: level_lens.len() as u32,
             has_offsets: u32::from(h.leaf_offsets.is_some()),
             n_depths: tree.max_depth as u32 + 1,

@@ -49,9 +49,9 @@ struct Params {
     // Whether the level has reach bounds (prepare).
     has_reach: u32,
     sub: u32,
-    // Rays (leaves), lowest nodes, ray levels, whether the hierarchy has leaf offsets.
+    // Rays (leaves), (padding), ray levels, whether the hierarchy has leaf offsets.
     n_rays: u32,
-    n_lowest: u32,
+    _pad: u32,
     n_levels: u32,
     has_offsets: u32,
     // Object-depth rows, box test, single rays, the object root.
