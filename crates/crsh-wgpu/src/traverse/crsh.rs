@@ -116,6 +116,17 @@ pub struct Crsh {
     scene: Arc<GpuScene>,
     mesh_culling: bool,
     budget_bytes: u64,
+    unused: Unused,
+}
+
+/// Empty buffers for the slots a dispatch leaves unbound, made once per stage (a dispatch
+/// binds each writable slot to its own buffer).
+struct Unused {
+    nodes: GpuBuffer<crsh_core::SphereCone>,
+    reach: GpuBuffer<f32>,
+    bounds: [GpuBuffer<BoundWords>; 2],
+    words: [GpuBuffer<u32>; 3],
+    pairs: [GpuBuffer<Candidate>; 2],
 }
 
 /// The buffers one dispatch binds (unused slots get placeholders).
@@ -159,11 +170,7 @@ impl Crsh {
     /// (validated as on the CPU).
     pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<Crsh> {
         let cpu = crsh_cpu::traverse::crsh::Crsh::new(&scene.scene, spec)?;
-        Ok(Crsh {
-            scene: Arc::clone(scene),
-            mesh_culling: cpu.mesh_culling(),
-            budget_bytes: cpu.budget_bytes(),
-        })
+        Crsh::like(scene, &cpu)
     }
 
     /// The traverser with explicit options, validated as
@@ -171,10 +178,33 @@ impl Crsh {
     pub fn with_options(scene: &Arc<GpuScene>, mesh_culling: bool, budget_mb: f64) -> Result<Crsh> {
         let cpu =
             crsh_cpu::traverse::crsh::Crsh::with_options(&scene.scene, mesh_culling, budget_mb)?;
+        Crsh::like(scene, &cpu)
+    }
+
+    /// The twin of the validated CPU traverser `cpu`.
+    fn like(scene: &Arc<GpuScene>, cpu: &crsh_cpu::traverse::crsh::Crsh) -> Result<Crsh> {
+        let ctx = scene.ctx();
         Ok(Crsh {
             scene: Arc::clone(scene),
             mesh_culling: cpu.mesh_culling(),
             budget_bytes: cpu.budget_bytes(),
+            unused: Unused {
+                nodes: GpuBuffer::zeroed(ctx, "crsh unused", 0)?,
+                reach: GpuBuffer::zeroed(ctx, "crsh unused", 0)?,
+                bounds: [
+                    GpuBuffer::zeroed(ctx, "crsh unused", 0)?,
+                    GpuBuffer::zeroed(ctx, "crsh unused", 0)?,
+                ],
+                words: [
+                    GpuBuffer::zeroed(ctx, "crsh unused", 0)?,
+                    GpuBuffer::zeroed(ctx, "crsh unused", 0)?,
+                    GpuBuffer::zeroed(ctx, "crsh unused", 0)?,
+                ],
+                pairs: [
+                    GpuBuffer::zeroed(ctx, "crsh unused", 0)?,
+                    GpuBuffer::zeroed(ctx, "crsh unused", 0)?,
+                ],
+            },
         })
     }
 
@@ -187,32 +217,24 @@ impl Crsh {
     fn bind(&self, k: &Kernel, params: &Params, b: &Binds<'_>) -> GpuResult<wgpu::BindGroup> {
         let ctx = self.scene.ctx();
         let u = uniform(ctx, "crsh traversal params", params);
-        let nodes0 = GpuBuffer::<crsh_core::SphereCone>::zeroed(ctx, "crsh unused", 0)?;
-        let f0 = GpuBuffer::<f32>::zeroed(ctx, "crsh unused", 0)?;
-        let bw0 = GpuBuffer::<BoundWords>::zeroed(ctx, "crsh unused", 0)?;
-        let bw1 = GpuBuffer::<BoundWords>::zeroed(ctx, "crsh unused", 0)?;
-        let u0 = GpuBuffer::<u32>::zeroed(ctx, "crsh unused", 0)?;
-        let u1 = GpuBuffer::<u32>::zeroed(ctx, "crsh unused", 0)?;
-        let u2 = GpuBuffer::<u32>::zeroed(ctx, "crsh unused", 0)?;
-        let c0 = GpuBuffer::<Candidate>::zeroed(ctx, "crsh unused", 0)?;
-        let c1 = GpuBuffer::<Candidate>::zeroed(ctx, "crsh unused", 0)?;
+        let z = &self.unused;
         let s = &self.scene;
         Ok(k.bind_group(
             ctx,
             &[
                 u.as_entire_binding(),
-                b.level_nodes.unwrap_or(&nodes0).binding(),
-                b.level_reach.unwrap_or(&f0).binding(),
-                b.bounds.unwrap_or(&bw0).binding(),
-                b.child_bounds.unwrap_or(&bw1).binding(),
+                b.level_nodes.unwrap_or(&z.nodes).binding(),
+                b.level_reach.unwrap_or(&z.reach).binding(),
+                b.bounds.unwrap_or(&z.bounds[0]).binding(),
+                b.child_bounds.unwrap_or(&z.bounds[1]).binding(),
                 s.tri_spheres.binding(),
                 s.info.binding(),
                 s.meshes.binding(),
-                b.keep.unwrap_or(&u0).binding(),
-                b.pairs_in.unwrap_or(&c0).binding(),
-                b.flags.unwrap_or(&u1).binding(),
-                b.pairs_out.unwrap_or(&c1).binding(),
-                b.counters.unwrap_or(&u2).binding(),
+                b.keep.unwrap_or(&z.words[0]).binding(),
+                b.pairs_in.unwrap_or(&z.pairs[0]).binding(),
+                b.flags.unwrap_or(&z.words[1]).binding(),
+                b.pairs_out.unwrap_or(&z.pairs[1]).binding(),
+                b.counters.unwrap_or(&z.words[2]).binding(),
             ],
         ))
     }

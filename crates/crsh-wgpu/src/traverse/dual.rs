@@ -193,11 +193,48 @@ enum Objects {
     /// An object hierarchy (`lbvh`, `bvh` or `grid`) on the device.
     Tree(Box<Tree>),
     /// `meshes`: the wgpu `crsh` with mesh culling.
-    Meshes(crate::traverse::crsh::Crsh),
+    Meshes(Box<crate::traverse::crsh::Crsh>),
+}
+
+/// Empty buffers for the slots a dispatch leaves unbound, made once per stage (a dispatch
+/// binds each writable slot to its own buffer).
+struct Unused {
+    nodes: GpuBuffer<crsh_core::SphereCone>,
+    reach: GpuBuffer<f32>,
+    bounds: GpuBuffer<BoundWords>,
+    boxes: GpuBuffer<BoxWords>,
+    rays: GpuBuffer<Ray>,
+    outcome: GpuBuffer<[u32; 2]>,
+    cands: GpuBuffer<crsh_core::Candidate>,
+    keys: GpuBuffer<u64>,
+    words: Vec<GpuBuffer<u32>>,
+    pairs: Vec<GpuBuffer<GpuPair>>,
+}
+
+impl Unused {
+    fn new(ctx: &GpuContext) -> GpuResult<Unused> {
+        Ok(Unused {
+            nodes: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
+            reach: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
+            bounds: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
+            boxes: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
+            rays: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
+            outcome: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
+            cands: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
+            keys: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
+            words: (0..8)
+                .map(|_| GpuBuffer::zeroed(ctx, "dual unused", 0))
+                .collect::<GpuResult<_>>()?,
+            pairs: (0..3)
+                .map(|_| GpuBuffer::zeroed(ctx, "dual unused", 0))
+                .collect::<GpuResult<_>>()?,
+        })
+    }
 }
 
 struct Tree {
     scene: Arc<GpuScene>,
+    unused: Unused,
     source: &'static str,
     objs: GpuBuffer<GpuObjNode>,
     /// The root's index (`None` without triangles).
@@ -237,7 +274,7 @@ impl Dual {
                 spec.f64("candidate_budget_mb")?,
             )?;
             return Ok(Dual {
-                objects: Objects::Meshes(crsh),
+                objects: Objects::Meshes(Box::new(crsh)),
             });
         };
         let (flat, root) = tree.flat();
@@ -258,10 +295,14 @@ impl Dual {
             })
             .collect();
         let ctx = scene.ctx();
-        ctx.check_storage_binding("object hierarchy", (nodes.len() * 48) as u64)?;
+        ctx.check_storage_binding(
+            "object hierarchy",
+            std::mem::size_of_val(nodes.as_slice()) as u64,
+        )?;
         Ok(Dual {
             objects: Objects::Tree(Box::new(Tree {
                 scene: Arc::clone(scene),
+                unused: Unused::new(ctx)?,
                 source: cpu.objects(),
                 objs: GpuBuffer::from_slice(ctx, "dual object hierarchy", &nodes)?,
                 root,
@@ -302,42 +343,30 @@ impl Tree {
     fn bind(&self, k: &Kernel, params: &Params, b: &Binds<'_>) -> GpuResult<wgpu::BindGroup> {
         let ctx = self.scene.ctx();
         let u = uniform(ctx, "dual traversal params", params);
-        let nodes0 = GpuBuffer::<crsh_core::SphereCone>::zeroed(ctx, "dual unused", 0)?;
-        let f0 = GpuBuffer::<f32>::zeroed(ctx, "dual unused", 0)?;
-        let bw0 = GpuBuffer::<BoundWords>::zeroed(ctx, "dual unused", 0)?;
-        let bx0 = GpuBuffer::<BoxWords>::zeroed(ctx, "dual unused", 0)?;
-        let r0 = GpuBuffer::<Ray>::zeroed(ctx, "dual unused", 0)?;
-        let o0 = GpuBuffer::<[u32; 2]>::zeroed(ctx, "dual unused", 0)?;
-        let c0 = GpuBuffer::<crsh_core::Candidate>::zeroed(ctx, "dual unused", 0)?;
-        let k0 = GpuBuffer::<u64>::zeroed(ctx, "dual unused", 0)?;
-        let u32s: Vec<GpuBuffer<u32>> = (0..8)
-            .map(|_| GpuBuffer::<u32>::zeroed(ctx, "dual unused", 0))
-            .collect::<GpuResult<_>>()?;
-        let p32s: Vec<GpuBuffer<GpuPair>> = (0..3)
-            .map(|_| GpuBuffer::<GpuPair>::zeroed(ctx, "dual unused", 0))
-            .collect::<GpuResult<_>>()?;
+        let z = &self.unused;
+        let (u32s, p32s) = (&z.words, &z.pairs);
         Ok(k.bind_group(
             ctx,
             &[
                 u.as_entire_binding(),
-                b.level_nodes.unwrap_or(&nodes0).binding(),
-                b.level_reach.unwrap_or(&f0).binding(),
-                b.bounds.unwrap_or(&bw0).binding(),
-                b.boxes.unwrap_or(&bx0).binding(),
+                b.level_nodes.unwrap_or(&z.nodes).binding(),
+                b.level_reach.unwrap_or(&z.reach).binding(),
+                b.bounds.unwrap_or(&z.bounds).binding(),
+                b.boxes.unwrap_or(&z.boxes).binding(),
                 b.level_first.unwrap_or(&u32s[0]).binding(),
-                b.rays.unwrap_or(&r0).binding(),
+                b.rays.unwrap_or(&z.rays).binding(),
                 b.order.unwrap_or(&u32s[1]).binding(),
                 b.offsets.unwrap_or(&u32s[2]).binding(),
                 self.objs.binding(),
                 b.pairs_in.unwrap_or(&p32s[0]).binding(),
-                b.outcome.unwrap_or(&o0).binding(),
+                b.outcome.unwrap_or(&z.outcome).binding(),
                 b.n_children.unwrap_or(&u32s[3]).binding(),
                 b.n_cands.unwrap_or(&u32s[4]).binding(),
                 b.pairs_out.unwrap_or(&p32s[1]).binding(),
                 b.raw.unwrap_or(&p32s[2]).binding(),
-                b.cands.unwrap_or(&c0).binding(),
+                b.cands.unwrap_or(&z.cands).binding(),
                 b.lanes.unwrap_or(&u32s[5]).binding(),
-                b.keys.unwrap_or(&k0).binding(),
+                b.keys.unwrap_or(&z.keys).binding(),
                 b.sorted.unwrap_or(&u32s[6]).binding(),
                 b.counters.unwrap_or(&u32s[7]).binding(),
             ],
