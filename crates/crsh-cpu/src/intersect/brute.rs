@@ -411,18 +411,10 @@ impl BruteForce {
         let (sorted, lanes): (&[Candidate], Option<&[u32]>) = if increasing {
             (pairs, lanes)
         } else if let Some(lanes) = lanes {
-            // Sorted with their masks; a repeated pair is for the union of its masks.
-            let mut v: Vec<(Candidate, u32)> =
-                pairs.iter().copied().zip(lanes.iter().copied()).collect();
-            v.par_sort_unstable_by_key(|e| e.0);
-            merge_repeats(&mut v);
-            (owned, owned_lanes) = v.into_iter().unzip();
+            (owned, owned_lanes) = sort_with_lanes(pairs, lanes);
             (&owned, Some(&owned_lanes))
         } else {
-            let mut v = pairs.to_vec();
-            v.par_sort_unstable();
-            v.dedup();
-            owned = v;
+            owned = sort_pairs(pairs);
             (&owned, None)
         };
         let groups = node_runs(sorted, hierarchy.subdivision, offsets, n_rays);
@@ -621,9 +613,26 @@ fn node_packet<T: TriangleTest>(
     (tests, found)
 }
 
+/// `pairs` sorted and de-duplicated: the order the candidate query works in.
+pub fn sort_pairs(pairs: &[Candidate]) -> Vec<Candidate> {
+    let mut v = pairs.to_vec();
+    v.par_sort_unstable();
+    v.dedup();
+    v
+}
+
+/// `pairs` sorted with their lane masks, a repeated pair merged into one for the union of its
+/// masks ([`CandidateBatch::lanes`]): the order the candidate query works in.
+pub fn sort_with_lanes(pairs: &[Candidate], lanes: &[u32]) -> (Vec<Candidate>, Vec<u32>) {
+    let mut v: Vec<(Candidate, u32)> = pairs.iter().copied().zip(lanes.iter().copied()).collect();
+    v.par_sort_unstable_by_key(|e| e.0);
+    merge_repeats(&mut v);
+    v.into_iter().unzip()
+}
+
 /// Merges the repeats of a candidate in `v` (sorted by candidate) into one, for the union of
 /// their lane masks ([`CandidateBatch::lanes`]).
-pub fn merge_repeats(v: &mut Vec<(Candidate, u32)>) {
+pub(crate) fn merge_repeats(v: &mut Vec<(Candidate, u32)>) {
     v.dedup_by(|next, kept| {
         let same = next.0 == kept.0;
         if same {

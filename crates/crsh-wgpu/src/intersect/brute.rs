@@ -49,12 +49,12 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 use crsh_core::{
     Candidate, CoreError, Hit, HitMode, Intersector, Query, Ray, RayKind, Registry, Result,
-    StageSpec, Stats, ALL_LANES,
+    StageSpec, Stats,
 };
 
 #[cfg(doc)]
 use crsh_core::RayHierarchy;
-use crsh_cpu::intersect::brute::merge_repeats;
+use crsh_cpu::intersect::brute::{sort_pairs, sort_with_lanes};
 use crsh_cpu::triangle::{PreparedTriangle, TriangleSet};
 
 use crate::adapter::GpuContext;
@@ -446,22 +446,16 @@ impl Intersector<Wgpu> for BruteForce {
                         // again.
                         let ctx = backend.context();
                         let pairs = batch.pairs.to_vec(ctx)?;
-                        let masks = match &batch.lanes {
-                            Some(l) => l.to_vec(ctx)?,
-                            None => vec![ALL_LANES; pairs.len()],
-                        };
-                        let mut host: Vec<(Candidate, u32)> =
-                            pairs.into_iter().zip(masks).collect();
-                        host.sort_unstable_by_key(|e| e.0);
-                        merge_repeats(&mut host);
-                        let (pairs, masks): (Vec<Candidate>, Vec<u32>) = host.into_iter().unzip();
-                        let sorted = GpuBuffer::from_slice(ctx, "crsh sorted pairs", &pairs)?;
-                        let lanes = match batch.lanes {
-                            Some(_) => {
-                                Some(GpuBuffer::from_slice(ctx, "crsh sorted lanes", &masks)?)
+                        let (pairs, lanes) = match &batch.lanes {
+                            Some(l) => {
+                                let (pairs, masks) = sort_with_lanes(&pairs, &l.to_vec(ctx)?);
+                                let masks =
+                                    GpuBuffer::from_slice(ctx, "crsh sorted lanes", &masks)?;
+                                (pairs, Some(masks))
                             }
-                            None => None,
+                            None => (sort_pairs(&pairs), None),
                         };
+                        let sorted = GpuBuffer::from_slice(ctx, "crsh sorted pairs", &pairs)?;
                         run(&sorted, lanes.as_ref())?.ok_or_else(|| {
                             CoreError::Backend("sorted pairs reported unsorted".into())
                         })?
