@@ -205,16 +205,27 @@ impl SphereConeBuilder {
     /// The node levels over `rays` taken in `order`, lowest first (what
     /// [`HierarchyBuilder::build`] stores in [`RayHierarchy::levels`]).
     pub fn build_levels(&self, rays: &[Ray], order: &[u32]) -> Result<Vec<Vec<SphereCone>>> {
+        Ok(self.build_levels_and_reach(rays, order)?.0)
+    }
+
+    /// [`Self::build_levels`] and the levels' [`reach_levels`], the lowest level's reach
+    /// computed from the rays gathered for its nodes (one pass over the sorted rays).
+    #[allow(clippy::type_complexity)]
+    pub fn build_levels_and_reach(
+        &self,
+        rays: &[Ray],
+        order: &[u32],
+    ) -> Result<(Vec<Vec<SphereCone>>, Vec<Vec<f32>>)> {
         validate_leaves("sphere_cone", rays, order)?;
         let s = self.subdivision as usize;
         let mut levels: Vec<Vec<SphereCone>> = Vec::new();
         if order.is_empty() {
-            return Ok(levels);
+            return Ok((levels, Vec::new()));
         }
-        let lowest: Vec<SphereCone> = order
+        let (lowest, lowest_reach): (Vec<SphereCone>, Vec<f32>) = order
             .par_chunks(s)
             .map(|leaves| leaf_node(rays, leaves))
-            .collect();
+            .unzip();
         levels.push(lowest);
         while levels.len() < self.depth as usize {
             let below = &levels[levels.len() - 1];
@@ -224,7 +235,12 @@ impl SphereConeBuilder {
             let next: Vec<SphereCone> = below.par_chunks(s).map(inner_node).collect();
             levels.push(next);
         }
-        Ok(levels)
+        let mut reach = vec![lowest_reach];
+        for l in 1..levels.len() {
+            let next = upper_reach(&levels[l], &levels[l - 1], &reach[l - 1], s);
+            reach.push(next);
+        }
+        Ok((levels, reach))
     }
 }
 
@@ -247,8 +263,7 @@ impl HierarchyBuilder<Cpu> for SphereConeBuilder {
         } else {
             rays
         };
-        let levels = self.build_levels(rays, &order)?;
-        let reach = reach_levels(rays, &order, &levels, self.subdivision);
+        let (levels, reach) = self.build_levels_and_reach(rays, &order)?;
         Ok(RayHierarchy {
             leaf_offsets: None,
             order,
@@ -311,23 +326,32 @@ pub fn reach_levels(
                 })
                 .collect()
         } else {
-            let below = &levels[l - 1];
-            let below_reach = &out[l - 1];
-            level
-                .par_iter()
-                .zip(below.par_chunks(s).zip(below_reach.par_chunks(s)))
-                .map(|(node, (children, reaches))| {
-                    let c = node.sphere.center.as_dvec3();
-                    let far = children.iter().zip(reaches).fold(0.0f64, |m, (k, &r)| {
-                        m.max((k.sphere.center.as_dvec3() - c).length() + r as f64)
-                    });
-                    round_up_reach(far)
-                })
-                .collect()
+            upper_reach(level, &levels[l - 1], &out[l - 1], s)
         };
         out.push(reach);
     }
     out
+}
+
+/// The reach of the upper-level nodes `level` over the nodes `below` and their reaches:
+/// the largest `|child centre − centre| + child reach`, rounded up.
+fn upper_reach(
+    level: &[SphereCone],
+    below: &[SphereCone],
+    below_reach: &[f32],
+    s: usize,
+) -> Vec<f32> {
+    level
+        .par_iter()
+        .zip(below.par_chunks(s).zip(below_reach.par_chunks(s)))
+        .map(|(node, (children, reaches))| {
+            let c = node.sphere.center.as_dvec3();
+            let far = children.iter().zip(reaches).fold(0.0f64, |m, (k, &r)| {
+                m.max((k.sphere.center.as_dvec3() - c).length() + r as f64)
+            });
+            round_up_reach(far)
+        })
+        .collect()
 }
 
 /// A reach bound computed in `f64` as an `f32` that is not below it, with room to spare:
@@ -409,6 +433,11 @@ pub(crate) fn validate_leaves(variant: &str, rays: &[Ray], order: &[u32]) -> Res
         let d = r.dir.as_dvec3();
         !r.origin.is_finite() || !d.is_finite() || d.length_squared() == 0.0
     };
+    // The rays in memory order first (a permutation holds every ray once); the first bad
+    // leaf in `order` is looked for only when some ray is bad.
+    if !rays.par_iter().any(bad) {
+        return Ok(());
+    }
     if let Some(leaf) = order.par_iter().position_first(|&i| bad(&rays[i as usize])) {
         let r = &rays[order[leaf] as usize];
         return Err(CoreError::InvalidInput(format!(
@@ -604,36 +633,91 @@ fn store_sphere(center: DVec3, children: impl Iterator<Item = (DVec3, f64)>) -> 
     Sphere::new(stored, f32_up(measured * (1.0 + SPHERE_REL_MARGIN)))
 }
 
-/// A lowest-level node over the rays `leaves` (validated, non-empty).
-fn leaf_node(rays: &[Ray], leaves: &[u32]) -> SphereCone {
-    let ray = |i: &u32| &rays[*i as usize];
-    let dir = |i: &u32| unit(ray(i).dir.as_dvec3());
-    let first = DCone {
-        axis: dir(&leaves[0]),
-        angle: 0.0,
+/// The cone of eq. 3.8-3.11 while a lowest node is built: its axis and the cosine and sine of
+/// its half-angle `φ ∈ [0, π]`, so that adding a ray costs square roots, not trigonometry.
+#[derive(Clone, Copy, Debug)]
+struct LeafCone {
+    axis: DVec3,
+    cos: f64,
+    sin: f64,
+}
+
+/// `(cos(x/2), sin(x/2))` for `x ∈ [0, 2π]` from `(cos x, sin x)`: the normalized
+/// `(1 + cos x, sin x)` while `sin x ≥ 0` (no cancellation for small `x`), else the normalized
+/// `(sin x, 1 − cos x)` (both are `2·cos(x/2)` resp. `2·sin(x/2)` times a non-negative factor).
+fn half_angle(cos: f64, sin: f64) -> (f64, f64) {
+    let (c, s) = if sin >= 0.0 {
+        (1.0 + cos, sin)
+    } else {
+        (sin, 1.0 - cos)
     };
+    let n = (c * c + s * s).sqrt();
+    if n > 0.0 {
+        (c / n, s / n)
+    } else {
+        // x = π exactly: half of it is π/2.
+        (0.0, 1.0)
+    }
+}
+
+impl LeafCone {
+    /// The cone extended to contain the unit direction `d` (a no-op when it does): the same
+    /// cone as [`union_d`] with a zero-angle cone (eq. 3.8-3.11 in angle form, see
+    /// [`extend_cone`]), with the half-angle sums and halvings done on `(cos, sin)` pairs:
+    /// new half-angle `(φ + θ)/2`, axis turned towards `d` by `(θ − φ)/2`.
+    #[inline]
+    fn extend(&mut self, d: DVec3) {
+        let c = self.axis.dot(d);
+        if c >= self.cos {
+            return;
+        }
+        // θ = angle(axis, d) ∈ (φ, π].
+        let ortho = d - self.axis * c;
+        let s = ortho.length();
+        // (φ + θ) and (θ − φ) as (cos, sin) pairs.
+        let (sum_c, sum_s) = (self.cos * c - self.sin * s, self.sin * c + self.cos * s);
+        let (dif_c, dif_s) = (c * self.cos + s * self.sin, s * self.cos - c * self.sin);
+        let (cos_a, sin_a) = half_angle(dif_c, dif_s.max(0.0));
+        let u = if s > PERP_EPS {
+            ortho / s
+        } else {
+            self.axis.any_orthonormal_vector()
+        };
+        let (cos, sin) = half_angle(sum_c, sum_s);
+        *self = LeafCone {
+            axis: unit(self.axis * cos_a + u * sin_a),
+            cos,
+            sin,
+        };
+    }
+}
+
+/// A lowest-level node over the rays `leaves` (validated, non-empty), and its reach (as
+/// [`reach_levels`] computes it, from the same gathered rays).
+fn leaf_node(rays: &[Ray], leaves: &[u32]) -> (SphereCone, f32) {
+    // At most `SUBDIVISION_RANGE.end()` rays: no allocation per node.
+    const MAX: usize = *SUBDIVISION_RANGE.end() as usize;
+    let mut origins = [Vec3::ZERO; MAX];
+    let mut dirs = [DVec3::ZERO; MAX];
+    let mut lengths = [0.0f64; MAX];
+    let n = leaves.len();
+    for (k, i) in leaves.iter().enumerate() {
+        let ray = &rays[*i as usize];
+        let d = ray.dir.as_dvec3();
+        origins[k] = ray.origin;
+        dirs[k] = unit(d);
+        lengths[k] = ray.t_max as f64 * d.length();
+    }
+    let (origins, dirs) = (&origins[..n], &dirs[..n]);
     // Eq. 3.8-3.11 one ray at a time; a ray already inside (x·r ≥ cos φ) leaves the cone as
     // it is. Rounding in this test cannot lose a ray: the stored angle is re-measured.
-    let mut cone = first;
-    let mut cos_phi = 1.0;
-    for i in &leaves[1..] {
-        let d = dir(i);
-        if cone.axis.dot(d) < cos_phi {
-            cone = union_d(
-                cone,
-                DCone {
-                    axis: d,
-                    angle: 0.0,
-                },
-            );
-            cos_phi = cone.angle.cos();
-        }
-    }
-    // At most `SUBDIVISION_RANGE.end()` origins: no allocation per node.
-    let mut buf = [Vec3::ZERO; *SUBDIVISION_RANGE.end() as usize];
-    let origins = &mut buf[..leaves.len()];
-    for (o, i) in origins.iter_mut().zip(leaves) {
-        *o = ray(i).origin;
+    let mut cone = LeafCone {
+        axis: dirs[0],
+        cos: 1.0,
+        sin: 0.0,
+    };
+    for &d in &dirs[1..] {
+        cone.extend(d);
     }
     // Rays from one point (shadow rays leaving a light) need no Welzl.
     let ball = if origins.iter().all(|o| *o == origins[0]) {
@@ -641,13 +725,24 @@ fn leaf_node(rays: &[Ray], leaves: &[u32]) -> SphereCone {
     } else {
         min_sphere(origins)
     };
-    SphereCone {
-        sphere: store_sphere(
-            ball.center.as_dvec3(),
-            origins.iter().map(|o| (o.as_dvec3(), 0.0)),
-        ),
-        cone: store_leaf_cone(cone.axis, cone.angle >= PI, leaves.iter().map(dir)),
-    }
+    // A half-angle of π has sine 0 and cosine −1.
+    let full = cone.cos <= -1.0;
+    let sphere = store_sphere(
+        ball.center.as_dvec3(),
+        origins.iter().map(|o| (o.as_dvec3(), 0.0)),
+    );
+    let c = sphere.center.as_dvec3();
+    let far = origins
+        .iter()
+        .zip(&lengths[..n])
+        .fold(0.0f64, |m, (o, len)| {
+            m.max((o.as_dvec3() - c).length() + len)
+        });
+    let node = SphereCone {
+        sphere,
+        cone: store_leaf_cone(cone.axis, full, dirs.iter().copied()),
+    };
+    (node, round_up_reach(far))
 }
 
 /// A node over the nodes `children` of the level below (non-empty).
@@ -925,6 +1020,84 @@ mod tests {
             .unwrap();
         let reach = reach_levels(&rays, &order, &levels, 4);
         assert!(reach[0][0].is_infinite() && reach[1][0].is_infinite());
+    }
+
+    /// The reach the builder computes while gathering a lowest node's rays is the one
+    /// [`reach_levels`] defines, on every level, bounded and unbounded rays alike.
+    #[test]
+    fn fused_reach_is_reach_levels() {
+        let mut rng = Rng(78);
+        let mut rays = one_point(&mut rng, 200);
+        rays.extend(coherent(&mut rng, 300));
+        rays.extend(random(&mut rng, 100));
+        for (i, r) in rays.iter_mut().enumerate() {
+            if i % 7 != 0 {
+                r.t_max = rng.range(0.01, 40.0);
+            }
+            r.dir *= 1.0 + (i % 3) as f32;
+        }
+        let mut order = identity(rays.len());
+        order.reverse();
+        for (s, depth) in [(2u32, 5u32), (8, 3), (64, 2)] {
+            let b = SphereConeBuilder::with_params(s, depth).unwrap();
+            let (levels, reach) = b.build_levels_and_reach(&rays, &order).unwrap();
+            assert_eq!(levels, b.build_levels(&rays, &order).unwrap());
+            assert_eq!(reach, reach_levels(&rays, &order, &levels, s));
+        }
+    }
+
+    /// Extending a lowest node's cone on `(cos, sin)` pairs gives the cone of the angle-form
+    /// union (eq. 3.8-3.11, [`union_d`]): the same axis and half-angle up to rounding, from
+    /// narrow coherent bundles to cones wider than a hemisphere and opposite directions.
+    #[test]
+    fn leaf_cone_extension_is_the_angle_form_union() {
+        let mut rng = Rng(79);
+        for spread in [1e-6f32, 1e-3, 0.1, 1.0, 3.0, 10.0] {
+            for _ in 0..200 {
+                let base = rng.dir();
+                let mut fast = LeafCone {
+                    axis: unit(base.as_dvec3()),
+                    cos: 1.0,
+                    sin: 0.0,
+                };
+                let mut exact = DCone {
+                    axis: unit(base.as_dvec3()),
+                    angle: 0.0,
+                };
+                for _ in 0..8 {
+                    let d = unit((base + rng.dir() * spread).as_dvec3());
+                    fast.extend(d);
+                    if exact.axis.dot(d) < exact.angle.cos() {
+                        exact = union_d(exact, DCone { axis: d, angle: 0.0 });
+                    }
+                    let angle_fast = fast.sin.atan2(fast.cos);
+                    assert!(
+                        (angle_fast - exact.angle).abs() <= 1e-9 * (1.0 + exact.angle),
+                        "half-angle {angle_fast} against {}",
+                        exact.angle
+                    );
+                    if exact.angle < 3.0 {
+                        assert!(angle(fast.axis, exact.axis) <= 1e-7 + 1e-6 * exact.angle);
+                    }
+                    // The inside test `axis·d ≥ cos φ` resolves angles to about 1e-8 rad
+                    // near zero (the stored angle is re-measured).
+                    let out = angle(fast.axis, d) - angle_fast;
+                    assert!(
+                        out <= 2e-8,
+                        "direction {out} rad outside, spread {spread}, half-angle {angle_fast}"
+                    );
+                }
+            }
+        }
+        // A direction opposite to the axis: a half-turn about some perpendicular.
+        let mut cone = LeafCone {
+            axis: DVec3::Z,
+            cos: 1.0,
+            sin: 0.0,
+        };
+        cone.extend(-DVec3::Z);
+        assert!(cone.cos.abs() < 1e-12 && (cone.sin - 1.0).abs() < 1e-12);
+        assert!(cone.axis.z.abs() < 1e-12);
     }
 
     #[test]
