@@ -1068,7 +1068,13 @@ mod tests {
                     let d = unit((base + rng.dir() * spread).as_dvec3());
                     fast.extend(d);
                     if exact.axis.dot(d) < exact.angle.cos() {
-                        exact = union_d(exact, DCone { axis: d, angle: 0.0 });
+                        exact = union_d(
+                            exact,
+                            DCone {
+                                axis: d,
+                                angle: 0.0,
+                            },
+                        );
                     }
                     let angle_fast = fast.sin.atan2(fast.cos);
                     assert!(

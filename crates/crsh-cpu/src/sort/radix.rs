@@ -1,14 +1,16 @@
-//! `radix`: sorts every (key, ray index) pair directly with an LSD/MSD radix sort (rdst), the
-//! baseline for `compress` (seed 000 §3.2.5 sorts chunks with the same radix sort, the
-//! thesis's reference \[13\]).
+//! `radix`: sorts every (key, ray index) pair directly with a least-significant-digit radix
+//! sort, the baseline for `compress` (seed 000 §3.2.5 sorts chunks with the same radix sort,
+//! the thesis's reference \[13\]).
 //!
-//! # Stability
+//! # Algorithm and stability
 //!
-//! Each key is sorted together with its index as one composite radix key: the index fills the
-//! 4 least significant bytes, the key's significant bytes (`⌈key_bits / 8⌉`, so a 32-bit key
-//! costs 4 passes, not 8) the bytes above. Composite keys are unique, so whatever algorithm rdst
-//! picks (some of its sorts are unstable) the result is the one order that sorts by key and
-//! then by index: the stable order, the same for any thread count.
+//! [`stable_radix_order`] sorts records of a key and its index in [`PAIR_DIGIT`]-bit digits of
+//! the key only, least significant first (`⌈key_bits / 8⌉` passes: a 32-bit key costs 4). Each
+//! pass histograms fixed blocks of [`PAIR_BLOCK`] records in parallel, scans the counts in
+//! (digit, block) order and scatters every block in parallel, so each pass is stable and the
+//! result is the stable order by key, the same for any thread count. A pass whose digit is
+//! the same for every key moves nothing and is skipped. Keys of at most 32 bits travel packed
+//! with their index in one `u64` (8 bytes a record), wider keys in 16-byte records.
 //!
 //! # Errors
 //! [`CoreError::InvalidInput`] when `key_bits > 64`, a key has bits set above `key_bits`, or
@@ -22,41 +24,93 @@ use crsh_core::{
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
-use rdst::{RadixKey, RadixSort};
 
 use crate::backend::Cpu;
 
-/// A key and its index, radix sorted on `4 + KB` bytes (index bytes least significant).
-#[derive(Clone, Copy, Debug)]
-struct Pair<const KB: usize> {
-    key: u64,
-    index: u32,
+/// A record of the least-significant-digit sort: its key's digits and the value riding along.
+trait Record: Copy + Send + Sync + Default {
+    /// The [`PAIR_DIGIT`]-bit digit of the key starting at key bit `shift`.
+    fn digit(&self, shift: u32) -> usize;
 }
 
-impl<const KB: usize> RadixKey for Pair<KB> {
-    const LEVELS: usize = 4 + KB;
-
+/// A key of at most 32 bits (high half) and its value (low half).
+impl Record for u64 {
     #[inline]
-    fn get_level(&self, level: usize) -> u8 {
-        if level < 4 {
-            (self.index >> (8 * level)) as u8
-        } else {
-            (self.key >> (8 * (level - 4))) as u8
-        }
+    fn digit(&self, shift: u32) -> usize {
+        ((*self >> (32 + shift)) as usize) & ((1 << PAIR_DIGIT) - 1)
     }
 }
 
-fn sort_pairs<const KB: usize>(keys: &[u64]) -> Vec<u32> {
-    let mut pairs: Vec<Pair<KB>> = keys
-        .par_iter()
-        .enumerate()
-        .map(|(i, &key)| Pair {
-            key,
-            index: i as u32,
-        })
-        .collect();
-    pairs.radix_sort_unstable();
-    pairs.par_iter().map(|p| p.index).collect()
+/// A key of up to 64 bits and its value.
+#[derive(Clone, Copy, Debug, Default)]
+struct Wide {
+    key: u64,
+    value: u32,
+}
+
+impl Record for Wide {
+    #[inline]
+    fn digit(&self, shift: u32) -> usize {
+        ((self.key >> shift) as usize) & ((1 << PAIR_DIGIT) - 1)
+    }
+}
+
+/// Sorts `a` stably by the low `key_bits` bits of its keys: one pass per [`PAIR_DIGIT`]-bit
+/// digit, least significant first, each a parallel block histogram, an exclusive scan of the
+/// digit counts in (digit, block) order and a parallel scatter (see the module docs). A pass
+/// whose digit is the same for every record is skipped.
+fn lsd_sort<R: Record>(mut a: Vec<R>, key_bits: u32) -> Vec<R> {
+    let n = a.len();
+    if n < 2 || key_bits == 0 {
+        return a;
+    }
+    let mut b = vec![R::default(); n];
+    let radix = 1usize << PAIR_DIGIT;
+    let blocks = n.div_ceil(PAIR_BLOCK);
+    let mut shift = 0;
+    while shift < key_bits {
+        // Per block, per digit counts.
+        let hist: Vec<Vec<u32>> = a
+            .par_chunks(PAIR_BLOCK)
+            .map(|chunk| {
+                let mut h = vec![0u32; radix];
+                for r in chunk {
+                    h[r.digit(shift)] += 1;
+                }
+                h
+            })
+            .collect();
+        let same_digit = (0..radix).any(|d| hist.iter().map(|h| h[d] as usize).sum::<usize>() == n);
+        if !same_digit {
+            // Exclusive scan in (digit, block) order: where each block's run of each digit
+            // starts.
+            let mut offsets = vec![vec![0u32; radix]; blocks];
+            let mut run = 0u32;
+            for d in 0..radix {
+                for (block, h) in hist.iter().enumerate() {
+                    offsets[block][d] = run;
+                    run += h[d];
+                }
+            }
+            // Scatter: every block writes disjoint slots.
+            let out = SharedSlice::new(&mut b);
+            a.par_chunks(PAIR_BLOCK)
+                .zip(offsets.into_par_iter())
+                .for_each(|(records, mut off)| {
+                    for &r in records {
+                        let d = r.digit(shift);
+                        let at = off[d] as usize;
+                        off[d] += 1;
+                        // SAFETY: the scan gives every (block, digit) a disjoint slot range of
+                        // exactly its count, so no two writes share a slot.
+                        unsafe { out.write(at, r) };
+                    }
+                });
+            std::mem::swap(&mut a, &mut b);
+        }
+        shift += PAIR_DIGIT;
+    }
+    a
 }
 
 /// Checks `keys` against `key_bits` (see the module's errors).
@@ -90,24 +144,37 @@ pub fn check_keys(keys: &[u64], key_bits: u32) -> Result<()> {
 /// As the module docs say.
 pub fn stable_radix_order(keys: &[u64], key_bits: u32) -> Result<Vec<u32>> {
     check_keys(keys, key_bits)?;
-    Ok(match key_bits.div_ceil(8) {
-        0 => (0..keys.len() as u32).collect(),
-        1 => sort_pairs::<1>(keys),
-        2 => sort_pairs::<2>(keys),
-        3 => sort_pairs::<3>(keys),
-        4 => sort_pairs::<4>(keys),
-        5 => sort_pairs::<5>(keys),
-        6 => sort_pairs::<6>(keys),
-        7 => sort_pairs::<7>(keys),
-        _ => sort_pairs::<8>(keys),
+    Ok(if key_bits <= 32 {
+        let records: Vec<u64> = keys
+            .par_iter()
+            .enumerate()
+            .map(|(i, &k)| k << 32 | i as u64)
+            .collect();
+        lsd_sort(records, key_bits)
+            .par_iter()
+            .map(|&r| r as u32)
+            .collect()
+    } else {
+        let records: Vec<Wide> = keys
+            .par_iter()
+            .enumerate()
+            .map(|(i, &key)| Wide {
+                key,
+                value: i as u32,
+            })
+            .collect();
+        lsd_sort(records, key_bits)
+            .par_iter()
+            .map(|r| r.value)
+            .collect()
     })
 }
 
-/// Pairs per block of [`stable_sort_pairs_u32`]: each block histograms and scatters its keys
+/// Records per block of the radix passes ([`stable_radix_order`], [`stable_sort_pairs_u32`]): each block histograms and scatters its keys
 /// on its own, so blocks run in parallel and the order is the same for any thread count.
 pub const PAIR_BLOCK: usize = 1 << 16;
 
-/// Digit width of [`stable_sort_pairs_u32`]: 8 bits, so a digit's 256 write streams stay
+/// Digit width of the radix passes: 8 bits, so a digit's 256 write streams stay
 /// within the caches and the TLB (11-bit digits, two passes for a 4M-cell grid instead of
 /// three, measured 1.3-1.4× slower on 3.2M pairs: 2048 streams over a 25 MB array miss the TLB
 /// on most writes).
@@ -148,60 +215,16 @@ pub fn stable_sort_pairs_u32(
             )));
         }
     }
-    let n = keys.len();
-    if n < 2 || key_bits == 0 {
-        return Ok((keys.to_vec(), values.to_vec()));
-    }
     // One record per pair, key in the high half: one write stream per digit bucket.
-    let mut a: Vec<u64> = keys
+    let records: Vec<u64> = keys
         .par_iter()
         .zip(values.par_iter())
         .map(|(&k, &v)| (k as u64) << 32 | v as u64)
         .collect();
-    let mut b = vec![0u64; n];
-    let radix = 1usize << PAIR_DIGIT;
-    let blocks = n.div_ceil(PAIR_BLOCK);
-    let mut shift = 32;
-    while shift < 32 + key_bits {
-        let digit = |r: u64| ((r >> shift) as usize) & (radix - 1);
-        // Per block, per digit counts.
-        let hist: Vec<Vec<u32>> = a
-            .par_chunks(PAIR_BLOCK)
-            .map(|chunk| {
-                let mut h = vec![0u32; radix];
-                for &r in chunk {
-                    h[digit(r)] += 1;
-                }
-                h
-            })
-            .collect();
-        // Exclusive scan in (digit, block) order: where each block's run of each digit starts.
-        let mut offsets = vec![vec![0u32; radix]; blocks];
-        let mut run = 0u32;
-        for d in 0..radix {
-            for (block, h) in hist.iter().enumerate() {
-                offsets[block][d] = run;
-                run += h[d];
-            }
-        }
-        // Scatter: every block writes disjoint slots.
-        let out = SharedSlice::new(&mut b);
-        a.par_chunks(PAIR_BLOCK)
-            .zip(offsets.into_par_iter())
-            .for_each(|(records, mut off)| {
-                for &r in records {
-                    let d = digit(r);
-                    let at = off[d] as usize;
-                    off[d] += 1;
-                    // SAFETY: the scan gives every (block, digit) a disjoint slot range of
-                    // exactly its count, so no two writes share a slot.
-                    unsafe { out.write(at, r) };
-                }
-            });
-        std::mem::swap(&mut a, &mut b);
-        shift += PAIR_DIGIT;
-    }
-    Ok(a.par_iter().map(|&r| ((r >> 32) as u32, r as u32)).unzip())
+    Ok(lsd_sort(records, key_bits)
+        .par_iter()
+        .map(|&r| ((r >> 32) as u32, r as u32))
+        .unzip())
 }
 
 /// A slice written at disjoint indices from several threads (the radix scatter).
@@ -286,7 +309,7 @@ pub(crate) mod tests {
     use super::*;
 
     #[test]
-    fn pair_sort_is_stable_and_equals_the_composite_key_order() {
+    fn pair_sort_is_stable_and_equals_the_key_order() {
         let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
         for (n, bits) in [
             (0usize, 5u32),
@@ -364,6 +387,30 @@ pub(crate) mod tests {
             let order = stable_radix_order(&keys, bits).unwrap();
             assert_eq!(order, oracle(&keys), "{bits} bits");
         }
+    }
+
+    /// Digits that are the same for every key are skipped: keys whose low, middle or high
+    /// bytes are constant (one light, a constant field) still sort stably, narrow and wide.
+    #[test]
+    fn constant_digits_are_skipped_without_changing_the_order() {
+        let mut rng = Rng(0x5eed);
+        for (bits, mask, fixed) in [
+            (32u32, 0xffff_ff00u64, 0x5u64),
+            (32, 0x00ff_ff00, 0x7700_0000),
+            (24, 0x0000_00ff, 0x00ab_cd00),
+            (64, 0xff00_0000_ffff_0000, 0x0012_3400_0000_0042),
+            (48, 0x0000_0000_0000_ff0f, 0x0000_1200_0000_0000),
+        ] {
+            let keys: Vec<u64> = (0..50_000)
+                .map(|_| (((rng.next() % 97) * 0x0101_0101_0101_0101) & mask) | fixed)
+                .collect();
+            assert_eq!(stable_radix_order(&keys, bits).unwrap(), oracle(&keys));
+        }
+        let same = vec![0x1234u64; 1000];
+        assert_eq!(
+            stable_radix_order(&same, 16).unwrap(),
+            (0..1000).collect::<Vec<u32>>()
+        );
     }
 
     #[test]
