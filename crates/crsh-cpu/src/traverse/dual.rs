@@ -420,39 +420,119 @@ pub fn triangle_box(tri: [Vec3; 3]) -> Aabb {
 /// the interval is empty or misses `bounds`, and the whole space for a ray that is not
 /// [`Ray::is_valid`] (it is then the intersector's to refuse).
 pub fn segment_box(ray: &Ray, bounds: &Aabb) -> Aabb {
+    match segment_extent(&Segment::of(ray), bounds) {
+        Extent::Everywhere => EVERYWHERE,
+        Extent::Empty => Aabb::EMPTY,
+        Extent::Span(lo, hi) => round_segment_box(lo, hi),
+    }
+}
+
+/// Where a ray can report a hit, before rounding to `f32` ([`segment_box`]).
+#[derive(Clone, Copy, Debug)]
+enum Extent {
+    /// Nowhere (an empty interval, or one that misses the bounds).
+    Empty,
+    /// Anywhere (a ray that is not valid).
+    Everywhere,
+    /// Within the `f64` box of the segment's end points.
+    Span(DVec3, DVec3),
+}
+
+/// What the box tests read of a ray (32 bytes of its 64): the traversal gathers them once in
+/// leaf order, so that a lowest node's rays lie side by side.
+#[derive(Clone, Copy, Debug)]
+struct Segment {
+    origin: Vec3,
+    t_min: f32,
+    dir: Vec3,
+    t_max: f32,
+}
+
+impl Segment {
+    #[inline]
+    fn of(ray: &Ray) -> Segment {
+        Segment {
+            origin: ray.origin,
+            t_min: ray.t_min,
+            dir: ray.dir,
+            t_max: ray.t_max,
+        }
+    }
+
+    /// [`Ray::is_valid`].
+    #[inline]
+    fn is_valid(&self) -> bool {
+        self.origin.is_finite()
+            && self.dir.is_finite()
+            && self.dir.length_squared() > 0.0
+            && !self.t_min.is_nan()
+            && !self.t_max.is_nan()
+    }
+}
+
+/// The rays' segments in leaf order (`order`'s).
+fn leaf_segments(rays: &[Ray], order: &[u32]) -> Vec<Segment> {
+    order
+        .par_iter()
+        .map(|&i| Segment::of(&rays[i as usize]))
+        .collect()
+}
+
+/// [`segment_box`]'s extent of `ray` in `f64`, unrounded.
+#[inline]
+fn segment_extent(ray: &Segment, bounds: &Aabb) -> Extent {
     if !ray.is_valid() {
-        return Aabb {
-            min: Vec3::NEG_INFINITY,
-            max: Vec3::INFINITY,
-        };
+        return Extent::Everywhere;
     }
     if bounds.is_empty() {
-        return Aabb::EMPTY;
+        return Extent::Empty;
     }
     let (t0, t1) = if ray.t_min.is_finite() && ray.t_max.is_finite() {
         // A bounded segment (shadow rays): its end points, no clipping (no divisions).
         if ray.t_min > ray.t_max {
-            return Aabb::EMPTY;
+            return Extent::Empty;
         }
         (ray.t_min as f64, ray.t_max as f64)
     } else {
         let Some(t) = clip(ray, bounds) else {
-            return Aabb::EMPTY;
+            return Extent::Empty;
         };
         t
     };
     let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
     let (p0, p1) = (o + d * t0, o + d * t1);
-    let (plo, phi) = (p0.min(p1), p0.max(p1));
-    let scale = plo.abs().max(phi.abs()).max_element().max(1.0);
-    round_box(plo, phi, 1e-9 * scale)
+    Extent::Span(p0.min(p1), p0.max(p1))
+}
+
+/// The `f32` box around the `f64` box `[lo, hi]`, padded by `1e-9·max(1, |corner|∞)` and
+/// rounded outwards. The pad grows with the box, so the box of a union of spans is at least the
+/// union of their boxes.
+fn round_segment_box(lo: DVec3, hi: DVec3) -> Aabb {
+    let scale = lo.abs().max(hi.abs()).max_element().max(1.0);
+    round_box(lo, hi, 1e-9 * scale)
+}
+
+/// The union of [`segment_box`] over `rays`, rounded once: the whole space if one of them is
+/// not valid, the empty box if every extent is empty.
+fn segment_union_box<'r>(rays: impl Iterator<Item = &'r Segment>, bounds: &Aabb) -> Aabb {
+    let mut span: Option<(DVec3, DVec3)> = None;
+    for ray in rays {
+        match segment_extent(ray, bounds) {
+            Extent::Everywhere => return EVERYWHERE,
+            Extent::Empty => {}
+            Extent::Span(lo, hi) => {
+                span = Some(span.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi))));
+            }
+        }
+    }
+    span.map_or(Aabb::EMPTY, |(lo, hi)| round_segment_box(lo, hi))
 }
 
 /// The part `[t0, t1]` of a valid ray's interval inside the non-empty box `b` (slabs in
 /// `f64`, widened by a relative `1e-9` for the rounding of the division), `None` when it is
 /// empty.
 #[inline]
-fn clip(ray: &Ray, b: &Aabb) -> Option<(f64, f64)> {
+fn clip(ray: &Segment, b: &Aabb) -> Option<(f64, f64)> {
     let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
     let (lo, hi) = (b.min.as_dvec3(), b.max.as_dvec3());
     let (mut t0, mut t1) = (ray.t_min as f64, ray.t_max as f64);
@@ -478,20 +558,21 @@ fn clip(ray: &Ray, b: &Aabb) -> Option<(f64, f64)> {
 /// [`clip`] itself, on nodes whose rays are all valid.
 #[cfg(test)]
 fn segment_meets_box(ray: &Ray, b: &Aabb) -> bool {
-    !ray.is_valid() || clip(ray, b).is_some()
+    !ray.is_valid() || clip(&Segment::of(ray), b).is_some()
 }
 
 /// The segment box ([`segment_box`]) of every ray node, by level as the hierarchy's
 /// `levels`: a lowest node's is the union of its rays', a higher node's the union of its
 /// children's. The hierarchy's shape must have been checked ([`prepare_nodes`]).
-fn ray_node_boxes(rays: &[Ray], h: &RayHierarchy<Cpu>, bounds: &Aabb) -> Vec<Vec<Aabb>> {
+fn ray_node_boxes(segments: &[Segment], h: &RayHierarchy<Cpu>, bounds: &Aabb) -> Vec<Vec<Aabb>> {
     let offsets = h.leaf_offsets.as_deref();
     let lowest: Vec<Aabb> = (0..h.levels[0].len())
         .into_par_iter()
         .map(|n| {
-            lowest_node_leaves(n, h.subdivision, offsets, rays.len())
-                .map(|l| segment_box(&rays[h.order[l] as usize], bounds))
-                .fold(Aabb::EMPTY, Aabb::union)
+            segment_union_box(
+                segments[lowest_node_leaves(n, h.subdivision, offsets, segments.len())].iter(),
+                bounds,
+            )
         })
         .collect();
     let sub = h.subdivision as usize;
@@ -1202,7 +1283,10 @@ const EVERYWHERE: Aabb = Aabb {
 
 /// What the tasks share.
 struct Ctx<'a> {
-    rays: &'a [Ray],
+    /// The batch's size.
+    n_rays: usize,
+    /// The rays' segments in leaf order (empty unless boxes or single rays are on).
+    segments: &'a [Segment],
     hierarchy: &'a RayHierarchy<Cpu>,
     /// Whether lowest nodes descend to single rays.
     single_rays: bool,
@@ -1250,15 +1334,14 @@ impl Task {
                     p.node as usize,
                     ctx.hierarchy.subdivision,
                     ctx.hierarchy.leaf_offsets.as_deref(),
-                    ctx.rays.len(),
+                    ctx.n_rays,
                 );
                 let bx = tree.bx(p.obj);
                 let (mut live, mut left) = (0u32, p.mask);
                 while left != 0 {
                     let i = left.trailing_zeros();
                     left &= left - 1;
-                    let ray = &ctx.rays[ctx.hierarchy.order[leaves.start + i as usize] as usize];
-                    if clip(ray, bx).is_some() {
+                    if clip(&ctx.segments[leaves.start + i as usize], bx).is_some() {
                         live |= 1 << i;
                     }
                 }
@@ -1318,7 +1401,7 @@ impl Task {
                         p.node as usize,
                         ctx.hierarchy.subdivision,
                         ctx.hierarchy.leaf_offsets.as_deref(),
-                        ctx.rays.len(),
+                        ctx.n_rays,
                     )
                     .len();
                     // A node with a ray that is not valid has the whole space as its box
@@ -1366,9 +1449,58 @@ impl Task {
 /// Sorts a task's candidates by `(node, triangle)` and merges repeats (a triangle in several
 /// grid cells is reached once per cell) into one candidate for the rays of all of them.
 fn sort_and_merge(out: &mut Vec<(Candidate, u32)>) {
-    // (node, triangle) order, as one 64-bit key (the same order as `Candidate`'s `Ord`).
-    out.sort_unstable_by_key(|(c, _)| (c.node as u64) << 32 | c.tri as u64);
+    sort_candidates(out);
     merge_repeats(out);
+}
+
+/// Sorts a task's candidates by `(node, triangle)` (the order of `Candidate`'s `Ord`): a
+/// least-significant-digit radix sort in bytes of the key `(node − lowest node, triangle)`
+/// packed into as few bits as the task's ranges need (a task's nodes lie under one top node,
+/// so two or three passes mostly), a comparison sort for short arrays. Equal pairs (grid
+/// repeats) end up adjacent in some order, which [`merge_repeats`] does not depend on.
+fn sort_candidates(out: &mut Vec<(Candidate, u32)>) {
+    if out.len() < 256 {
+        out.sort_unstable_by_key(|(c, _)| (c.node as u64) << 32 | c.tri as u64);
+        return;
+    }
+    let (mut lo, mut hi, mut tri_max) = (u32::MAX, 0u32, 0u32);
+    for (c, _) in out.iter() {
+        lo = lo.min(c.node);
+        hi = hi.max(c.node);
+        tri_max = tri_max.max(c.tri);
+    }
+    let tri_bits = u32::BITS - tri_max.leading_zeros();
+    let bits = tri_bits + (u32::BITS - (hi - lo).leading_zeros());
+    let key = |c: &Candidate| ((c.node - lo) as u64) << tri_bits | c.tri as u64;
+    let mut from = std::mem::take(out);
+    let mut to = Vec::with_capacity(from.len());
+    let mut shift = 0;
+    while shift < bits {
+        let mut count = [0usize; 256];
+        for (c, _) in &from {
+            count[(key(c) >> shift) as usize & 255] += 1;
+        }
+        if count.contains(&from.len()) {
+            shift += 8;
+            continue;
+        }
+        let mut start = [0usize; 256];
+        let mut acc = 0;
+        for (s, k) in start.iter_mut().zip(count) {
+            *s = acc;
+            acc += k;
+        }
+        to.clear();
+        to.resize(from.len(), (Candidate { node: 0, tri: 0 }, 0));
+        for e in &from {
+            let d = (key(&e.0) >> shift) as usize & 255;
+            to[start[d]] = *e;
+            start[d] += 1;
+        }
+        std::mem::swap(&mut from, &mut to);
+        shift += 8;
+    }
+    *out = from;
 }
 
 /// Appends a candidate and its lane mask to a task's array, growing it by at least 256 pairs
@@ -1561,8 +1693,14 @@ impl Dual {
         };
         let top_level = nodes.len() - 1;
         let n_top = nodes[top_level].len();
+        // The rays' segments in leaf order: what the node boxes and the single-ray tests read.
+        let segments = if box_test || single_rays {
+            leaf_segments(rays, &hierarchy.order)
+        } else {
+            Vec::new()
+        };
         let boxes =
-            (box_test || single_rays).then(|| ray_node_boxes(rays, hierarchy, &tree.bounds()));
+            (box_test || single_rays).then(|| ray_node_boxes(&segments, hierarchy, &tree.bounds()));
         let nodes: Vec<Vec<RayNode>> = nodes
             .into_iter()
             .enumerate()
@@ -1579,7 +1717,8 @@ impl Dual {
             .collect();
         drop(boxes);
         let ctx = Ctx {
-            rays,
+            n_rays: rays.len(),
+            segments: &segments,
             hierarchy,
             single_rays,
             box_test,
@@ -1709,7 +1848,7 @@ pub(crate) mod tests {
     ) {
         use crate::triangle::{PreparedTriangle, RayPre};
         let brute = BruteForce::from_scene(scene);
-        let boxes = ray_node_boxes(rays, h, &trav_bounds(trav));
+        let boxes = ray_node_boxes(&leaf_segments(rays, &h.order), h, &trav_bounds(trav));
         let tri_box = |t: u32| triangle_box(scene.triangle(t as usize));
         let node_rays = |n: u32| -> Vec<Ray> {
             lowest_node_leaves(n as usize, h.subdivision, None, rays.len())
@@ -2392,6 +2531,65 @@ pub(crate) mod tests {
         let all = segment_box(&nan, &bounds);
         assert!(all.min.cmpeq(Vec3::NEG_INFINITY).all() && all.max.cmpeq(Vec3::INFINITY).all());
         assert!(segment_box(&parallel, &Aabb::EMPTY).is_empty());
+        // A node's box, rounded once, holds the boxes of its rays rounded one by one; an
+        // invalid ray makes it the whole space, only empty extents the empty box.
+        for group in rays.chunks(8) {
+            let b = segment_union_box(
+                group.iter().map(Segment::of).collect::<Vec<_>>().iter(),
+                &bounds,
+            );
+            for r in group {
+                let one = segment_box(r, &bounds);
+                if !one.is_empty() {
+                    assert!(one.min.cmpge(b.min).all() && one.max.cmple(b.max).all());
+                }
+            }
+        }
+        let with_nan = [parallel, nan, short];
+        let b = segment_union_box(with_nan.map(|r| Segment::of(&r)).iter(), &bounds);
+        assert!(b.min.cmpeq(Vec3::NEG_INFINITY).all() && b.max.cmpeq(Vec3::INFINITY).all());
+        assert!(
+            segment_union_box([away, reversed].map(|r| Segment::of(&r)).iter(), &bounds).is_empty()
+        );
+        assert!(segment_union_box(std::iter::empty(), &bounds).is_empty());
+    }
+
+    /// The radix sort of a task's candidates is the `(node, triangle)` order, with repeats
+    /// adjacent, for short and long arrays and wide node and triangle ranges.
+    #[test]
+    fn candidates_sort_by_node_then_triangle() {
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for (n, nodes, tris, base) in [
+            (10usize, 5u32, 7u32, 0u32),
+            (300, 64, 1000, 4096),
+            (5000, 1, 262_144, 17),
+            (5000, 4096, 3, 1 << 30),
+            (20_000, 70_000, 4_000_000_000, 5),
+        ] {
+            let mut v: Vec<(Candidate, u32)> = (0..n)
+                .map(|i| {
+                    let c = Candidate {
+                        node: base + (next() % nodes as u64) as u32,
+                        tri: (next() % tris as u64) as u32,
+                    };
+                    (c, i as u32)
+                })
+                .collect();
+            let mut want: Vec<Candidate> = v.iter().map(|e| e.0).collect();
+            want.sort_unstable();
+            sort_candidates(&mut v);
+            assert_eq!(
+                v.iter().map(|e| e.0).collect::<Vec<_>>(),
+                want,
+                "{n} {nodes} {tris}"
+            );
+        }
     }
 
     /// Axis-aligned floors and walls (flat boxes) made of grids of triangles, plus a few
