@@ -183,9 +183,9 @@ pub const PAIR_DIGIT: u32 = 8;
 /// `(keys, values)` sorted by the low `key_bits` bits of `keys`, stably (equal keys keep
 /// their input order): a least-significant-digit radix sort of `u32` key-value pairs packed in
 /// one `u64` each, in [`PAIR_DIGIT`]-bit digits, each pass a parallel block histogram, an
-/// exclusive scan of the digit counts in (digit, block) order and a parallel scatter; the twin of the wgpu backend's
-/// block radix sort. Cheaper than [`stable_radix_order`] when the values ride along (8 bytes
-/// per pair, no composite index key): what a uniform grid's build sorts (seed 002 §3.2.4).
+/// exclusive scan of the digit counts in (digit, block) order and a parallel scatter (the
+/// passes of [`stable_radix_order`]); the twin of the wgpu backend's block radix sort. What a
+/// uniform grid's build sorts (seed 002 §3.2.4): the values ride along with their keys.
 ///
 /// # Errors
 /// [`CoreError::InvalidInput`] when the lengths differ, `key_bits > 32`, a key has bits above
