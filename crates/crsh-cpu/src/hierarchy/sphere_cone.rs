@@ -19,7 +19,9 @@
 //!     the old cone (eq. 3.8-3.9) and the ray `r`: axis `normalize(e + r)` (eq. 3.10),
 //!     half-angle `acos(x_new·r)` (eq. 3.11). This is computed in angle form (see
 //!     [`extend_cone`]), which is the same cone while the result is narrower than a hemisphere
-//!     and stays correct beyond it, where `e + r` would point the wrong way or vanish.
+//!     and stays correct beyond it, where `e + r` would point the wrong way or vanish. The
+//!     builder sums and halves those angles on `(cos, sin)` pairs (square roots, no
+//!     trigonometry); the stored angle is re-measured either way (*Float rounding*).
 //!   - *Sphere*: the exact minimal sphere of the origins ([`crsh_scene::bounding::min_sphere`],
 //!     Welzl); rays that share an origin (shadow rays from a light) get radius 0.
 //! - **Upper levels** group `subdivision` consecutive nodes of the level below.

@@ -129,8 +129,10 @@
 //!   `o + t·d` with `t` in the ray's interval, clipped (in `f64`, with a relative `1e-9` of
 //!   slack on the slab distances) to the box of all triangles; a ray whose interval misses it
 //!   has the empty box and one that is not [`Ray::is_valid`] the whole space (the intersector
-//!   refuses it). A lowest node's box is the union of its rays', a higher node's the union of
-//!   its children's; they are computed per traversal, O(rays).
+//!   refuses it). A lowest node's box is the union of its rays' (their `f64` extents joined
+//!   and rounded once, which contains the union of their rounded boxes), a higher node's the
+//!   union of its children's; they are computed per traversal, O(rays), from the rays'
+//!   segments gathered once in leaf order (which the single-ray tests read too).
 //! - A pair passes when the boxes overlap (touching counts). The pair test (boxes, then
 //!   cone and sphere) counts **once** in the counters below, as one node test of a BVH does.
 //!
