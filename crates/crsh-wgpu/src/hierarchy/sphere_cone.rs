@@ -3,7 +3,9 @@
 //!
 //! The twin is [`crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder`] (same parameters
 //! `subdivision` and `depth`, same level sizes, the same constructions): leaf cones by the
-//! incremental eq. 3.8-3.11 in angle form, leaf spheres as the exact minimal ball of the origins
+//! incremental eq. 3.8-3.11 in angle form (the CPU sums and halves the same angles on
+//! `(cos, sin)` pairs: the same cone up to rounding), leaf spheres as the exact minimal ball of
+//! the origins
 //! (Welzl's algorithm, here in its nested non-recursive form; rays from one point get radius
 //! 0), upper levels folding the tight cone and sphere unions, then every stored bound
 //! re-measured against the stored axis and centre, and `reach` per node (the farthest point a

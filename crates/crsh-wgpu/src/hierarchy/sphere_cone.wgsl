@@ -184,7 +184,8 @@ fn leaves(@builtin(global_invocation_id) gid: vec3<u32>,
     }
     let first = i * p.sub;
     let n = min(p.below - first, p.sub);
-    // Cone: eq. 3.8-3.11 one ray at a time (crsh_cpu's leaf_node).
+    // Cone: eq. 3.8-3.11 one ray at a time (crsh_cpu's leaf_node, which does it on (cos, sin)
+    // pairs; here in angle form).
     var axis = unit3(ray_dir(rays[order[first]]));
     var phi = 0.0;
     var cos_phi = 1.0;
