@@ -182,14 +182,22 @@ impl Ray {
         self.origin + self.dir * t
     }
 
-    /// True when origin, direction and interval are finite and the direction is non-zero.
+    /// True when origin, direction and interval are usable: [`is_valid_segment`] of its fields.
     pub fn is_valid(&self) -> bool {
-        self.origin.is_finite()
-            && self.dir.is_finite()
-            && self.dir.length_squared() > 0.0
-            && !self.t_min.is_nan()
-            && !self.t_max.is_nan()
+        is_valid_segment(self.origin, self.dir, self.t_min, self.t_max)
     }
+}
+
+/// Whether a ray with these fields is usable: finite origin and direction, a non-zero
+/// direction, and interval ends that are not NaN (infinite ends are allowed). [`Ray::is_valid`],
+/// for code that keeps only these fields of a ray.
+#[inline]
+pub fn is_valid_segment(origin: Vec3, dir: Vec3, t_min: f32, t_max: f32) -> bool {
+    origin.is_finite()
+        && dir.is_finite()
+        && dir.length_squared() > 0.0
+        && !t_min.is_nan()
+        && !t_max.is_nan()
 }
 
 /// The result of intersecting one ray (16 bytes).

@@ -464,11 +464,7 @@ impl Segment {
     /// [`Ray::is_valid`].
     #[inline]
     fn is_valid(&self) -> bool {
-        self.origin.is_finite()
-            && self.dir.is_finite()
-            && self.dir.length_squared() > 0.0
-            && !self.t_min.is_nan()
-            && !self.t_max.is_nan()
+        crsh_core::ray::is_valid_segment(self.origin, self.dir, self.t_min, self.t_max)
     }
 }
 
