@@ -27,44 +27,31 @@ use rayon::prelude::*;
 
 use crate::backend::Cpu;
 
-/// A record of the least-significant-digit sort: its key's digits and the value riding along.
-trait Record: Copy + Send + Sync + Default {
-    /// The [`PAIR_DIGIT`]-bit digit of the key starting at key bit `shift`.
-    fn digit(&self, shift: u32) -> usize;
-}
-
-/// A key of at most 32 bits (high half) and its value (low half).
-impl Record for u64 {
-    #[inline]
-    fn digit(&self, shift: u32) -> usize {
-        ((*self >> (32 + shift)) as usize) & ((1 << PAIR_DIGIT) - 1)
-    }
-}
-
-/// A key of up to 64 bits and its value.
-#[derive(Clone, Copy, Debug, Default)]
+/// A key of up to 64 bits and its value (the records of keys wider than 32 bits; narrower keys
+/// travel in one `u64`, key in the high half).
+#[derive(Clone, Copy, Debug)]
 struct Wide {
     key: u64,
     value: u32,
 }
 
-impl Record for Wide {
-    #[inline]
-    fn digit(&self, shift: u32) -> usize {
-        ((self.key >> shift) as usize) & ((1 << PAIR_DIGIT) - 1)
-    }
-}
-
-/// Sorts `a` stably by the low `key_bits` bits of its keys: one pass per [`PAIR_DIGIT`]-bit
-/// digit, least significant first, each a parallel block histogram, an exclusive scan of the
-/// digit counts in (digit, block) order and a parallel scatter (see the module docs). A pass
-/// whose digit is the same for every record is skipped.
-fn lsd_sort<R: Record>(mut a: Vec<R>, key_bits: u32) -> Vec<R> {
+/// Sorts `a` stably by keys of `key_bits` bits, `digit(record, shift)` being the
+/// [`PAIR_DIGIT`]-bit digit of a record's key from bit `shift` on (`< 2^PAIR_DIGIT`): one pass
+/// per digit, least significant first, each a block histogram, an exclusive scan of the digit
+/// counts in (digit, block) order and a scatter, blocks in parallel (see the module docs). A
+/// pass whose digit is the same for every record is skipped. Shared with the `dual`
+/// traversal's candidate sort.
+pub(crate) fn lsd_sort_by<R: Copy + Send + Sync>(
+    mut a: Vec<R>,
+    key_bits: u32,
+    digit: impl Fn(&R, u32) -> usize + Sync,
+) -> Vec<R> {
     let n = a.len();
     if n < 2 || key_bits == 0 {
         return a;
     }
-    let mut b = vec![R::default(); n];
+    // Scratch of the same length (every slot is written before it is read).
+    let mut b = a.clone();
     let radix = 1usize << PAIR_DIGIT;
     let blocks = n.div_ceil(PAIR_BLOCK);
     let mut shift = 0;
@@ -75,7 +62,7 @@ fn lsd_sort<R: Record>(mut a: Vec<R>, key_bits: u32) -> Vec<R> {
             .map(|chunk| {
                 let mut h = vec![0u32; radix];
                 for r in chunk {
-                    h[r.digit(shift)] += 1;
+                    h[digit(r, shift)] += 1;
                 }
                 h
             })
@@ -98,7 +85,7 @@ fn lsd_sort<R: Record>(mut a: Vec<R>, key_bits: u32) -> Vec<R> {
                 .zip(offsets.into_par_iter())
                 .for_each(|(records, mut off)| {
                     for &r in records {
-                        let d = r.digit(shift);
+                        let d = digit(&r, shift);
                         let at = off[d] as usize;
                         off[d] += 1;
                         // SAFETY: the scan gives every (block, digit) a disjoint slot range of
@@ -111,6 +98,13 @@ fn lsd_sort<R: Record>(mut a: Vec<R>, key_bits: u32) -> Vec<R> {
         shift += PAIR_DIGIT;
     }
     a
+}
+
+/// The digit of a narrow record: a key of at most 32 bits in the high half of a `u64`, its value
+/// in the low half.
+#[inline]
+fn narrow_digit(r: &u64, shift: u32) -> usize {
+    ((*r >> (32 + shift)) as usize) & ((1 << PAIR_DIGIT) - 1)
 }
 
 /// Checks `keys` against `key_bits` (see the module's errors).
@@ -150,7 +144,7 @@ pub fn stable_radix_order(keys: &[u64], key_bits: u32) -> Result<Vec<u32>> {
             .enumerate()
             .map(|(i, &k)| k << 32 | i as u64)
             .collect();
-        lsd_sort(records, key_bits)
+        lsd_sort_by(records, key_bits, narrow_digit)
             .par_iter()
             .map(|&r| r as u32)
             .collect()
@@ -163,10 +157,12 @@ pub fn stable_radix_order(keys: &[u64], key_bits: u32) -> Result<Vec<u32>> {
                 value: i as u32,
             })
             .collect();
-        lsd_sort(records, key_bits)
-            .par_iter()
-            .map(|r| r.value)
-            .collect()
+        lsd_sort_by(records, key_bits, |r: &Wide, shift| {
+            ((r.key >> shift) as usize) & ((1 << PAIR_DIGIT) - 1)
+        })
+        .par_iter()
+        .map(|r| r.value)
+        .collect()
     })
 }
 
@@ -221,7 +217,7 @@ pub fn stable_sort_pairs_u32(
         .zip(values.par_iter())
         .map(|(&k, &v)| (k as u64) << 32 | v as u64)
         .collect();
-    Ok(lsd_sort(records, key_bits)
+    Ok(lsd_sort_by(records, key_bits, narrow_digit)
         .par_iter()
         .map(|&r| ((r >> 32) as u32, r as u32))
         .unzip())

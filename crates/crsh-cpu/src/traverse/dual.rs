@@ -227,6 +227,7 @@ use crate::backend::Cpu;
 use crate::intersect::brute::merge_repeats;
 use crate::intersect::bvh::{build_bvh2, obvhs_triangle, BuildQuality};
 use crate::intersect::grid::{GridData, MAX_DENSITY, MIN_DENSITY};
+use crate::sort::radix::{lsd_sort_by, PAIR_DIGIT};
 use obvhs::triangle::Triangle;
 
 /// The choices of parameter `objects`.
@@ -1451,11 +1452,12 @@ fn sort_and_merge(out: &mut Vec<(Candidate, u32)>) {
     merge_repeats(out);
 }
 
-/// Sorts a task's candidates by `(node, triangle)` (the order of `Candidate`'s `Ord`): a
-/// least-significant-digit radix sort in bytes of the key `(node − lowest node, triangle)`
-/// packed into as few bits as the task's ranges need (a task's nodes lie under one top node,
-/// so two or three passes mostly), a comparison sort for short arrays. Equal pairs (grid
-/// repeats) end up adjacent in some order, which [`merge_repeats`] does not depend on.
+/// Sorts a task's candidates by `(node, triangle)` (the order of `Candidate`'s `Ord`): the
+/// radix sort of [`crate::sort::radix`] ([`lsd_sort_by`]) in bytes of the key
+/// `(node − lowest node, triangle)` packed into as few bits as the task's ranges need (a
+/// task's nodes lie under one top node, so two or three passes mostly), a comparison sort for
+/// short arrays. Equal pairs (grid repeats) end up adjacent in some order, which
+/// [`merge_repeats`] does not depend on.
 fn sort_candidates(out: &mut Vec<(Candidate, u32)>) {
     if out.len() < 256 {
         out.sort_unstable_by_key(|(c, _)| (c.node as u64) << 32 | c.tri as u64);
@@ -1470,35 +1472,9 @@ fn sort_candidates(out: &mut Vec<(Candidate, u32)>) {
     let tri_bits = u32::BITS - tri_max.leading_zeros();
     let bits = tri_bits + (u32::BITS - (hi - lo).leading_zeros());
     let key = |c: &Candidate| ((c.node - lo) as u64) << tri_bits | c.tri as u64;
-    let mut from = std::mem::take(out);
-    let mut to = Vec::with_capacity(from.len());
-    let mut shift = 0;
-    while shift < bits {
-        let mut count = [0usize; 256];
-        for (c, _) in &from {
-            count[(key(c) >> shift) as usize & 255] += 1;
-        }
-        if count.contains(&from.len()) {
-            shift += 8;
-            continue;
-        }
-        let mut start = [0usize; 256];
-        let mut acc = 0;
-        for (s, k) in start.iter_mut().zip(count) {
-            *s = acc;
-            acc += k;
-        }
-        to.clear();
-        to.resize(from.len(), (Candidate { node: 0, tri: 0 }, 0));
-        for e in &from {
-            let d = (key(&e.0) >> shift) as usize & 255;
-            to[start[d]] = *e;
-            start[d] += 1;
-        }
-        std::mem::swap(&mut from, &mut to);
-        shift += 8;
-    }
-    *out = from;
+    *out = lsd_sort_by(std::mem::take(out), bits, |e, shift| {
+        (key(&e.0) >> shift) as usize & ((1 << PAIR_DIGIT) - 1)
+    });
 }
 
 /// Appends a candidate and its lane mask to a task's array, growing it by at least 256 pairs
