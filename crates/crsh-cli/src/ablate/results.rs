@@ -1144,6 +1144,26 @@ mod tests {
         assert_eq!(FramesTotals::of(&[]), FramesTotals::default());
     }
 
+    /// `results.json` is the record `--redraw`, `--merge` and `compare` rebuild everything
+    /// from, so every f64 it holds must read back bit for bit (serde_json's default parser
+    /// misrounds about one value in ten; the workspace enables `float_roundtrip`).
+    #[test]
+    fn results_json_floats_read_back_exactly() {
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut values = vec![985.690_694_632_869_5, 212.918_907_267_134_6, 0.1, 1e-300];
+        for _ in 0..20_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            values.push((x >> 11) as f64 / (1u64 << 53) as f64 * 1000.0);
+        }
+        let text = serde_json::to_string(&values).unwrap();
+        let back: Vec<f64> = serde_json::from_str(&text).unwrap();
+        for (v, b) in values.iter().zip(&back) {
+            assert_eq!(v.to_bits(), b.to_bits(), "{v:?} read back as {b:?}");
+        }
+    }
+
     #[test]
     fn utc_dates() {
         assert_eq!(utc_from_unix(0), "1970-01-01T00:00:00Z");
