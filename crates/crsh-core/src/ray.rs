@@ -188,6 +188,18 @@ impl Ray {
     }
 }
 
+/// `Ok` when a batch of `rays` rays comes with as many hits; else the error every stage gives
+/// for a mismatch (`what`: what the rays are, e.g. `"rays"` or `"shadow rays"`).
+pub fn check_hits_per_ray(what: &str, rays: usize, hits: usize) -> crate::Result<()> {
+    if rays == hits {
+        Ok(())
+    } else {
+        Err(crate::CoreError::InvalidInput(format!(
+            "{rays} {what} but {hits} hits"
+        )))
+    }
+}
+
 /// Whether a ray with these fields is usable: finite origin and direction, a non-zero
 /// direction, and interval ends that are not NaN (infinite ends are allowed). [`Ray::is_valid`],
 /// for code that keeps only these fields of a ray.
@@ -318,6 +330,14 @@ impl Surface {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn hits_per_ray_mismatch_is_one_invalid_input_message() {
+        assert!(check_hits_per_ray("rays", 3, 3).is_ok());
+        let e = check_hits_per_ray("shadow rays", 3, 2).unwrap_err();
+        assert!(matches!(e, crate::CoreError::InvalidInput(_)), "{e:?}");
+        assert!(e.to_string().contains("3 shadow rays but 2 hits"), "{e}");
+    }
 
     #[test]
     fn layouts_are_gpu_friendly() {

@@ -319,6 +319,25 @@ pub enum Query<'a, B: Backend> {
     },
 }
 
+impl<B: Backend> Query<'_, B> {
+    /// `Ok` for [`Query::Scene`]; for [`Query::Candidates`] the error of intersector `variant`,
+    /// which tests the whole scene only (an object BVH, grid or kd-tree, the f64 reference):
+    /// every such intersector refuses candidate queries with this one message, on either
+    /// backend.
+    pub fn whole_scene_only(&self, variant: &str) -> Result<()> {
+        match self {
+            Query::Scene => Ok(()),
+            Query::Candidates { .. } => Err(crate::CoreError::Unsupported {
+                stage: "intersect",
+                variant: variant.into(),
+                what: "candidate queries (it tests the whole scene: use it in a pipeline \
+                       without a ray-space hierarchy, or as the --reference)"
+                    .into(),
+            }),
+        }
+    }
+}
+
 /// Exact ray-triangle intersection (§3.2.9).
 pub trait Intersector<B: Backend>: Send + Sync {
     /// Variant name (`brute`, `bvh`, ...).

@@ -125,13 +125,7 @@ pub fn area_ratio_weights(a: Vec3, b: Vec3, c: Vec3, p: Vec3) -> Option<[f64; 3]
 /// [`surface_from_hit`] with each ray's pixel, throughput and depth; a miss becomes a
 /// background record. What every shader's [`crsh_core::Shader::resolve`] does.
 pub fn next_surfaces(scene: &Scene, rays: &[Ray], hits: &[Hit]) -> Result<Vec<Surface>> {
-    if rays.len() != hits.len() {
-        return Err(CoreError::InvalidInput(format!(
-            "{} rays but {} hits",
-            rays.len(),
-            hits.len()
-        )));
-    }
+    crsh_core::ray::check_hits_per_ray("rays", rays.len(), hits.len())?;
     let ntri = scene.triangle_count();
     if let Some(h) = hits
         .par_iter()

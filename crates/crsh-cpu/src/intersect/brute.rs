@@ -665,20 +665,8 @@ fn scan_pairs(pairs: &[Candidate], n_nodes: usize, n_tris: usize) -> (bool, bool
 
 /// Checks that `hits` matches `rays` and every ray is valid.
 pub(crate) fn check_batch(rays: &[Ray], hits: &[Hit]) -> Result<()> {
-    check_lengths(rays, hits)?;
+    crsh_core::ray::check_hits_per_ray("rays", rays.len(), hits.len())?;
     check_rays(rays)
-}
-
-/// Checks that `hits` matches `rays`.
-fn check_lengths(rays: &[Ray], hits: &[Hit]) -> Result<()> {
-    if rays.len() != hits.len() {
-        return Err(CoreError::InvalidInput(format!(
-            "{} rays but {} hit slots",
-            rays.len(),
-            hits.len()
-        )));
-    }
-    Ok(())
 }
 
 /// Checks that every ray is valid ([`Ray::is_valid`]).
@@ -739,7 +727,7 @@ impl Intersector<Cpu> for BruteForce {
         hits: &mut Vec<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
-        check_lengths(rays, hits)?;
+        crsh_core::ray::check_hits_per_ray("rays", rays.len(), hits.len())?;
         if mode.is_edge_width() {
             if let Query::Candidates { .. } = query {
                 return Err(CoreError::Unsupported {

@@ -31,7 +31,7 @@ use std::sync::Arc;
 
 use crsh_core::glam::DVec3;
 use crsh_core::{
-    CoreError, Hit, HitMode, Intersector, Query, Ray, Registry, Result, StageKind, StageSpec,
+    Hit, HitMode, Intersector, Query, Ray, Registry, Result, StageKind, StageSpec,
     StageVariantInfo, Stats,
 };
 use crsh_scene::Scene;
@@ -186,15 +186,7 @@ impl Intersector<Cpu> for BruteForce64 {
         if mode.is_edge_width() {
             return Err(mode.unsupported("brute64"));
         }
-        if let Query::Candidates { .. } = query {
-            return Err(CoreError::Unsupported {
-                stage: "intersect",
-                variant: "brute64".into(),
-                what: "candidate queries (it is a whole-scene reference: use it with \
-                       --reference, or in a pipeline without a ray-space hierarchy)"
-                    .into(),
-            });
-        }
+        query.whole_scene_only("brute64")?;
         check_batch(rays, hits)?;
         let tests: u64 = rays
             .par_iter()
@@ -378,30 +370,10 @@ mod tests {
             &mut hits,
             &mut Stats::default(),
         );
-        assert!(matches!(r, Err(CoreError::InvalidInput(_))), "{r:?}");
-        let h = crsh_core::RayHierarchy::<Cpu> {
-            leaf_offsets: None,
-            order: (0..4).collect(),
-            levels: vec![vec![
-                <crsh_core::SphereCone as bytemuck::Zeroable>::zeroed();
-                1
-            ]],
-            subdivision: 4,
-            reach: Vec::new(),
-        };
-        let batch = crsh_core::CandidateBatch::<Cpu>::new(Vec::new());
-        let q = Query::Candidates {
-            hierarchy: &h,
-            batch: &batch,
-        };
-        let r = b64.intersect(
-            &Cpu,
-            &rays,
-            q,
-            HitMode::Closest,
-            &mut hits,
-            &mut Stats::default(),
+        assert!(
+            matches!(r, Err(crsh_core::CoreError::InvalidInput(_))),
+            "{r:?}"
         );
-        assert!(matches!(r, Err(CoreError::Unsupported { .. })), "{r:?}");
+        crate::intersect::bvh::tests::rejects_candidates_and_bad_rays(&b64, &scene);
     }
 }

@@ -707,13 +707,7 @@ pub(crate) fn intersect_scene<X: LeafTracer>(
     hits: &mut [Hit],
     stats: &mut Stats,
 ) -> Result<()> {
-    if let Query::Candidates { .. } = query {
-        return Err(CoreError::Unsupported {
-            stage: "intersect",
-            variant: variant.into(),
-            what: "candidate-pair queries (it tests the whole scene)".into(),
-        });
-    }
+    query.whole_scene_only(variant)?;
     check_batch(rays, hits)?;
     if mode.is_edge_width() {
         if !X::EDGE_WIDTH {
@@ -1220,6 +1214,16 @@ pub(crate) mod tests {
             &mut Stats::default(),
         );
         assert!(matches!(r, Err(CoreError::Unsupported { .. })));
+        // The one message every whole-scene intersector gives.
+        let q: Query<Cpu> = Query::Candidates {
+            hierarchy: &h,
+            batch: &batch,
+        };
+        assert_eq!(
+            r.unwrap_err().to_string(),
+            q.whole_scene_only(x.name()).unwrap_err().to_string()
+        );
+        assert!(Query::<Cpu>::Scene.whole_scene_only(x.name()).is_ok());
         let mut bad = rays.clone();
         bad[0].origin.x = f32::INFINITY;
         assert!(x

@@ -935,13 +935,7 @@ impl Intersector<Cpu> for UniformGrid {
         if mode.is_edge_width() {
             return Err(mode.unsupported("grid"));
         }
-        if let Query::Candidates { .. } = query {
-            return Err(CoreError::Unsupported {
-                stage: "intersect",
-                variant: "grid".into(),
-                what: "candidate-pair queries (it tests the whole scene)".into(),
-            });
-        }
+        query.whole_scene_only("grid")?;
         check_batch(rays, hits)?;
         fn all<T: TriangleTest>(
             grid: &UniformGrid,
@@ -979,9 +973,10 @@ mod tests {
     use super::*;
     use crate::intersect::brute::tests::{random_rays, soup, test_ray};
     use crate::intersect::brute::BruteForce;
+    use crate::intersect::bvh::tests::rejects_candidates_and_bad_rays;
     use crate::surface::tests::raw_scene;
     use crate::triangle::tests::TestRng;
-    use crsh_core::{CandidateBatch, ParamValue, PipelineConfig, RayHierarchy, RayKind};
+    use crsh_core::{ParamValue, PipelineConfig, RayKind};
 
     fn run(x: &dyn Intersector<Cpu>, rays: &Vec<Ray>, mode: HitMode) -> (Vec<Hit>, Stats) {
         let mut hits = vec![Hit::MISS; rays.len()];
@@ -1594,41 +1589,8 @@ mod tests {
         let grid = UniformGrid::new(&scene, &spec).unwrap();
         assert_eq!((grid.test(), grid.density()), (TestKind::Watertight, 3.0));
         assert!(grid.memory_bytes() > 0);
+        rejects_candidates_and_bad_rays(&grid, &scene);
         let rays = random_rays(&scene, 42, 8);
-        let h = RayHierarchy::<Cpu> {
-            leaf_offsets: None,
-            order: (0..8).collect(),
-            levels: vec![vec![bytemuck::Zeroable::zeroed(); 1]],
-            subdivision: 8,
-            reach: vec![],
-        };
-        let batch = CandidateBatch::<Cpu>::new(vec![]);
-        let mut hits = vec![Hit::MISS; 8];
-        let r = grid.intersect(
-            &Cpu,
-            &rays,
-            Query::Candidates {
-                hierarchy: &h,
-                batch: &batch,
-            },
-            HitMode::Closest,
-            &mut hits,
-            &mut Stats::default(),
-        );
-        assert!(matches!(r, Err(CoreError::Unsupported { .. })));
-        assert!(!grid.supports_candidates());
-        let mut bad = rays.clone();
-        bad[0].origin.x = f32::INFINITY;
-        assert!(grid
-            .intersect(
-                &Cpu,
-                &bad,
-                Query::Scene,
-                HitMode::Any,
-                &mut hits,
-                &mut Stats::default()
-            )
-            .is_err());
         let mut short = vec![Hit::MISS; 7];
         assert!(grid
             .intersect(

@@ -491,13 +491,7 @@ impl Intersector<Cpu> for KdIntersector {
         hits: &mut Vec<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
-        if let Query::Candidates { .. } = query {
-            return Err(CoreError::Unsupported {
-                stage: "intersect",
-                variant: "kdtree".into(),
-                what: "candidate-pair queries (it tests the whole scene)".into(),
-            });
-        }
+        query.whole_scene_only("kdtree")?;
         // Every mode is named: a new one must say how the tree answers it.
         match mode {
             HitMode::Closest | HitMode::Any => {}

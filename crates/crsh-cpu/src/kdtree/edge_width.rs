@@ -104,13 +104,7 @@ pub fn trace_batch_edge_width<T: TriangleTest>(
     hits: &mut [Hit],
 ) -> crsh_core::Result<KdCounts> {
     use rayon::prelude::*;
-    if rays.len() != hits.len() {
-        return Err(crsh_core::CoreError::InvalidInput(format!(
-            "{} rays but {} hits",
-            rays.len(),
-            hits.len()
-        )));
-    }
+    crsh_core::ray::check_hits_per_ray("rays", rays.len(), hits.len())?;
     lights.check(rays)?;
     Ok(rays
         .par_chunks(256)

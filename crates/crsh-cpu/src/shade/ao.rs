@@ -76,13 +76,7 @@ impl AoShader {
         hits: &[Hit],
         image: &mut [[f32; 4]],
     ) -> Result<()> {
-        if rays.len() != hits.len() {
-            return Err(CoreError::InvalidInput(format!(
-                "{} AO rays but {} hits",
-                rays.len(),
-                hits.len()
-            )));
-        }
+        crsh_core::ray::check_hits_per_ray("AO rays", rays.len(), hits.len())?;
         if let Some(s) = surfaces.iter().find(|s| s.pixel as usize >= image.len()) {
             return Err(CoreError::InvalidInput(format!(
                 "surface record for pixel {} does not fit an image of {} pixels",

@@ -358,13 +358,7 @@ impl Phong {
                     .into(),
             });
         }
-        if shadow_rays.len() != shadow_hits.len() {
-            return Err(CoreError::InvalidInput(format!(
-                "{} shadow rays but {} hits",
-                shadow_rays.len(),
-                shadow_hits.len()
-            )));
-        }
+        crsh_core::ray::check_hits_per_ray("shadow rays", shadow_rays.len(), shadow_hits.len())?;
         if let Some(s) = surfaces.par_iter().find_first(|s| {
             s.pixel as usize >= image.len()
                 || (s.is_hit() && s.material as usize >= self.materials.len())

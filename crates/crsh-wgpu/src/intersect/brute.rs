@@ -372,13 +372,7 @@ impl Intersector<Wgpu> for BruteForce {
         if mode.is_edge_width() {
             return Err(mode.unsupported("brute (wgpu)"));
         }
-        if rays.len() != hits.len() {
-            return Err(CoreError::InvalidInput(format!(
-                "{} rays but {} hits",
-                rays.len(),
-                hits.len()
-            )));
-        }
+        crsh_core::ray::check_hits_per_ray("rays", rays.len(), hits.len())?;
         let any_hit = mode == HitMode::Any;
         let tests = match query {
             Query::Scene => {

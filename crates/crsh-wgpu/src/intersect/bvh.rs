@@ -140,20 +140,8 @@ impl Intersector<Wgpu> for CwBvh {
         if mode.is_edge_width() {
             return Err(mode.unsupported("bvh (wgpu)"));
         }
-        if !matches!(query, Query::Scene) {
-            return Err(CoreError::Unsupported {
-                stage: "intersect",
-                variant: "bvh".into(),
-                what: "candidate queries (a BVH tests the whole scene)".into(),
-            });
-        }
-        if rays.len() != hits.len() {
-            return Err(CoreError::InvalidInput(format!(
-                "{} rays but {} hits",
-                rays.len(),
-                hits.len()
-            )));
-        }
+        query.whole_scene_only("bvh")?;
+        crsh_core::ray::check_hits_per_ray("rays", rays.len(), hits.len())?;
         if rays.is_empty() {
             return Ok(());
         }

@@ -426,20 +426,8 @@ impl Intersector<Wgpu> for UniformGrid {
         if mode.is_edge_width() {
             return Err(mode.unsupported("grid (wgpu)"));
         }
-        if !matches!(query, Query::Scene) {
-            return Err(CoreError::Unsupported {
-                stage: "intersect",
-                variant: "grid".into(),
-                what: "candidate queries (the grid tests the whole scene)".into(),
-            });
-        }
-        if rays.len() != hits.len() {
-            return Err(CoreError::InvalidInput(format!(
-                "{} rays but {} hits",
-                rays.len(),
-                hits.len()
-            )));
-        }
+        query.whole_scene_only("grid")?;
+        crsh_core::ray::check_hits_per_ray("rays", rays.len(), hits.len())?;
         if rays.is_empty() {
             return Ok(());
         }

@@ -264,13 +264,7 @@ impl Intersector<Wgpu> for KdIntersector {
         hits: &mut GpuBuffer<Hit>,
         stats: &mut Stats,
     ) -> Result<()> {
-        if !matches!(query, Query::Scene) {
-            return Err(CoreError::Unsupported {
-                stage: "intersect",
-                variant: "kdtree".into(),
-                what: "candidate queries (the kd-tree tests the whole scene)".into(),
-            });
-        }
+        query.whole_scene_only("kdtree")?;
         #[allow(unreachable_patterns)] // Modes added to HitMode later are refused.
         let any_hit = match mode {
             HitMode::Closest => false,
@@ -283,13 +277,7 @@ impl Intersector<Wgpu> for KdIntersector {
                 })
             }
         };
-        if rays.len() != hits.len() {
-            return Err(CoreError::InvalidInput(format!(
-                "{} rays but {} hits",
-                rays.len(),
-                hits.len()
-            )));
-        }
+        crsh_core::ray::check_hits_per_ray("rays", rays.len(), hits.len())?;
         if rays.is_empty() {
             return Ok(());
         }

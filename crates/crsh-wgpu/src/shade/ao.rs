@@ -99,13 +99,7 @@ impl AoShader {
         hits: &GpuBuffer<Hit>,
         image: &mut GpuBuffer<[f32; 4]>,
     ) -> Result<()> {
-        if rays.len() != hits.len() {
-            return Err(CoreError::InvalidInput(format!(
-                "{} AO rays but {} hits",
-                rays.len(),
-                hits.len()
-            )));
-        }
+        crsh_core::ray::check_hits_per_ray("AO rays", rays.len(), hits.len())?;
         let records = surfaces.len() + rays.len();
         if records == 0 {
             return Ok(());

@@ -198,13 +198,7 @@ impl Phong {
         shadow_hits: &GpuBuffer<Hit>,
         image: &mut GpuBuffer<[f32; 4]>,
     ) -> Result<()> {
-        if shadow_rays.len() != shadow_hits.len() {
-            return Err(CoreError::InvalidInput(format!(
-                "{} shadow rays but {} hits",
-                shadow_rays.len(),
-                shadow_hits.len()
-            )));
-        }
+        crsh_core::ray::check_hits_per_ray("shadow rays", shadow_rays.len(), shadow_hits.len())?;
         let n = surfaces.len();
         if n == 0 {
             return Ok(());
@@ -282,13 +276,7 @@ impl Phong {
         rays: &GpuBuffer<Ray>,
         hits: &GpuBuffer<Hit>,
     ) -> Result<GpuBuffer<Surface>> {
-        if rays.len() != hits.len() {
-            return Err(CoreError::InvalidInput(format!(
-                "{} rays but {} hits",
-                rays.len(),
-                hits.len()
-            )));
-        }
+        crsh_core::ray::check_hits_per_ray("rays", rays.len(), hits.len())?;
         let ctx = backend.context();
         let n = rays.len();
         let out = GpuBuffer::<Surface>::zeroed(ctx, "crsh path vertices", n)?;
