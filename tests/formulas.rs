@@ -485,18 +485,13 @@ fn barycentric_normal_interpolation_eq_3_17_3_18() {
         (1.0 / 3.0, 1.0 / 3.0),
     ] {
         let hit_p = a * (1.0 - u - v) + b * u + c * v;
-        let ray = Ray {
-            origin: hit_p + Vec3::Z * 3.0,
-            t_min: 0.0,
-            dir: -Vec3::Z,
-            t_max: f32::INFINITY,
-            throughput: Vec3::ONE,
-            kind: RayKind::Reflection as u32,
-            pixel: 0,
-            light: u32::MAX,
-            depth: 1,
-            source: 0,
-        };
+        let ray = Ray::new(
+            RayKind::Reflection,
+            hit_p + Vec3::Z * 3.0,
+            -Vec3::Z,
+            0.0,
+            f32::INFINITY,
+        );
         let hit = Hit {
             t: 3.0,
             tri: 0,

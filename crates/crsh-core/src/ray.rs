@@ -172,6 +172,25 @@ pub struct Ray {
 }
 
 impl Ray {
+    /// A ray of `kind` from `origin` along `dir` over `(t_min, t_max)`, with the payload of a
+    /// ray spawned from the first surface of a batch: throughput one, pixel and source 0,
+    /// no light or sample ([`u32::MAX`]), depth 1. Set the other fields with struct update
+    /// syntax: `Ray { pixel: 7, light: 0, ..Ray::new(RayKind::Shadow, o, d, 0.0, 1.0) }`.
+    pub fn new(kind: RayKind, origin: Vec3, dir: Vec3, t_min: f32, t_max: f32) -> Ray {
+        Ray {
+            origin,
+            t_min,
+            dir,
+            t_max,
+            throughput: Vec3::ONE,
+            kind: kind as u32,
+            pixel: 0,
+            light: u32::MAX,
+            depth: 1,
+            source: 0,
+        }
+    }
+
     /// The kind of this ray; panics only if the field was corrupted.
     pub fn ray_kind(&self) -> RayKind {
         RayKind::from_u32(self.kind).expect("corrupt ray kind")

@@ -79,15 +79,9 @@ pub fn shared_backend(test: &str) -> Option<Wgpu> {
 /// depth 1, throughput one, light 0.
 pub fn ray(origin: Vec3, dir: Vec3, t_min: f32, t_max: f32, kind: RayKind, i: u32) -> Ray {
     Ray {
-        origin,
-        t_min,
-        dir,
-        t_max,
-        throughput: Vec3::ONE,
-        kind: kind as u32,
         pixel: i,
         light: 0,
-        depth: 1,
         source: i,
+        ..Ray::new(kind, origin, dir, t_min, t_max)
     }
 }

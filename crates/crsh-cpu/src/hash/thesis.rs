@@ -243,16 +243,8 @@ mod tests {
 
     fn ray(kind: RayKind, origin: Vec3, dir: Vec3, light: u32) -> Ray {
         Ray {
-            origin,
-            t_min: 1e-4,
-            dir,
-            t_max: 3.0,
-            throughput: Vec3::ONE,
-            kind: kind as u32,
-            pixel: 0,
             light,
-            depth: 1,
-            source: 0,
+            ..Ray::new(kind, origin, dir, 1e-4, 3.0)
         }
     }
 

@@ -857,18 +857,7 @@ mod tests {
     }
 
     fn ray(origin: Vec3, dir: Vec3) -> Ray {
-        Ray {
-            origin,
-            t_min: 0.0,
-            dir,
-            t_max: f32::INFINITY,
-            throughput: Vec3::ONE,
-            kind: RayKind::Reflection as u32,
-            pixel: 0,
-            light: u32::MAX,
-            depth: 1,
-            source: 0,
-        }
+        Ray::new(RayKind::Reflection, origin, dir, 0.0, f32::INFINITY)
     }
 
     /// Coherent bundles: groups of 16 rays around a random direction (spread ≤ ~0.05 rad) from

@@ -755,16 +755,10 @@ pub(crate) mod tests {
 
     fn ray(kind: RayKind, pixel: u32, light: u32, origin: Vec3, dir: Vec3, t_max: f32) -> Ray {
         Ray {
-            origin,
-            t_min: 0.0,
-            dir,
-            t_max,
-            throughput: Vec3::ONE,
-            kind: kind as u32,
             pixel,
             light,
-            depth: 1,
             source: pixel,
+            ..Ray::new(kind, origin, dir, 0.0, t_max)
         }
     }
 

@@ -886,16 +886,9 @@ pub(crate) mod tests {
     /// A reflection ray with the interval `(t_min, t_max)`, pixel and source `i`.
     pub(crate) fn test_ray(origin: Vec3, dir: Vec3, t_min: f32, t_max: f32, i: usize) -> Ray {
         Ray {
-            origin,
-            t_min,
-            dir,
-            t_max,
-            throughput: Vec3::ONE,
-            kind: RayKind::Reflection as u32,
             pixel: i as u32,
-            light: u32::MAX,
-            depth: 1,
             source: i as u32,
+            ..Ray::new(RayKind::Reflection, origin, dir, t_min, t_max)
         }
     }
 

@@ -352,16 +352,11 @@ mod tests {
 
     fn ray(origin: Vec3, dir: Vec3, t_max: f32, kind: RayKind, pixel: u32, light: u32) -> Ray {
         Ray {
-            origin,
-            t_min: 0.0,
-            dir,
-            t_max,
-            throughput: Vec3::ONE,
-            kind: kind as u32,
             pixel,
             light,
             depth: 0,
             source: pixel,
+            ..Ray::new(kind, origin, dir, 0.0, t_max)
         }
     }
 
