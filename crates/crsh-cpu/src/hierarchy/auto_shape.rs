@@ -11,22 +11,36 @@
 //! Blocks of consecutive leaves keep the coherence the sort created, which a sample of
 //! scattered rays would destroy. For every shape of [`SHAPES`] it builds the sphere-cone hierarchy over the
 //! sample and traverses it with the [`Dual`] traverser (LBVH objects, box test and single
-//! rays, built once with the stage) against the scene, and estimates the shape's cost as
+//! rays, built once with the stage) against the scene, and estimates the shape's cost per
+//! sampled ray in units of one ray-triangle test as
 //!
-//! `bounds tests + Σ over candidates of the candidate's rays`,
+//! `B · bound tests + Σ over candidates of the candidate's rays`,
 //!
-//! i.e. the tests per ray the issue measures, with every ray of a candidate tested (its lane
-//! mask's rays for a single-ray candidate, else all of its node's: an upper bound, since
-//! any-hit rays stop earlier). The cheapest shape (the first of [`SHAPES`] on a
-//! tie) is kept for that ray kind for the rest of the stage's life (a frame of a moving scene,
-//! every frame of a static one), and the full batch's hierarchy is built with it. The choice
-//! and the estimates of every shape go to [`Stats::choices`] (`hierarchy.<kind>`), so the
-//! summary and the stats JSON show what was picked and why.
+//! with every ray of a candidate tested (its lane mask's rays for a single-ray candidate, else
+//! all of its node's: an upper bound, since any-hit rays stop earlier) and `B` the
+//! `bound_cost` parameter, what one bound test costs against one ray-triangle test. The
+//! cheapest shape (the first of [`SHAPES`] on a tie) is kept for that ray kind for the rest of
+//! the stage's life (a frame of a moving scene, every frame of a static one), and the full
+//! batch's hierarchy is built with it. The choice, every shape's estimate and its two parts go
+//! to [`Stats::choices`] (`hierarchy.<kind>`), so the summary and the stats JSON show what was
+//! picked and why.
 //!
-//! The estimate counts tests, not time: it prefers the shape with the fewest tests, which on
-//! the measured scenes is not always the fastest (`plans/dual.toml`: 8/3 has the fewest tests
-//! on Sponza, 16/3 is fastest). It is deterministic (a function of the rays, the order and
-//! the scene), as the pipeline requires.
+//! # The weight of a bound test
+//!
+//! `B = 1` counts tests, the figure the issue measures; but a bound test (a pair of the `dual`
+//! traversal: boxes, the cone-sphere test in `f64`, the split) costs more than a ray-triangle
+//! test (one lane of an 8-ray packet), so the shape with the fewest tests is not the fastest:
+//! at 1024² on this project's 2-core machine, 8/3 needs the fewest tests on Sponza (45.9M
+//! against 16/3's 46.3M) and traces 1.43 Mrays/s, 16/3 1.75. The stage times give the ratio:
+//! `traversal` ms per bound test over `final_tests` ms per ray-triangle test is 2.6 on
+//! Sponza, 2.5 on the dining room and 4.3 on cornell-mirror (whose traversal is dominated by
+//! per-ray work), so the default is `B = 3`; it picks 16/3 for Sponza's shadow rays at 1024²
+//! (1.65 Mrays/s against 1.49 with `B = 1`). It is a proxy, not a model: the time of one test
+//! of either kind itself changes with the shape (16-ray nodes fill two packets and split into
+//! single rays in one step), and at 512² both weights pick 8/3 on Sponza where 16/2 is the
+//! fastest (README, `plans/dual.toml`). The estimate is deterministic (a function of the rays,
+//! the order, the scene and `B`), as the pipeline requires: it weighs counts, it does not time
+//! them.
 //!
 //! Its cost is the sample's traversals, 6 shapes × 1/64 of the rays (about a tenth of a full
 //! traversal; measured on Sponza 1024² shadow rays: 1/16 added 260 ms to the hierarchy
@@ -74,7 +88,19 @@ pub fn info() -> StageVariantInfo {
         "the first block of 1024 consecutive sorted rays and then one in every `sample` go \
          into the pre-pass",
     ))
+    .param(
+        ParamInfo::float(
+            "bound_cost",
+            DEFAULT_BOUND_COST,
+            "what one bound test costs in the pre-pass's estimate, in ray-triangle tests \
+             (1: count tests; 3, the default, is the time ratio measured on 2 CPU cores)",
+        )
+        .range(0.0, 1000.0),
+    )
 }
+
+/// The default weight of a bound test against a ray-triangle test (see the module doc).
+pub const DEFAULT_BOUND_COST: f64 = 3.0;
 
 /// Registers `auto_shape` ([`info`], [`AutoShape::new`]).
 pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
@@ -93,8 +119,15 @@ pub struct ShapeChoice {
     pub sample_rays: usize,
     /// Rays in the batch the sample came from.
     pub batch_rays: usize,
-    /// Estimated tests per sampled ray of each shape of [`SHAPES`], in that order.
+    /// The weight of a bound test the estimates used (`bound_cost`).
+    pub bound_cost: f64,
+    /// Estimated cost per sampled ray of each shape of [`SHAPES`], in that order:
+    /// `bound_cost · bounds + final tests` (see the module doc).
     pub estimates: Vec<f64>,
+    /// Bound tests per sampled ray of each shape.
+    pub bounds: Vec<f64>,
+    /// Ray-triangle tests per sampled ray of each shape (every ray of every candidate).
+    pub final_tests: Vec<f64>,
 }
 
 impl ShapeChoice {
@@ -103,14 +136,17 @@ impl ShapeChoice {
         let est: Vec<String> = SHAPES
             .iter()
             .zip(&self.estimates)
-            .map(|((s, d), e)| format!("{s}/{d} {e:.1}"))
+            .zip(self.bounds.iter().zip(&self.final_tests))
+            .map(|(((s, d), e), (b, f))| format!("{s}/{d} {e:.1} ({b:.1} + {f:.1})"))
             .collect();
         format!(
-            "subdivision {} depth {} (sample {} of {} rays; estimated tests per ray: {})",
+            "subdivision {} depth {} (sample {} of {} rays; estimated cost per ray, {} × bound \
+             tests + ray-triangle tests: {})",
             self.shape.0,
             self.shape.1,
             self.sample_rays,
             self.batch_rays,
+            self.bound_cost,
             est.join(", ")
         )
     }
@@ -120,16 +156,20 @@ impl ShapeChoice {
 pub struct AutoShape {
     probe: Dual,
     sample: usize,
+    bound_cost: f64,
     chosen: Mutex<BTreeMap<u32, ShapeChoice>>,
 }
 
 impl AutoShape {
-    /// The builder over `scene` with `spec`'s `sample`; builds the probe's object hierarchy.
+    /// The builder over `scene` with `spec`'s `sample` and `bound_cost`; builds the probe's
+    /// object hierarchy.
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<AutoShape> {
-        AutoShape::with_sample(scene, spec.u32_in("sample", 1..=1024)? as usize)
+        AutoShape::with_sample(scene, spec.u32_in("sample", 1..=1024)? as usize)?
+            .with_bound_cost(spec.f64("bound_cost")?)
     }
 
-    /// The builder with one block in `sample` (1..=1024) sampled.
+    /// The builder with one block in `sample` (1..=1024) sampled, and the default
+    /// `bound_cost`.
     pub fn with_sample(scene: &Arc<Scene>, sample: usize) -> Result<AutoShape> {
         if !(1..=1024).contains(&sample) {
             return Err(CoreError::InvalidParam {
@@ -140,7 +180,22 @@ impl AutoShape {
         Ok(AutoShape {
             probe: Dual::with_options(scene, "lbvh", 64.0)?,
             sample,
+            bound_cost: DEFAULT_BOUND_COST,
             chosen: Mutex::new(BTreeMap::new()),
+        })
+    }
+
+    /// The builder with a bound test weighing `cost` ray-triangle tests (finite, 0..=1000).
+    pub fn with_bound_cost(self, cost: f64) -> Result<AutoShape> {
+        if !(0.0..=1000.0).contains(&cost) {
+            return Err(CoreError::InvalidParam {
+                key: "auto_shape.bound_cost".into(),
+                reason: format!("{cost} is outside 0..=1000"),
+            });
+        }
+        Ok(AutoShape {
+            bound_cost: cost,
+            ..self
         })
     }
 
@@ -168,7 +223,8 @@ impl AutoShape {
             .collect();
         let sample_rays: Vec<Ray> = sampled.iter().map(|&i| rays[i as usize]).collect();
         let n = sample_rays.len();
-        let mut estimates = Vec::with_capacity(SHAPES.len());
+        let per_ray = |x: u64| if n == 0 { 0.0 } else { x as f64 / n as f64 };
+        let (mut bounds, mut finals) = (Vec::new(), Vec::new());
         for &(sub, depth) in &SHAPES {
             // The hierarchy the stage would build for the sample (reach bounds included).
             let h = SphereConeBuilder::with_params(sub, depth)?.build(
@@ -202,9 +258,14 @@ impl AutoShape {
                 },
                 &mut scratch,
             )?;
-            let total = scratch.tests.bounds + final_tests;
-            estimates.push(if n == 0 { 0.0 } else { total as f64 / n as f64 });
+            bounds.push(per_ray(scratch.tests.bounds));
+            finals.push(per_ray(final_tests));
         }
+        let estimates: Vec<f64> = bounds
+            .iter()
+            .zip(&finals)
+            .map(|(b, f)| self.bound_cost * b + f)
+            .collect();
         let best = (0..SHAPES.len())
             .min_by(|&a, &b| estimates[a].total_cmp(&estimates[b]).then(a.cmp(&b)))
             .expect("shapes");
@@ -212,7 +273,10 @@ impl AutoShape {
             shape: SHAPES[best],
             sample_rays: n,
             batch_rays: order.len(),
+            bound_cost: self.bound_cost,
             estimates,
+            bounds,
+            final_tests: finals,
         })
     }
 }
@@ -283,7 +347,12 @@ mod tests {
                 }
                 let choice = &f.stats.choices[&format!("hierarchy.{kind}")];
                 assert!(choice.starts_with("subdivision "), "{choice}");
-                assert!(choice.contains("estimated tests per ray: 4/2 "), "{choice}");
+                assert!(
+                    choice.contains(
+                        "estimated cost per ray, 3 × bound tests + ray-triangle tests: 4/2 "
+                    ),
+                    "{choice}"
+                );
             }
             let three = frame(name, 3);
             assert_eq!(three.image, f.image, "{name}");
@@ -343,6 +412,30 @@ mod tests {
             .is_err());
         assert!(AutoShape::with_sample(&scene, 0).is_err());
         assert!(AutoShape::with_sample(&scene, 1025).is_err());
+        for bad in [-1.0, 1001.0, f64::NAN] {
+            let a = AutoShape::with_sample(&scene, 2).unwrap();
+            assert!(a.with_bound_cost(bad).is_err(), "{bad}");
+        }
+        // The weight only re-weighs the same counts: a shape's parts do not depend on it, and
+        // with bound tests free the cheapest shape is the one with the fewest final tests.
+        let free = AutoShape::with_sample(&scene, 2)
+            .unwrap()
+            .with_bound_cost(0.0)
+            .unwrap()
+            .pre_pass(&rays, &order, RayKind::Shadow)
+            .unwrap();
+        assert_eq!(
+            (free.bounds.clone(), free.final_tests.clone()),
+            (c.bounds.clone(), c.final_tests.clone())
+        );
+        assert_eq!(free.estimates, free.final_tests);
+        let fewest = free
+            .final_tests
+            .iter()
+            .copied()
+            .fold(f64::INFINITY, f64::min);
+        let at = SHAPES.iter().position(|s| *s == free.shape).unwrap();
+        assert_eq!(free.final_tests[at], fewest);
     }
 
     #[test]
@@ -361,7 +454,7 @@ mod tests {
         let brute = BruteForce::from_scene(&scene);
         let dual = Dual::with_options(&scene, "lbvh", 64.0).unwrap();
         let mut masked = false;
-        for (&(sub, depth), &estimate) in SHAPES.iter().zip(&c.estimates) {
+        for (i, &(sub, depth)) in SHAPES.iter().enumerate() {
             let h = SphereConeBuilder::with_params(sub, depth)
                 .unwrap()
                 .build(&Cpu, &rays, order.clone(), &mut Stats::default())
@@ -387,8 +480,18 @@ mod tests {
                     )
                 },
             );
-            let tests = stats.tests.bounds + stats.tests.ray_triangle;
-            assert_eq!(estimate, tests as f64 / rays.len() as f64, "{sub}/{depth}");
+            let n = rays.len() as f64;
+            assert_eq!(c.bounds[i], stats.tests.bounds as f64 / n, "{sub}/{depth}");
+            assert_eq!(
+                c.final_tests[i],
+                stats.tests.ray_triangle as f64 / n,
+                "{sub}/{depth}"
+            );
+            assert_eq!(
+                c.estimates[i],
+                DEFAULT_BOUND_COST * c.bounds[i] + c.final_tests[i],
+                "{sub}/{depth}"
+            );
         }
         assert!(masked, "no single-ray candidate: not a test of the masks");
     }
