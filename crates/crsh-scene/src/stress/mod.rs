@@ -140,15 +140,8 @@ pub fn probe_ray(
     index: u32,
 ) -> Ray {
     Ray {
-        origin,
-        t_min,
-        dir,
-        t_max,
-        throughput: Vec3::ONE,
-        kind: kind as u32,
         pixel: index,
-        light: u32::MAX,
-        depth: 1,
         source: u32::MAX,
+        ..Ray::new(kind, origin, dir, t_min, t_max)
     }
 }
