@@ -22,7 +22,7 @@
 //! It is not exact arithmetic, so it can itself be wrong for rays within about `2⁻⁵³` of an
 //! edge (relative to the coordinates), some nine orders of magnitude closer than the `f32`
 //! tests' blind spot. It answers whole-scene queries only; a candidate query (a ray-space
-//! hierarchy's final tests) is [`CoreError::Unsupported`].
+//! hierarchy's final tests) is [`CoreError::Unsupported`](crsh_core::CoreError::Unsupported).
 //!
 //! Cost: `N × M` tests like [`crate::intersect::brute`], scalar and in `f64`, so several times
 //! slower; parallel over rays with rayon, deterministic.
