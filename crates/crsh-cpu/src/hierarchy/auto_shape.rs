@@ -42,6 +42,16 @@
 //! the order, the scene and `B`), as the pipeline requires: it weighs counts, it does not time
 //! them.
 //!
+//! # Small batches
+//!
+//! A batch of fewer than `min_batch` rays (default [`DEFAULT_MIN_BATCH`], 64 blocks) gets the
+//! default shape ([`DEFAULT_SUBDIVISION`]/[`DEFAULT_DEPTH`]) without a pre-pass, and no choice
+//! is kept for its kind: a later, larger batch of that kind still runs one. Below 64 blocks
+//! the first block is more than 1/64 of the batch, and six traversals of it cost as much as a
+//! good part of the batch's own (the dining room's 7,716 reflection rays: 1,024 sampled at
+//! about 470 tests per ray, about 100 ms, more than the shape could save). The stats' choice
+//! line says so.
+//!
 //! Its cost is the sample's traversals, 6 shapes × 1/64 of the rays (about a tenth of a full
 //! traversal; measured on Sponza 1024² shadow rays: 1/16 added 260 ms to the hierarchy
 //! stage), once per ray kind, plus the probe's LBVH build at stage construction. It is timed
@@ -62,7 +72,7 @@ use crsh_core::{
 };
 use crsh_scene::Scene;
 
-use super::sphere_cone::{validate_leaves, SphereConeBuilder};
+use super::sphere_cone::{validate_leaves, SphereConeBuilder, DEFAULT_DEPTH, DEFAULT_SUBDIVISION};
 use crate::backend::Cpu;
 use crate::traverse::dual::Dual;
 
@@ -88,6 +98,14 @@ pub fn info() -> StageVariantInfo {
         "the first block of 1024 consecutive sorted rays and then one in every `sample` go \
          into the pre-pass",
     ))
+    .param(ParamInfo::int(
+        "min_batch",
+        DEFAULT_MIN_BATCH as i64,
+        0,
+        1 << 30,
+        "batches of fewer rays get the default shape 8/2 without a pre-pass (and no choice is \
+         kept for their ray kind)",
+    ))
     .param(
         ParamInfo::float(
             "bound_cost",
@@ -98,6 +116,9 @@ pub fn info() -> StageVariantInfo {
         .range(0.0, 1000.0),
     )
 }
+
+/// The smallest batch that gets a pre-pass by default: 64 blocks (see *Small batches*).
+pub const DEFAULT_MIN_BATCH: usize = 64 * BLOCK;
 
 /// The default weight of a bound test against a ray-triangle test (see the module doc).
 pub const DEFAULT_BOUND_COST: f64 = 3.0;
@@ -157,6 +178,7 @@ pub struct AutoShape {
     probe: Dual,
     sample: usize,
     bound_cost: f64,
+    min_batch: usize,
     chosen: Mutex<BTreeMap<u32, ShapeChoice>>,
 }
 
@@ -164,12 +186,15 @@ impl AutoShape {
     /// The builder over `scene` with `spec`'s `sample` and `bound_cost`; builds the probe's
     /// object hierarchy.
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<AutoShape> {
-        AutoShape::with_sample(scene, spec.u32_in("sample", 1..=1024)? as usize)?
-            .with_bound_cost(spec.f64("bound_cost")?)
+        Ok(
+            AutoShape::with_sample(scene, spec.u32_in("sample", 1..=1024)? as usize)?
+                .with_bound_cost(spec.f64("bound_cost")?)?
+                .with_min_batch(spec.u32_in("min_batch", 0..=1 << 30)? as usize),
+        )
     }
 
     /// The builder with one block in `sample` (1..=1024) sampled, and the default
-    /// `bound_cost`.
+    /// `bound_cost` and `min_batch`.
     pub fn with_sample(scene: &Arc<Scene>, sample: usize) -> Result<AutoShape> {
         if !(1..=1024).contains(&sample) {
             return Err(CoreError::InvalidParam {
@@ -181,6 +206,7 @@ impl AutoShape {
             probe: Dual::with_options(scene, "lbvh", 64.0)?,
             sample,
             bound_cost: DEFAULT_BOUND_COST,
+            min_batch: DEFAULT_MIN_BATCH,
             chosen: Mutex::new(BTreeMap::new()),
         })
     }
@@ -197,6 +223,15 @@ impl AutoShape {
             bound_cost: cost,
             ..self
         })
+    }
+
+    /// The builder that runs the pre-pass on batches of `rays` rays or more (0: on every
+    /// batch).
+    pub fn with_min_batch(self, rays: usize) -> AutoShape {
+        AutoShape {
+            min_batch: rays,
+            ..self
+        }
     }
 
     /// The shape chosen for rays of `kind` so far, if any.
@@ -300,9 +335,24 @@ impl HierarchyBuilder<Cpu> for AutoShape {
             .and_then(|&i| rays.get(i as usize))
             .map(Ray::ray_kind)
         else {
-            return SphereConeBuilder::with_params(8, 2)?.build(backend, rays, order, stats);
+            return SphereConeBuilder::with_params(DEFAULT_SUBDIVISION, DEFAULT_DEPTH)?
+                .build(backend, rays, order, stats);
         };
         let known = self.choice(kind);
+        if known.is_none() && order.len() < self.min_batch {
+            stats.add_choice(
+                "hierarchy",
+                kind,
+                format!(
+                    "subdivision {DEFAULT_SUBDIVISION} depth {DEFAULT_DEPTH} (the default: a batch \
+                     of {} rays is below min_batch {}, no pre-pass)",
+                    order.len(),
+                    self.min_batch
+                ),
+            );
+            return SphereConeBuilder::with_params(DEFAULT_SUBDIVISION, DEFAULT_DEPTH)?
+                .build(backend, rays, order, stats);
+        }
         let choice = match known {
             Some(c) => c,
             None => {
@@ -329,6 +379,7 @@ mod tests {
             "traverse.kind=dual",
             "hierarchy.kind=auto_shape",
             "hierarchy.sample=2",
+            "hierarchy.min_batch=0",
         ];
         crate::traverse::dual::tests::frame(&scene, &sets.map(String::from), threads)
     }
@@ -436,6 +487,39 @@ mod tests {
             .fold(f64::INFINITY, f64::min);
         let at = SHAPES.iter().position(|s| *s == free.shape).unwrap();
         assert_eq!(free.final_tests[at], fewest);
+    }
+
+    #[test]
+    fn small_batches_get_the_default_shape_and_leave_the_choice_open() {
+        let scene = Arc::new(crsh_scene::builtin::build("office-boxes").unwrap());
+        let rays = crate::intersect::brute::tests::random_rays(&scene, 9, 3000);
+        let order: Vec<u32> = (0..rays.len() as u32).collect();
+        let kind = RayKind::from_u32(rays[0].kind).unwrap();
+        let auto = AutoShape::with_sample(&scene, 2)
+            .unwrap()
+            .with_min_batch(3001);
+        let mut stats = Stats::default();
+        let h = auto.build(&Cpu, &rays, order.clone(), &mut stats).unwrap();
+        assert_eq!(
+            (h.subdivision, h.levels.len() as u32),
+            (DEFAULT_SUBDIVISION, DEFAULT_DEPTH)
+        );
+        let line = &stats.choices[&format!("hierarchy.{}", kind.name())];
+        assert!(line.contains("below min_batch 3001, no pre-pass"), "{line}");
+        assert!(auto.choice(kind).is_none());
+        // The same hierarchy as the default sphere-cone builder's.
+        let plain = SphereConeBuilder::with_params(DEFAULT_SUBDIVISION, DEFAULT_DEPTH)
+            .unwrap()
+            .build(&Cpu, &rays, order.clone(), &mut Stats::default())
+            .unwrap();
+        assert_eq!(h.levels, plain.levels);
+        // At the threshold the pre-pass runs, and its choice is kept.
+        let auto = auto.with_min_batch(3000);
+        let mut stats = Stats::default();
+        auto.build(&Cpu, &rays, order, &mut stats).unwrap();
+        let kept = auto.choice(kind).expect("a kept choice");
+        let line = &stats.choices[&format!("hierarchy.{}", kind.name())];
+        assert_eq!(*line, kept.describe());
     }
 
     #[test]
