@@ -102,7 +102,7 @@ pub fn info() -> StageVariantInfo {
         "min_batch",
         DEFAULT_MIN_BATCH as i64,
         0,
-        1 << 30,
+        MAX_MIN_BATCH as i64,
         "batches of fewer rays get the default shape 8/2 without a pre-pass (and no choice is \
          kept for their ray kind)",
     ))
@@ -113,15 +113,24 @@ pub fn info() -> StageVariantInfo {
             "what one bound test costs in the pre-pass's estimate, in ray-triangle tests \
              (1: count tests; 3, the default, is the time ratio measured on 2 CPU cores)",
         )
-        .range(0.0, 1000.0),
+        .range(0.0, MAX_BOUND_COST),
     )
 }
+
+/// The shape of batches without a pre-pass: the sphere-cone builder's defaults.
+const DEFAULT_SHAPE: (u32, u32) = (DEFAULT_SUBDIVISION, DEFAULT_DEPTH);
 
 /// The smallest batch that gets a pre-pass by default: 64 blocks (see *Small batches*).
 pub const DEFAULT_MIN_BATCH: usize = 64 * BLOCK;
 
+/// The largest `min_batch`.
+pub const MAX_MIN_BATCH: u32 = 1 << 30;
+
 /// The default weight of a bound test against a ray-triangle test (see the module doc).
 pub const DEFAULT_BOUND_COST: f64 = 3.0;
+
+/// The largest `bound_cost` (the smallest is 0).
+pub const MAX_BOUND_COST: f64 = 1000.0;
 
 /// Registers `auto_shape` ([`info`], [`AutoShape::new`]).
 pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
@@ -140,23 +149,30 @@ pub struct ShapeChoice {
     pub sample_rays: usize,
     /// Rays in the batch the sample came from.
     pub batch_rays: usize,
-    /// The weight of a bound test the estimates used (`bound_cost`).
+    /// The weight of a bound test the estimates use (`bound_cost`).
     pub bound_cost: f64,
-    /// Estimated cost per sampled ray of each shape of [`SHAPES`], in that order:
-    /// `bound_cost · bounds + final tests` (see the module doc).
-    pub estimates: Vec<f64>,
-    /// Bound tests per sampled ray of each shape.
+    /// Bound tests per sampled ray of each shape of [`SHAPES`], in that order.
     pub bounds: Vec<f64>,
     /// Ray-triangle tests per sampled ray of each shape (every ray of every candidate).
     pub final_tests: Vec<f64>,
 }
 
 impl ShapeChoice {
+    /// Estimated cost per sampled ray of each shape of [`SHAPES`], in that order:
+    /// `bound_cost · bounds + final tests` (see the module doc).
+    pub fn estimates(&self) -> Vec<f64> {
+        self.bounds
+            .iter()
+            .zip(&self.final_tests)
+            .map(|(b, f)| self.bound_cost * b + f)
+            .collect()
+    }
+
     /// One line for [`Stats::choices`].
     pub fn describe(&self) -> String {
         let est: Vec<String> = SHAPES
             .iter()
-            .zip(&self.estimates)
+            .zip(self.estimates())
             .zip(self.bounds.iter().zip(&self.final_tests))
             .map(|(((s, d), e), (b, f))| format!("{s}/{d} {e:.1} ({b:.1} + {f:.1})"))
             .collect();
@@ -189,7 +205,7 @@ impl AutoShape {
         Ok(
             AutoShape::with_sample(scene, spec.u32_in("sample", 1..=1024)? as usize)?
                 .with_bound_cost(spec.f64("bound_cost")?)?
-                .with_min_batch(spec.u32_in("min_batch", 0..=1 << 30)? as usize),
+                .with_min_batch(spec.u32_in("min_batch", 0..=MAX_MIN_BATCH)? as usize),
         )
     }
 
@@ -211,12 +227,13 @@ impl AutoShape {
         })
     }
 
-    /// The builder with a bound test weighing `cost` ray-triangle tests (finite, 0..=1000).
+    /// The builder with a bound test weighing `cost` ray-triangle tests (0 ..=
+    /// [`MAX_BOUND_COST`]).
     pub fn with_bound_cost(self, cost: f64) -> Result<AutoShape> {
-        if !(0.0..=1000.0).contains(&cost) {
+        if !(0.0..=MAX_BOUND_COST).contains(&cost) {
             return Err(CoreError::InvalidParam {
                 key: "auto_shape.bound_cost".into(),
-                reason: format!("{cost} is outside 0..=1000"),
+                reason: format!("{cost} is outside 0..={MAX_BOUND_COST}"),
             });
         }
         Ok(AutoShape {
@@ -296,23 +313,20 @@ impl AutoShape {
             bounds.push(per_ray(scratch.tests.bounds));
             finals.push(per_ray(final_tests));
         }
-        let estimates: Vec<f64> = bounds
-            .iter()
-            .zip(&finals)
-            .map(|(b, f)| self.bound_cost * b + f)
-            .collect();
-        let best = (0..SHAPES.len())
-            .min_by(|&a, &b| estimates[a].total_cmp(&estimates[b]).then(a.cmp(&b)))
-            .expect("shapes");
-        Ok(ShapeChoice {
-            shape: SHAPES[best],
+        let mut choice = ShapeChoice {
+            shape: SHAPES[0],
             sample_rays: n,
             batch_rays: order.len(),
             bound_cost: self.bound_cost,
-            estimates,
             bounds,
             final_tests: finals,
-        })
+        };
+        let estimates = choice.estimates();
+        let best = (0..SHAPES.len())
+            .min_by(|&a, &b| estimates[a].total_cmp(&estimates[b]).then(a.cmp(&b)))
+            .expect("shapes");
+        choice.shape = SHAPES[best];
+        Ok(choice)
     }
 }
 
@@ -330,39 +344,34 @@ impl HierarchyBuilder<Cpu> for AutoShape {
     ) -> Result<RayHierarchy<Cpu>> {
         // Without a first ray (no rays, or an order the builder refuses) there is nothing to
         // choose for: the default shape's builder answers.
-        let Some(kind) = order
+        let kind = order
             .first()
             .and_then(|&i| rays.get(i as usize))
-            .map(Ray::ray_kind)
-        else {
-            return SphereConeBuilder::with_params(DEFAULT_SUBDIVISION, DEFAULT_DEPTH)?
-                .build(backend, rays, order, stats);
-        };
-        let known = self.choice(kind);
-        if known.is_none() && order.len() < self.min_batch {
-            stats.add_choice(
-                "hierarchy",
-                kind,
-                format!(
-                    "subdivision {DEFAULT_SUBDIVISION} depth {DEFAULT_DEPTH} (the default: a batch \
-                     of {} rays is below min_batch {}, no pre-pass)",
-                    order.len(),
-                    self.min_batch
-                ),
-            );
-            return SphereConeBuilder::with_params(DEFAULT_SUBDIVISION, DEFAULT_DEPTH)?
-                .build(backend, rays, order, stats);
-        }
-        let choice = match known {
-            Some(c) => c,
-            None => {
-                let c = self.pre_pass(rays, &order, kind)?;
-                self.lock().insert(kind as u32, c.clone());
-                c
+            .map(Ray::ray_kind);
+        let (sub, depth) = match kind {
+            None => DEFAULT_SHAPE,
+            Some(kind) => {
+                let (shape, line) = match self.choice(kind) {
+                    Some(c) => (c.shape, c.describe()),
+                    None if order.len() < self.min_batch => (
+                        DEFAULT_SHAPE,
+                        format!(
+                            "subdivision {DEFAULT_SUBDIVISION} depth {DEFAULT_DEPTH} (the default: \
+                             a batch of {} rays is below min_batch {}, no pre-pass)",
+                            order.len(),
+                            self.min_batch
+                        ),
+                    ),
+                    None => {
+                        let c = self.pre_pass(rays, &order, kind)?;
+                        self.lock().insert(kind as u32, c.clone());
+                        (c.shape, c.describe())
+                    }
+                };
+                stats.add_choice("hierarchy", kind, line);
+                shape
             }
         };
-        stats.add_choice("hierarchy", kind, choice.describe());
-        let (sub, depth) = choice.shape;
         SphereConeBuilder::with_params(sub, depth)?.build(backend, rays, order, stats)
     }
 }
@@ -441,16 +450,16 @@ mod tests {
         // Every other block of 1024 sorted leaves.
         let want: usize = order.chunks(BLOCK).step_by(2).map(<[u32]>::len).sum();
         assert_eq!((c.sample_rays, c.batch_rays), (want, rays.len()));
-        assert_eq!(c.estimates.len(), SHAPES.len());
-        let best = c.estimates.iter().copied().fold(f64::INFINITY, f64::min);
+        assert_eq!(c.estimates().len(), SHAPES.len());
+        let best = c.estimates().iter().copied().fold(f64::INFINITY, f64::min);
         let at = SHAPES.iter().position(|s| *s == c.shape).unwrap();
-        assert_eq!(c.estimates[at], best);
+        assert_eq!(c.estimates()[at], best);
         assert!(
-            c.estimates.iter().all(|e| e.is_finite() && *e > 0.0),
+            c.estimates().iter().all(|e| e.is_finite() && *e > 0.0),
             "{c:?}"
         );
         // The estimates are the dual traversal's, and depend on the shape.
-        assert!(c.estimates.iter().any(|e| *e != best), "{c:?}");
+        assert!(c.estimates().iter().any(|e| *e != best), "{c:?}");
         // A small batch is sampled whole; the sample size is checked.
         let few = &rays[..BLOCK];
         let small = auto
@@ -479,7 +488,7 @@ mod tests {
             (free.bounds.clone(), free.final_tests.clone()),
             (c.bounds.clone(), c.final_tests.clone())
         );
-        assert_eq!(free.estimates, free.final_tests);
+        assert_eq!(free.estimates(), free.final_tests);
         let fewest = free
             .final_tests
             .iter()
@@ -572,7 +581,7 @@ mod tests {
                 "{sub}/{depth}"
             );
             assert_eq!(
-                c.estimates[i],
+                c.estimates()[i],
                 DEFAULT_BOUND_COST * c.bounds[i] + c.final_tests[i],
                 "{sub}/{depth}"
             );
