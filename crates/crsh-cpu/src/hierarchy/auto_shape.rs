@@ -9,9 +9,10 @@
 //! sorted order: the first block of [`BLOCK`] consecutive leaves and then one in every
 //! `sample` (param, default 64, so 1/64 of a big batch; a batch of one block is taken whole).
 //! Blocks of consecutive leaves keep the coherence the sort created, which a sample of
-//! scattered rays would destroy. For every shape of [`SHAPES`] it builds the sphere-cone hierarchy over the
-//! sample and traverses it with the [`Dual`] traverser (LBVH objects, box test and single
-//! rays, built once with the stage) against the scene, and estimates the shape's cost per
+//! scattered rays would destroy. For every shape of parameter `shapes` (default
+//! [`DEFAULT_SHAPES`]) it builds the sphere-cone hierarchy over the sample and traverses it
+//! with the [`Dual`] traverser (LBVH objects, box test and single rays, built once with the
+//! stage) against the scene, and estimates the shape's cost per
 //! sampled ray in units of one ray-triangle test as
 //!
 //! `B · bound tests + Σ over candidates of the candidate's rays`,
@@ -19,7 +20,7 @@
 //! with every ray of a candidate tested (its lane mask's rays for a single-ray candidate, else
 //! all of its node's: an upper bound, since any-hit rays stop earlier) and `B` the
 //! `bound_cost` parameter, what one bound test costs against one ray-triangle test. The
-//! cheapest shape (the first of [`SHAPES`] on a tie) is kept for that ray kind for the rest of
+//! cheapest shape (the first listed on a tie) is kept for that ray kind for the rest of
 //! the stage's life (a frame of a moving scene, every frame of a static one), and the full
 //! batch's hierarchy is built with it. The choice, every shape's estimate and its two parts go
 //! to [`Stats::choices`] (`hierarchy.<kind>`), so the summary and the stats JSON show what was
@@ -47,15 +48,25 @@
 //! A batch of fewer than `min_batch` rays (default [`DEFAULT_MIN_BATCH`], 64 blocks) gets the
 //! default shape ([`DEFAULT_SUBDIVISION`]/[`DEFAULT_DEPTH`]) without a pre-pass, and no choice
 //! is kept for its kind: a later, larger batch of that kind still runs one. Below 64 blocks
-//! the first block is more than 1/64 of the batch, and six traversals of it cost as much as a
-//! good part of the batch's own (the dining room's 7,716 reflection rays: 1,024 sampled at
-//! about 470 tests per ray, about 100 ms, more than the shape could save). The stats' choice
-//! line says so.
+//! the first block is more than 1/64 of the batch, and a traversal of it per shape costs as
+//! much as a good part of the batch's own (the dining room's 7,716 reflection rays: 1,024
+//! sampled at about 470 tests per ray, about 100 ms, more than the shape could save). The
+//! stats' choice line says so.
 //!
-//! Its cost is the sample's traversals, 6 shapes × 1/64 of the rays (about a tenth of a full
-//! traversal; measured on Sponza 1024² shadow rays: 1/16 added 260 ms to the hierarchy
+//! Its cost is the sample's traversals, one per shape over 1/64 of the rays (measured on
+//! Sponza 1024² shadow rays: 1/16 of the rays and six shapes added 260 ms to the hierarchy
 //! stage), once per ray kind, plus the probe's LBVH build at stage construction. It is timed
 //! with the hierarchy stage.
+//!
+//! # The shapes compared
+//!
+//! Parameter `shapes` lists them as `subdivision/depth` pairs separated by commas, in the
+//! order the tie rule uses; the default [`DEFAULT_SHAPES`] is seed 000 §4's subdivisions 8
+//! and 16 at depths 2 and 3. Subdivision 4 is left out by default: its sample traversals are
+//! the slowest (on Sponza's 19,456 sampled shadow rays 4/2 and 4/3 took 11-17 ms each against
+//! 5-10 ms for the others, half of the pre-pass), and on the three scenes of issue 17 it was
+//! never the estimate's pick nor the fastest fixed shape (`plans/dual.toml`). Any shape the
+//! sphere-cone builder accepts may be listed (`--set hierarchy.shapes=4/2,4/3,8/2,8/3`).
 //!
 //! # Errors
 //!
@@ -65,6 +76,8 @@
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
+
+use rayon::prelude::*;
 
 use crsh_core::{
     lowest_node_leaves, CoreError, HierarchyBuilder, ParamInfo, Ray, RayHierarchy, RayKind,
@@ -76,8 +89,10 @@ use super::sphere_cone::{validate_leaves, SphereConeBuilder, DEFAULT_DEPTH, DEFA
 use crate::backend::Cpu;
 use crate::traverse::dual::Dual;
 
-/// The shapes compared, as (subdivision, depth).
-pub const SHAPES: [(u32, u32); 6] = [(4, 2), (4, 3), (8, 2), (8, 3), (16, 2), (16, 3)];
+/// The default of parameter `shapes`: the shapes compared, as `subdivision/depth` pairs.
+pub const DEFAULT_SHAPES: &str = "8/2,8/3,16/2,16/3";
+/// The most shapes one pre-pass compares.
+pub const MAX_SHAPES: usize = 16;
 /// Consecutive sorted leaves per sample block.
 pub const BLOCK: usize = 1024;
 
@@ -87,9 +102,16 @@ pub fn info() -> StageVariantInfo {
         StageKind::Hierarchy,
         "auto_shape",
         "the sphere-cone hierarchy with subdivision and depth chosen per ray kind by a \
-         pre-pass: each shape of 4/8/16 × 2/3 traversed (dual, LBVH) over a sample of the \
+         pre-pass: each shape of `shapes` traversed (dual, LBVH) over a sample of the \
          sorted batch, the fewest estimated tests kept (issue 17's auto-configuration)",
     )
+    .param(ParamInfo::choice(
+        "shapes",
+        DEFAULT_SHAPES,
+        &[],
+        "the shapes the pre-pass compares, `subdivision/depth` pairs separated by commas \
+         (first listed wins a tie; at most 16)",
+    ))
     .param(ParamInfo::int(
         "sample",
         64,
@@ -140,25 +162,77 @@ pub fn register(registry: &mut Registry<Cpu>) -> Result<()> {
     Ok(())
 }
 
+/// Parses a `shapes` list: `subdivision/depth` pairs separated by commas (spaces allowed),
+/// each one the sphere-cone builder accepts, at least one and at most [`MAX_SHAPES`], none
+/// twice.
+///
+/// # Errors
+/// [`CoreError::InvalidParam`] (key `auto_shape.shapes`) naming the entry that is not a pair
+/// of integers, is out of the builder's range or repeats one, or the list's length.
+pub fn parse_shapes(list: &str) -> Result<Vec<(u32, u32)>> {
+    let shapes = list
+        .split(',')
+        .map(|entry| {
+            let entry = entry.trim();
+            entry
+                .split_once('/')
+                .and_then(|(s, d)| Some((s.trim().parse().ok()?, d.trim().parse().ok()?)))
+                .ok_or_else(|| {
+                    bad_shapes(format!(
+                        "`{entry}` is not subdivision/depth (e.g. `{DEFAULT_SHAPES}`)"
+                    ))
+                })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    check_shapes(shapes)
+}
+
+fn bad_shapes(reason: String) -> CoreError {
+    CoreError::InvalidParam {
+        key: "auto_shape.shapes".into(),
+        reason,
+    }
+}
+
+/// `shapes` if it is a list [`parse_shapes`] accepts.
+fn check_shapes(shapes: Vec<(u32, u32)>) -> Result<Vec<(u32, u32)>> {
+    if shapes.is_empty() || shapes.len() > MAX_SHAPES {
+        return Err(bad_shapes(format!(
+            "{} shapes, want 1..={MAX_SHAPES}",
+            shapes.len()
+        )));
+    }
+    for (i, &(sub, depth)) in shapes.iter().enumerate() {
+        SphereConeBuilder::with_params(sub, depth)
+            .map_err(|e| bad_shapes(format!("`{sub}/{depth}`: {e}")))?;
+        if shapes[..i].contains(&(sub, depth)) {
+            return Err(bad_shapes(format!("`{sub}/{depth}` is listed twice")));
+        }
+    }
+    Ok(shapes)
+}
+
 /// The shape one pre-pass picked, with every shape's estimate.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ShapeChoice {
     /// The kept (subdivision, depth).
     pub shape: (u32, u32),
+    /// The shapes compared (parameter `shapes`), in their order.
+    pub shapes: Vec<(u32, u32)>,
     /// Rays in the sample.
     pub sample_rays: usize,
     /// Rays in the batch the sample came from.
     pub batch_rays: usize,
     /// The weight of a bound test the estimates use (`bound_cost`).
     pub bound_cost: f64,
-    /// Bound tests per sampled ray of each shape of [`SHAPES`], in that order.
+    /// Bound tests per sampled ray of each shape of `shapes`, in that order.
     pub bounds: Vec<f64>,
     /// Ray-triangle tests per sampled ray of each shape (every ray of every candidate).
     pub final_tests: Vec<f64>,
 }
 
 impl ShapeChoice {
-    /// Estimated cost per sampled ray of each shape of [`SHAPES`], in that order:
+    /// Estimated cost per sampled ray of each shape of `shapes`, in that order:
     /// `bound_cost · bounds + final tests` (see the module doc).
     pub fn estimates(&self) -> Vec<f64> {
         self.bounds
@@ -170,7 +244,8 @@ impl ShapeChoice {
 
     /// One line for [`Stats::choices`].
     pub fn describe(&self) -> String {
-        let est: Vec<String> = SHAPES
+        let est: Vec<String> = self
+            .shapes
             .iter()
             .zip(self.estimates())
             .zip(self.bounds.iter().zip(&self.final_tests))
@@ -193,23 +268,25 @@ impl ShapeChoice {
 pub struct AutoShape {
     probe: Dual,
     sample: usize,
+    shapes: Vec<(u32, u32)>,
     bound_cost: f64,
     min_batch: usize,
     chosen: Mutex<BTreeMap<u32, ShapeChoice>>,
 }
 
 impl AutoShape {
-    /// The builder over `scene` with `spec`'s `sample` and `bound_cost`; builds the probe's
-    /// object hierarchy.
+    /// The builder over `scene` with `spec`'s `sample`, `shapes`, `bound_cost` and
+    /// `min_batch`; builds the probe's object hierarchy.
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<AutoShape> {
         Ok(
             AutoShape::with_sample(scene, spec.u32_in("sample", 1..=1024)? as usize)?
+                .with_shapes(&parse_shapes(spec.str("shapes")?)?)?
                 .with_bound_cost(spec.f64("bound_cost")?)?
                 .with_min_batch(spec.u32_in("min_batch", 0..=MAX_MIN_BATCH)? as usize),
         )
     }
 
-    /// The builder with one block in `sample` (1..=1024) sampled, and the default
+    /// The builder with one block in `sample` (1..=1024) sampled, and the default `shapes`,
     /// `bound_cost` and `min_batch`.
     pub fn with_sample(scene: &Arc<Scene>, sample: usize) -> Result<AutoShape> {
         if !(1..=1024).contains(&sample) {
@@ -221,10 +298,25 @@ impl AutoShape {
         Ok(AutoShape {
             probe: Dual::with_options(scene, "lbvh", 64.0)?,
             sample,
+            shapes: parse_shapes(DEFAULT_SHAPES)?,
             bound_cost: DEFAULT_BOUND_COST,
             min_batch: DEFAULT_MIN_BATCH,
             chosen: Mutex::new(BTreeMap::new()),
         })
+    }
+
+    /// The builder comparing `shapes` ((subdivision, depth) pairs, in tie order; as
+    /// [`parse_shapes`] checks them).
+    pub fn with_shapes(self, shapes: &[(u32, u32)]) -> Result<AutoShape> {
+        Ok(AutoShape {
+            shapes: check_shapes(shapes.to_vec())?,
+            ..self
+        })
+    }
+
+    /// The shapes the pre-pass compares.
+    pub fn shapes(&self) -> &[(u32, u32)] {
+        &self.shapes
     }
 
     /// The builder with a bound test weighing `cost` ray-triangle tests (0 ..=
@@ -276,45 +368,51 @@ impl AutoShape {
         let sample_rays: Vec<Ray> = sampled.iter().map(|&i| rays[i as usize]).collect();
         let n = sample_rays.len();
         let per_ray = |x: u64| if n == 0 { 0.0 } else { x as f64 / n as f64 };
-        let (mut bounds, mut finals) = (Vec::new(), Vec::new());
-        for &(sub, depth) in &SHAPES {
-            // The hierarchy the stage would build for the sample (reach bounds included).
-            let h = SphereConeBuilder::with_params(sub, depth)?.build(
-                &Cpu,
-                &sample_rays,
-                (0..n as u32).collect(),
-                &mut Stats::default(),
-            )?;
-            let mut final_tests = 0u64;
-            let mut scratch = Stats::default();
-            self.probe.traverse_with_report(
-                &sample_rays,
-                kind,
-                &h,
-                &mut |batch, _| {
-                    // A candidate's rays: those its lane mask names, else its node's.
-                    let masks = batch.lanes.as_deref();
-                    final_tests += batch
-                        .pairs
-                        .iter()
-                        .enumerate()
-                        .map(|(i, c)| {
-                            let rays = lowest_node_leaves(c.node as usize, sub, None, n).len();
-                            match masks.map(|m| m[i]) {
-                                Some(m) if m != ALL_LANES => m.count_ones() as u64,
-                                _ => rays as u64,
-                            }
-                        })
-                        .sum::<u64>();
-                    Ok(())
-                },
-                &mut scratch,
-            )?;
-            bounds.push(per_ray(scratch.tests.bounds));
-            finals.push(per_ray(final_tests));
-        }
+        // The shapes in parallel (a deep shape over a small sample has few top nodes, so its
+        // own traversal leaves cores idle); each shape's counts are its own, in list order.
+        let parts = self
+            .shapes
+            .par_iter()
+            .map(|&(sub, depth)| -> Result<(f64, f64)> {
+                // The hierarchy the stage would build for the sample (reach bounds included).
+                let h = SphereConeBuilder::with_params(sub, depth)?.build(
+                    &Cpu,
+                    &sample_rays,
+                    (0..n as u32).collect(),
+                    &mut Stats::default(),
+                )?;
+                let mut final_tests = 0u64;
+                let mut scratch = Stats::default();
+                self.probe.traverse_with_report(
+                    &sample_rays,
+                    kind,
+                    &h,
+                    &mut |batch, _| {
+                        // A candidate's rays: those its lane mask names, else its node's.
+                        let masks = batch.lanes.as_deref();
+                        final_tests += batch
+                            .pairs
+                            .iter()
+                            .enumerate()
+                            .map(|(i, c)| {
+                                let rays = lowest_node_leaves(c.node as usize, sub, None, n).len();
+                                match masks.map(|m| m[i]) {
+                                    Some(m) if m != ALL_LANES => m.count_ones() as u64,
+                                    _ => rays as u64,
+                                }
+                            })
+                            .sum::<u64>();
+                        Ok(())
+                    },
+                    &mut scratch,
+                )?;
+                Ok((per_ray(scratch.tests.bounds), per_ray(final_tests)))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let (bounds, finals) = parts.into_iter().unzip();
         let mut choice = ShapeChoice {
-            shape: SHAPES[0],
+            shape: self.shapes[0],
+            shapes: self.shapes.clone(),
             sample_rays: n,
             batch_rays: order.len(),
             bound_cost: self.bound_cost,
@@ -322,10 +420,10 @@ impl AutoShape {
             final_tests: finals,
         };
         let estimates = choice.estimates();
-        let best = (0..SHAPES.len())
+        let best = (0..self.shapes.len())
             .min_by(|&a, &b| estimates[a].total_cmp(&estimates[b]).then(a.cmp(&b)))
-            .expect("shapes");
-        choice.shape = SHAPES[best];
+            .expect("at least one shape");
+        choice.shape = self.shapes[best];
         Ok(choice)
     }
 }
@@ -379,6 +477,7 @@ impl HierarchyBuilder<Cpu> for AutoShape {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crsh_core::ParamValue;
 
     /// One frame of built-in `name` with the `crsh` preset, `dual` traversal and `auto_shape`
     /// (two sample blocks), on `threads` threads, checked against brute force.
@@ -409,7 +508,7 @@ mod tests {
                 assert!(choice.starts_with("subdivision "), "{choice}");
                 assert!(
                     choice.contains(
-                        "estimated cost per ray, 3 × bound tests + ray-triangle tests: 4/2 "
+                        "estimated cost per ray, 3 × bound tests + ray-triangle tests: 8/2 "
                     ),
                     "{choice}"
                 );
@@ -450,9 +549,10 @@ mod tests {
         // Every other block of 1024 sorted leaves.
         let want: usize = order.chunks(BLOCK).step_by(2).map(<[u32]>::len).sum();
         assert_eq!((c.sample_rays, c.batch_rays), (want, rays.len()));
-        assert_eq!(c.estimates().len(), SHAPES.len());
+        assert_eq!(c.shapes, parse_shapes(DEFAULT_SHAPES).unwrap());
+        assert_eq!(c.estimates().len(), c.shapes.len());
         let best = c.estimates().iter().copied().fold(f64::INFINITY, f64::min);
-        let at = SHAPES.iter().position(|s| *s == c.shape).unwrap();
+        let at = c.shapes.iter().position(|s| *s == c.shape).unwrap();
         assert_eq!(c.estimates()[at], best);
         assert!(
             c.estimates().iter().all(|e| e.is_finite() && *e > 0.0),
@@ -494,8 +594,69 @@ mod tests {
             .iter()
             .copied()
             .fold(f64::INFINITY, f64::min);
-        let at = SHAPES.iter().position(|s| *s == free.shape).unwrap();
+        let at = free.shapes.iter().position(|s| *s == free.shape).unwrap();
         assert_eq!(free.final_tests[at], fewest);
+    }
+
+    #[test]
+    fn shape_lists_are_parsed_checked_and_compared_in_their_order() {
+        assert_eq!(
+            parse_shapes(DEFAULT_SHAPES).unwrap(),
+            [(8, 2), (8, 3), (16, 2), (16, 3)]
+        );
+        assert_eq!(parse_shapes(" 4/2 , 16 / 3").unwrap(), [(4, 2), (16, 3)]);
+        for bad in [
+            "", "8", "8/", "/2", "8/2,", "a/b", "8/2/1", "8/2,8/2", "0/2", "8/0", "-8/2",
+        ] {
+            let e = parse_shapes(bad).unwrap_err().to_string();
+            assert!(e.contains("shapes"), "{bad}: {e}");
+        }
+        let many: Vec<String> = (2..=2 + MAX_SHAPES as u32)
+            .map(|s| format!("{s}/2"))
+            .collect();
+        assert!(parse_shapes(&many.join(",")).is_err());
+        assert!(parse_shapes(&many[..MAX_SHAPES].join(",")).is_ok());
+
+        // A shape's estimate does not depend on the others listed; the pick is among those
+        // listed; the stage's parameter reaches the pre-pass.
+        let scene = Arc::new(crsh_scene::builtin::build("office-boxes").unwrap());
+        let rays = crate::intersect::brute::tests::random_rays(&scene, 3, 2000);
+        let order: Vec<u32> = (0..rays.len() as u32).collect();
+        let kind = RayKind::from_u32(rays[0].kind).unwrap();
+        let all = AutoShape::with_sample(&scene, 1)
+            .unwrap()
+            .pre_pass(&rays, &order, kind)
+            .unwrap();
+        let two = AutoShape::with_sample(&scene, 1)
+            .unwrap()
+            .with_shapes(&[(16, 3), (4, 2)])
+            .unwrap();
+        assert!(AutoShape::with_sample(&scene, 1)
+            .unwrap()
+            .with_shapes(&[])
+            .is_err());
+        let c = two.pre_pass(&rays, &order, kind).unwrap();
+        assert_eq!(c.shapes, [(16, 3), (4, 2)]);
+        assert_eq!(c.bounds[0], all.bounds[3]);
+        assert_eq!(c.final_tests[0], all.final_tests[3]);
+        let e = c.estimates();
+        assert_eq!(c.shape, if e[1] < e[0] { (4, 2) } else { (16, 3) });
+        assert!(c.describe().contains(": 16/3 "), "{}", c.describe());
+        let mut spec = StageSpec::new("auto_shape");
+        for (k, v) in [
+            ("sample", ParamValue::Int(1)),
+            ("shapes", ParamValue::Str("16/3,4/2".into())),
+            ("bound_cost", ParamValue::Float(3.0)),
+            ("min_batch", ParamValue::Int(0)),
+        ] {
+            spec.params.insert(k.into(), v);
+        }
+        let from_spec = AutoShape::new(&scene, &spec).unwrap();
+        assert_eq!(from_spec.shapes(), [(16, 3), (4, 2)]);
+        assert_eq!(from_spec.pre_pass(&rays, &order, kind).unwrap(), c);
+        spec.params
+            .insert("shapes".into(), ParamValue::Str("16/3,99/2".into()));
+        assert!(AutoShape::new(&scene, &spec).is_err());
     }
 
     #[test]
@@ -547,7 +708,8 @@ mod tests {
         let brute = BruteForce::from_scene(&scene);
         let dual = Dual::with_options(&scene, "lbvh", 64.0).unwrap();
         let mut masked = false;
-        for (i, &(sub, depth)) in SHAPES.iter().enumerate() {
+        assert_eq!(c.shapes, auto.shapes());
+        for (i, &(sub, depth)) in c.shapes.iter().enumerate() {
             let h = SphereConeBuilder::with_params(sub, depth)
                 .unwrap()
                 .build(&Cpu, &rays, order.clone(), &mut Stats::default())
