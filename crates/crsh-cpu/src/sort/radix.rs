@@ -39,9 +39,8 @@ struct Wide {
 /// [`PAIR_DIGIT`]-bit digit of a record's key from bit `shift` on (`< 2^PAIR_DIGIT`): one pass
 /// per digit, least significant first, each a block histogram, an exclusive scan of the digit
 /// counts in (digit, block) order and a scatter, blocks in parallel (see the module docs). A
-/// pass whose digit is the same for every record is skipped. Shared with the `dual`
-/// traversal's candidate sort.
-pub(crate) fn lsd_sort_by<R: Copy + Send + Sync>(
+/// pass whose digit is the same for every record is skipped.
+fn lsd_sort_by<R: Copy + Send + Sync>(
     mut a: Vec<R>,
     key_bits: u32,
     digit: impl Fn(&R, u32) -> usize + Sync,
