@@ -202,6 +202,7 @@ impl Ray {
     }
 
     /// True when origin, direction and interval are usable: [`is_valid_segment`] of its fields.
+    #[inline]
     pub fn is_valid(&self) -> bool {
         is_valid_segment(self.origin, self.dir, self.t_min, self.t_max)
     }
