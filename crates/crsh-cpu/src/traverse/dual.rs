@@ -1454,8 +1454,7 @@ fn sort_and_merge(out: &mut Vec<(Candidate, u32)>) {
 /// Sorts a task's candidates by `(node, triangle)` (the order of `Candidate`'s `Ord`): one
 /// counting pass groups them by node (a task's nodes lie under one top node, so their range is
 /// that node's lowest nodes), then each node's run is sorted by triangle on its own (runs are
-/// short, and the depth-first traversal leaves them partly ordered); a comparison sort for
-/// short arrays or a node range wider than the array. It replaced a radix sort on the packed
+/// short); a comparison sort for short arrays or a node range wider than the array. It replaced a radix sort on the packed
 /// key `(node − lowest node, triangle)`, whose three or four scatter passes over the whole
 /// array took a quarter of Sponza's traversal. Equal pairs (grid repeats) end up adjacent in
 /// some order, which [`merge_repeats`] does not depend on.
@@ -1485,8 +1484,9 @@ fn sort_candidates(out: &mut Vec<(Candidate, u32)>) {
         sorted[*slot as usize] = *e;
         *slot += 1;
     }
+    // Within a run the node is the same: the triangle alone orders it.
     for w in start.windows(2) {
-        sorted[w[0] as usize..w[1] as usize].sort_unstable_by_key(key);
+        sorted[w[0] as usize..w[1] as usize].sort_unstable_by_key(|e| e.0.tri);
     }
     *out = sorted;
 }
