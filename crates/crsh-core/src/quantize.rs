@@ -256,7 +256,8 @@ fn last_true_near(max: u64, guess: f64, test: impl Fn(u64) -> bool) -> u64 {
 }
 
 /// `atan2(y, x)` to within 2·10⁻⁶ rad (a degree-11 odd minimax polynomial on `[0, 1]` after
-/// octant reduction), for the starting guesses of [`theta_cell`] and [`phi_cell`]: they only
+/// octant reduction), for the starting guesses of [`theta_cell`] and [`phi_cell`] in fields
+/// wider than the tables (narrower ones use [`atan2_guess_f32`]): they only
 /// need the cell to within a few, and [`last_true_near`] finds the exact one from any guess,
 /// so the cells never depend on this accuracy. 0 for `x = y = 0`.
 #[inline]
@@ -288,6 +289,39 @@ fn atan2_guess(y: f64, x: f64) -> f64 {
     }
 }
 
+/// [`atan2_guess`] in `f32` (the same polynomial; within 3·10⁻⁶ rad): the starting guess
+/// for fields of at most [`MAX_TABLE_BITS`] bits, whose cells are at least 3·10⁻⁶ rad wide
+/// (θ) or twice that (φ), so the guess is at most a cell or two off and cheaper to form
+/// than the `f64` one (single-precision square root and division). 0 for `x = y = 0`.
+#[inline]
+fn atan2_guess_f32(y: f32, x: f32) -> f32 {
+    let (ax, ay) = (x.abs(), y.abs());
+    let (lo, hi) = (ax.min(ay), ax.max(ay));
+    if hi == 0.0 {
+        return 0.0;
+    }
+    let a = lo / hi;
+    let a2 = a * a;
+    let p = -0.011_721_2_f32;
+    let p = p * a2 + 0.052_653_32;
+    let p = p * a2 - 0.116_432_87;
+    let p = p * a2 + 0.193_543_46;
+    let p = p * a2 - 0.332_623_47;
+    let p = p * a2 + 0.999_977_26;
+    let mut r = a * p;
+    if ay > ax {
+        r = std::f32::consts::FRAC_PI_2 - r;
+    }
+    if x < 0.0 {
+        r = std::f32::consts::PI - r;
+    }
+    if y < 0.0 {
+        -r
+    } else {
+        r
+    }
+}
+
 /// The boundary `k` of `bits`, from the table when there is one.
 fn threshold_of(bits: u32, k: u64, tab: Option<&[f32]>, f: fn(u32, u64) -> f32) -> f32 {
     match tab {
@@ -300,25 +334,63 @@ fn threshold_of(bits: u32, k: u64, tab: Option<&[f32]>, f: fn(u32, u64) -> f32) 
 /// `θ ≥ θ_k`, tested as `z ≤ 0 or ρ² ≥ tan²θ_k · z²` below the equator, `z ≤ 0` at it and
 /// `z < 0 and ρ² ≤ tan²(π − θ_k) · z²` above it (`ρ² = x² + y²`, squares by [`square`]).
 pub fn theta_cell(x: f32, y: f32, z: f32, bits: u32) -> u64 {
-    if bits == 0 {
-        return 0;
-    }
     let tab = (bits <= MAX_TABLE_BITS).then(|| theta_table(bits));
-    let rho2 = square(x) + square(y);
-    let z2 = square(z);
-    let half = 1u64 << (bits - 1);
-    let guess =
-        atan2_guess((rho2 as f64).sqrt(), z as f64) / std::f64::consts::PI * (1u64 << bits) as f64;
-    last_true_near((1u64 << bits) - 1, guess, |k| {
-        let t = threshold_of(bits, k, tab, theta_threshold);
-        if k < half {
-            z <= 0.0 || rho2 >= t * z2
-        } else if k == half {
-            z <= 0.0
-        } else {
-            z < 0.0 && rho2 <= t * z2
+    let t = ThetaInput::of(x, y, z);
+    t.cell(bits, tab, t.guess(bits, tab.is_some()))
+}
+
+/// What a `θ` cell is computed from: `ρ² = x² + y²` and `z²` by [`square`], and `z`.
+#[derive(Clone, Copy, Debug, Default)]
+struct ThetaInput {
+    rho2: f32,
+    z2: f32,
+    z: f32,
+}
+
+impl ThetaInput {
+    #[inline]
+    fn of(x: f32, y: f32, z: f32) -> ThetaInput {
+        ThetaInput {
+            rho2: square(x) + square(y),
+            z2: square(z),
+            z,
         }
-    })
+    }
+
+    /// The starting guess of the cell (`f32` arithmetic when the field has a table, see
+    /// [`atan2_guess_f32`]).
+    #[inline]
+    fn guess(&self, bits: u32, tabulated: bool) -> f64 {
+        if bits == 0 {
+            0.0
+        } else if tabulated {
+            (atan2_guess_f32(self.rho2.sqrt(), self.z) * (pow2(bits) * std::f32::consts::FRAC_1_PI))
+                as f64
+        } else {
+            atan2_guess((self.rho2 as f64).sqrt(), self.z as f64) / std::f64::consts::PI
+                * (1u64 << bits) as f64
+        }
+    }
+
+    /// The exact cell, searched from `guess` ([`last_true_near`]: the same for any guess).
+    #[inline]
+    fn cell(&self, bits: u32, tab: Option<&[f32]>, guess: f64) -> u64 {
+        if bits == 0 {
+            return 0;
+        }
+        let ThetaInput { rho2, z2, z } = *self;
+        let half = 1u64 << (bits - 1);
+        last_true_near((1u64 << bits) - 1, guess, |k| {
+            let t = threshold_of(bits, k, tab, theta_threshold);
+            if k < half {
+                z <= 0.0 || rho2 >= t * z2
+            } else if k == half {
+                z <= 0.0
+            } else {
+                z < 0.0 && rho2 <= t * z2
+            }
+        })
+    }
 }
 
 /// The octant (0-7 from `φ = −π`, as [`phi_threshold`] numbers them) of `(x, y)`, not both 0.
@@ -355,36 +427,184 @@ fn octant(x: f32, y: f32) -> u64 {
 /// `φ ≥ φ_k`, by octant, then within the octant by comparing the minor component `|n|` with
 /// `t_k · |m|` (the major one). `x = y = 0` (a pole) counts as `φ = 0`.
 pub fn phi_cell(x: f32, y: f32, bits: u32) -> u64 {
-    if bits == 0 {
-        return 0;
-    }
-    let (x, y) = if x == 0.0 && y == 0.0 {
-        (1.0, 0.0)
-    } else {
-        (x, y)
-    };
     let tab = (bits <= MAX_TABLE_BITS).then(|| phi_table(bits));
-    let o = octant(x, y);
-    let (n, m) = if matches!(o, 0 | 3 | 4 | 7) {
-        (y.abs(), x.abs())
-    } else {
-        (x.abs(), y.abs())
-    };
-    let guess = (atan2_guess(y as f64, x as f64) / std::f64::consts::PI + 1.0)
-        * 0.5
-        * (1u64 << bits) as f64;
-    last_true_near((1u64 << bits) - 1, guess, |k| {
-        let ok = phi_octant(bits, k);
-        if ok != o {
-            return o > ok;
-        }
-        let t = threshold_of(bits, k, tab, phi_threshold);
-        if o.is_multiple_of(2) {
-            n >= t * m
+    let p = PhiInput::of(x, y);
+    p.cell(bits, tab, p.guess(bits, tab.is_some()))
+}
+
+/// What a `φ` cell is computed from: `(x, y)`, a pole replaced by `(1, 0)`.
+#[derive(Clone, Copy, Debug, Default)]
+struct PhiInput {
+    x: f32,
+    y: f32,
+}
+
+impl PhiInput {
+    #[inline]
+    fn of(x: f32, y: f32) -> PhiInput {
+        if x == 0.0 && y == 0.0 {
+            PhiInput { x: 1.0, y: 0.0 }
         } else {
-            n <= t * m
+            PhiInput { x, y }
         }
-    })
+    }
+
+    /// The starting guess of the cell (as [`ThetaInput::guess`]).
+    #[inline]
+    fn guess(&self, bits: u32, tabulated: bool) -> f64 {
+        let PhiInput { x, y } = *self;
+        if bits == 0 {
+            0.0
+        } else if tabulated {
+            let h = pow2(bits - 1);
+            (atan2_guess_f32(y, x) * (h * std::f32::consts::FRAC_1_PI) + h) as f64
+        } else {
+            (atan2_guess(y as f64, x as f64) / std::f64::consts::PI + 1.0)
+                * 0.5
+                * (1u64 << bits) as f64
+        }
+    }
+
+    /// The exact cell, searched from `guess` ([`last_true_near`]: the same for any guess).
+    #[inline]
+    fn cell(&self, bits: u32, tab: Option<&[f32]>, guess: f64) -> u64 {
+        if bits == 0 {
+            return 0;
+        }
+        let PhiInput { x, y } = *self;
+        let o = octant(x, y);
+        let (n, m) = if matches!(o, 0 | 3 | 4 | 7) {
+            (y.abs(), x.abs())
+        } else {
+            (x.abs(), y.abs())
+        };
+        last_true_near((1u64 << bits) - 1, guess, |k| {
+            let ok = phi_octant(bits, k);
+            if ok != o {
+                return o > ok;
+            }
+            let t = threshold_of(bits, k, tab, phi_threshold);
+            if o.is_multiple_of(2) {
+                n >= t * m
+            } else {
+                n <= t * m
+            }
+        })
+    }
+}
+
+/// [`spherical_cells`] prepared for many directions: the boundary tables looked up once, and
+/// the cells of a slice of directions found in two passes ([`SphericalCells::cells_of`]):
+/// every direction's starting guess first, then every direction's exact cell from its
+/// guess. One direction's guess (square root, division, polynomial) and the table lookup that
+/// depends on it form one long chain; done one direction at a time the processor waits on each
+/// chain in turn, while the passes let neighbouring directions' chains overlap. Same cells as
+/// [`spherical_cells`] (the search from a guess finds the same cell from any guess).
+#[derive(Clone, Copy)]
+pub struct SphericalCells {
+    theta_bits: u32,
+    phi_bits: u32,
+    theta_tab: Option<&'static [f32]>,
+    phi_tab: Option<&'static [f32]>,
+}
+
+impl std::fmt::Debug for SphericalCells {
+    /// The widths, not the tables' entries.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SphericalCells")
+            .field("theta_bits", &self.theta_bits)
+            .field("phi_bits", &self.phi_bits)
+            .field(
+                "tabulated",
+                &(self.theta_tab.is_some(), self.phi_tab.is_some()),
+            )
+            .finish()
+    }
+}
+
+/// Directions per pass of [`SphericalCells::cells_of`].
+const CELL_PASS: usize = 32;
+
+impl SphericalCells {
+    /// The cells of `theta_bits` and `phi_bits` (each at most 32).
+    pub fn new(theta_bits: u32, phi_bits: u32) -> SphericalCells {
+        let tab = |bits: u32, f: fn(u32) -> &'static [f32]| {
+            (bits > 0 && bits <= MAX_TABLE_BITS).then(|| f(bits))
+        };
+        SphericalCells {
+            theta_bits,
+            phi_bits,
+            theta_tab: tab(theta_bits, theta_table),
+            phi_tab: tab(phi_bits, phi_table),
+        }
+    }
+
+    /// Bits of the `θ` field.
+    pub fn theta_bits(&self) -> u32 {
+        self.theta_bits
+    }
+
+    /// Bits of the `φ` field.
+    pub fn phi_bits(&self) -> u32 {
+        self.phi_bits
+    }
+
+    /// The inputs of direction `d`'s cells (a zero or non-finite direction: `θ` input
+    /// `z = 1`, the cell 0, and `φ` of `(1, 0)`, the cells of `(0, 0)`).
+    #[inline]
+    fn inputs(d: Vec3) -> (ThetaInput, PhiInput) {
+        match scaled_direction(d) {
+            Some([x, y, z]) => (ThetaInput::of(x, y, z), PhiInput::of(x, y)),
+            None => (ThetaInput::of(0.0, 0.0, 1.0), PhiInput::of(1.0, 0.0)),
+        }
+    }
+
+    /// The `(θ, φ)` cells of one direction: [`spherical_cells`]`(d, theta_bits, phi_bits)`.
+    pub fn cells(&self, d: Vec3) -> (u64, u64) {
+        let (t, p) = Self::inputs(d);
+        (
+            t.cell(
+                self.theta_bits,
+                self.theta_tab,
+                t.guess(self.theta_bits, self.theta_tab.is_some()),
+            ),
+            p.cell(
+                self.phi_bits,
+                self.phi_tab,
+                p.guess(self.phi_bits, self.phi_tab.is_some()),
+            ),
+        )
+    }
+
+    /// The cells of every direction of `dirs` into `out` (`out[i]` the cells of `dirs[i]`,
+    /// as [`SphericalCells::cells`] gives them), in passes of a few dozen directions (see
+    /// the type's doc).
+    ///
+    /// # Panics
+    /// When `out` is shorter than `dirs`.
+    pub fn cells_of(&self, dirs: &[Vec3], out: &mut [(u64, u64)]) {
+        assert!(
+            out.len() >= dirs.len(),
+            "cells_of: output shorter than input"
+        );
+        let (tb, pb) = (self.theta_bits, self.phi_bits);
+        let (tt, pt) = (self.theta_tab.is_some(), self.phi_tab.is_some());
+        let mut inputs = [(ThetaInput::default(), PhiInput::default()); CELL_PASS];
+        let mut guesses = [(0.0f64, 0.0f64); CELL_PASS];
+        for (dirs, out) in dirs.chunks(CELL_PASS).zip(out.chunks_mut(CELL_PASS)) {
+            let n = dirs.len();
+            for ((d, i), g) in dirs.iter().zip(&mut inputs).zip(&mut guesses) {
+                *i = Self::inputs(*d);
+                *g = (i.0.guess(tb, tt), i.1.guess(pb, pt));
+            }
+            for ((o, i), g) in out.iter_mut().zip(&inputs[..n]).zip(&guesses[..n]) {
+                *o = (
+                    i.0.cell(tb, self.theta_tab, g.0),
+                    i.1.cell(pb, self.phi_tab, g.1),
+                );
+            }
+        }
+    }
 }
 
 /// Spherical coordinates `(θ, φ)` of direction `d` (need not be unit length): the polar angle
@@ -578,6 +798,18 @@ mod tests {
             assert!((atan2_guess(y, x) - f64::atan2(y, x)).abs() < 2e-6);
         }
         assert_eq!(atan2_guess(0.0, 0.0), 0.0);
+        // The `f32` twin, on `f32` inputs of the magnitudes a scaled direction has.
+        let mut worst = 0.0f64;
+        for i in 0..=100_000 {
+            let t = -std::f64::consts::PI + 2.0 * std::f64::consts::PI * i as f64 / 100_000.0;
+            for r in [1e-9f64, 1.0, 1.99] {
+                let (y, x) = ((r * t.sin()) as f32, (r * t.cos()) as f32);
+                let exact = (y as f64).atan2(x as f64);
+                worst = worst.max((atan2_guess_f32(y, x) as f64 - exact).abs());
+            }
+        }
+        assert!(worst < 3e-6, "worst f32 error {worst}");
+        assert_eq!(atan2_guess_f32(0.0, 0.0), 0.0);
     }
 
     #[test]
@@ -775,6 +1007,51 @@ mod tests {
                 assert_eq!(p[k as usize].to_bits(), phi_threshold(bits, k).to_bits());
             }
         }
+    }
+
+    /// The prepared, two-pass cells are [`spherical_cells`]' for every width (tabulated or
+    /// not, 0 included), on random directions of every magnitude, axes, poles, seams and
+    /// degenerate directions, in slices of any length.
+    #[test]
+    fn prepared_cells_are_spherical_cells() {
+        let mut r = rng(23);
+        let mut dirs: Vec<Vec3> = (0..3000)
+            .map(|i| {
+                let scale = [7.0, 1e-20, 3e25, 1.0][i % 4];
+                Vec3::new(r(), r(), r()) * scale
+            })
+            .collect();
+        for v in [0.0f32, -0.0, 1.0, -1.0, 1e-40, f32::NAN, f32::INFINITY] {
+            for w in [0.0f32, 1.0, -1.0, -0.0] {
+                dirs.extend([
+                    Vec3::new(v, w, 1.0),
+                    Vec3::new(w, v, -1.0),
+                    Vec3::new(v, w, v),
+                ]);
+            }
+        }
+        for (tb, pb) in [
+            (0, 0),
+            (1, 1),
+            (7, 7),
+            (16, 15),
+            (20, 20),
+            (21, 24),
+            (32, 32),
+        ] {
+            let cells = SphericalCells::new(tb, pb);
+            assert_eq!((cells.theta_bits(), cells.phi_bits()), (tb, pb));
+            let want: Vec<(u64, u64)> = dirs.iter().map(|&d| spherical_cells(d, tb, pb)).collect();
+            for len in [0, 1, 31, 32, 33, dirs.len()] {
+                let mut got = vec![(u64::MAX, u64::MAX); len];
+                cells.cells_of(&dirs[..len], &mut got);
+                assert_eq!(got, want[..len], "bits {tb}/{pb}, {len} directions");
+            }
+            for (d, w) in dirs.iter().zip(&want) {
+                assert_eq!(cells.cells(*d), *w, "{d} bits {tb}/{pb}");
+            }
+        }
+        assert!(format!("{:?}", SphericalCells::new(16, 16)).len() < 200);
     }
 
     #[test]

@@ -46,7 +46,7 @@ use rayon::prelude::*;
 use crate::backend::Cpu;
 use crate::hash::thesis_bounce::{BounceLayout, MAX_ORIGIN_BITS};
 use crate::hash::thesis_shadow::{light_to_point_direction, ShadowLayout};
-use crsh_core::quantize::FieldOrder;
+use crsh_core::quantize::{FieldOrder, SphericalCells, UniformCells};
 
 /// Default bits per origin axis of the bounce hash (`3·6 + 14 = 32`).
 pub const DEFAULT_ORIGIN_BITS: u32 = 6;
@@ -61,7 +61,14 @@ pub struct ThesisHasher {
     shadow: ShadowLayout,
     bounce: BounceLayout,
     lights: Vec<Vec3>,
+    /// The direction cells of each layout and the origin quantizers, prepared once.
+    shadow_cells: SphericalCells,
+    bounce_cells: SphericalCells,
+    origin_cells: [UniformCells; 3],
 }
+
+/// Rays per pass of [`ThesisHasher::keys_of`].
+const KEY_PASS: usize = 64;
 
 /// The catalogue entry of the `thesis` hasher.
 pub fn info() -> StageVariantInfo {
@@ -139,7 +146,7 @@ impl ThesisHasher {
         ThesisHasher {
             shadow: self.shadow.with_order(order),
             bounce: self.bounce.with_order(order),
-            lights: self.lights,
+            ..self
         }
     }
 
@@ -153,10 +160,15 @@ impl ThesisHasher {
         direction_bits: u32,
         shadow_bits: u32,
     ) -> Result<ThesisHasher> {
+        let shadow = ShadowLayout::new(scene.lights.len(), shadow_bits)?;
+        let bounce = BounceLayout::new(scene.bounds, origin_bits, direction_bits)?;
         Ok(ThesisHasher {
-            shadow: ShadowLayout::new(scene.lights.len(), shadow_bits)?,
-            bounce: BounceLayout::new(scene.bounds, origin_bits, direction_bits)?,
+            shadow,
+            bounce,
             lights: scene.lights.iter().map(|l| l.position).collect(),
+            shadow_cells: SphericalCells::new(shadow.theta_bits, shadow.phi_bits),
+            bounce_cells: SphericalCells::new(bounce.theta_bits, bounce.phi_bits),
+            origin_cells: bounce.origin_quantizers(),
         })
     }
 
@@ -175,6 +187,14 @@ impl ThesisHasher {
     /// # Errors
     /// As the module docs say.
     pub fn key(&self, ray: &Ray) -> Result<u64> {
+        let mut key = [0];
+        self.keys_of(std::slice::from_ref(ray), &mut key)?;
+        Ok(key[0])
+    }
+
+    /// The hashed direction of `ray` and whether it is a shadow ray.
+    #[inline]
+    fn direction(&self, ray: &Ray) -> Result<(Vec3, bool)> {
         match RayKind::from_u32(ray.kind) {
             Some(RayKind::Shadow) => {
                 let light = self.lights.get(ray.light as usize).ok_or_else(|| {
@@ -184,15 +204,51 @@ impl ThesisHasher {
                         self.lights.len()
                     ))
                 })?;
-                let dir = light_to_point_direction(ray, *light)?;
-                Ok(self.shadow.key(ray.light, dir))
+                Ok((light_to_point_direction(ray, *light)?, true))
             }
-            Some(_) => Ok(self.bounce.key(ray.origin, ray.dir)),
+            Some(_) => Ok((ray.dir, false)),
             None => Err(CoreError::InvalidInput(format!(
                 "ray with unknown kind {}",
                 ray.kind
             ))),
         }
+    }
+
+    /// The keys of `rays` into `keys` (the same length), in passes of [`KEY_PASS`] rays: the
+    /// direction cells of a pass's rays of each layout are found together
+    /// ([`SphericalCells::cells_of`]), which lets their computations overlap; the keys are
+    /// those of [`ThesisHasher::key`] one ray at a time.
+    fn keys_of(&self, rays: &[Ray], keys: &mut [u64]) -> Result<()> {
+        debug_assert_eq!(rays.len(), keys.len());
+        let mut dirs = [[Vec3::ZERO; KEY_PASS]; 2];
+        let mut slots = [[0u8; KEY_PASS]; 2];
+        let mut cells = [[(0u64, 0u64); KEY_PASS]; 2];
+        for (rays, keys) in rays.chunks(KEY_PASS).zip(keys.chunks_mut(KEY_PASS)) {
+            // Directions sorted into the shadow (0) and bounce (1) layouts' lists.
+            let mut len = [0usize; 2];
+            for (i, ray) in rays.iter().enumerate() {
+                let (d, shadow) = self.direction(ray)?;
+                let l = usize::from(!shadow);
+                dirs[l][len[l]] = d;
+                slots[l][len[l]] = i as u8;
+                len[l] += 1;
+            }
+            self.shadow_cells
+                .cells_of(&dirs[0][..len[0]], &mut cells[0][..len[0]]);
+            self.bounce_cells
+                .cells_of(&dirs[1][..len[1]], &mut cells[1][..len[1]]);
+            for (&i, &(t, p)) in slots[0][..len[0]].iter().zip(&cells[0][..len[0]]) {
+                let ray = &rays[i as usize];
+                keys[i as usize] = self.shadow.key_of_cells(ray.light, t, p);
+            }
+            for (&i, &(t, p)) in slots[1][..len[1]].iter().zip(&cells[1][..len[1]]) {
+                let o = rays[i as usize].origin;
+                let q = &self.origin_cells;
+                let origin = [q[0].cell(o.x), q[1].cell(o.y), q[2].cell(o.z)];
+                keys[i as usize] = self.bounce.key_of_cells(origin, t, p);
+            }
+        }
+        Ok(())
     }
 }
 
@@ -214,7 +270,11 @@ impl Hasher<Cpu> for ThesisHasher {
         _kind: RayKind,
         _stats: &mut Stats,
     ) -> Result<Vec<u64>> {
-        rays.par_iter().map(|r| self.key(r)).collect()
+        let mut keys = vec![0u64; rays.len()];
+        rays.par_chunks(KEY_PASS * 16)
+            .zip(keys.par_chunks_mut(KEY_PASS * 16))
+            .try_for_each(|(rays, keys)| self.keys_of(rays, keys))?;
+        Ok(keys)
     }
 }
 
@@ -386,6 +446,59 @@ mod tests {
                 .unwrap(),
             vec![h.key(&s).unwrap(), h.key(&reflection).unwrap()]
         );
+    }
+
+    /// The batched keys (passes of [`KEY_PASS`] rays, each layout's cells found together)
+    /// are the layouts' keys of each ray alone, in a batch whose kinds alternate irregularly,
+    /// with shadow rays of both origin conventions and bounce origins inside and outside the
+    /// scene's bounds.
+    #[test]
+    fn batched_keys_are_the_layouts_keys() {
+        let scene = test_scene(3);
+        for (order, origin_bits, direction_bits) in [
+            ("interleave", 6, 14),
+            ("concat", 5, 30),
+            ("interleave", 21, 1),
+        ] {
+            let mut s = spec(origin_bits, direction_bits, 32);
+            s.params
+                .insert("layout".into(), ParamValue::Str(order.into()));
+            let h = ThesisHasher::new(&scene, &s).unwrap();
+            let rays: Vec<Ray> = (0..1000u32)
+                .map(|i| {
+                    let a = i as f32 * 0.731;
+                    let dir = Vec3::new(a.sin(), (a * 1.3).cos(), (a * 0.7).sin() - 0.2);
+                    if (i * 7 + i / 5) % 3 != 0 {
+                        let light = i % 3;
+                        let l = scene.lights[light as usize].position;
+                        if i % 2 == 0 {
+                            ray(RayKind::Shadow, l, dir, light)
+                        } else {
+                            ray(RayKind::Shadow, l + dir * 3.0, -dir, light)
+                        }
+                    } else {
+                        let o = Vec3::new(a.cos() * 3.0, (a * 0.2).sin(), (a * 0.1).cos() * 2.0);
+                        ray(RayKind::Reflection, o, dir, u32::MAX)
+                    }
+                })
+                .collect();
+            let want: Vec<u64> = rays
+                .iter()
+                .map(|r| {
+                    if r.kind == RayKind::Shadow as u32 {
+                        let l = scene.lights[r.light as usize].position;
+                        let d = light_to_point_direction(r, l).unwrap();
+                        h.shadow_layout().key(r.light, d)
+                    } else {
+                        h.bounce_layout().key(r.origin, r.dir)
+                    }
+                })
+                .collect();
+            let got = h
+                .hash(&Cpu, &rays, RayKind::Shadow, &mut Stats::default())
+                .unwrap();
+            assert_eq!(got, want, "{order} {origin_bits}/{direction_bits}");
+        }
     }
 
     #[test]

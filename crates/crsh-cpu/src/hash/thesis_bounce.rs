@@ -36,7 +36,7 @@
 use crsh_core::{Aabb, CoreError, Result};
 use glam::Vec3;
 
-use crsh_core::quantize::{quantize, spherical_cells, FieldOrder};
+use crsh_core::quantize::{quantize, spherical_cells, FieldOrder, UniformCells};
 
 /// Field widths and the quantization box of the bounce hash.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -102,8 +102,20 @@ impl BounceLayout {
 
     /// The key of a ray with `origin` and direction `dir` (any length).
     pub fn key(&self, origin: Vec3, dir: Vec3) -> u64 {
-        let [x, y, z] = self.origin_cells(origin);
         let (theta, phi) = spherical_cells(dir, self.theta_bits, self.phi_bits);
+        self.key_of_cells(self.origin_cells(origin), theta, phi)
+    }
+
+    /// The origin's quantizers, one per axis ([`BounceLayout::origin_cells`] is
+    /// `quantizers[i].cell(origin[i])`), for hashing many rays.
+    pub fn origin_quantizers(&self) -> [UniformCells; 3] {
+        let (lo, hi) = (self.bounds.min, self.bounds.max);
+        [0, 1, 2].map(|i| UniformCells::new(lo[i], hi[i], self.origin_bits))
+    }
+
+    /// The key of a ray whose origin has the cells `[x, y, z]` and whose direction has the
+    /// cells `(theta, phi)` of this layout's widths.
+    pub fn key_of_cells(&self, [x, y, z]: [u64; 3], theta: u64, phi: u64) -> u64 {
         let o = self.origin_bits;
         let d = self.theta_bits + self.phi_bits;
         let origin = self.order.combine(&[(x, o), (y, o), (z, o)]);

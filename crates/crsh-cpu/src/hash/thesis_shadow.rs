@@ -97,9 +97,15 @@ impl ShadowLayout {
     /// The key of a shadow ray of light `light` whose light→point direction is `dir` (any
     /// length). A light index that does not fit `light_bits` saturates to the largest one.
     pub fn key(&self, light: u32, dir: Vec3) -> u64 {
+        let (theta, phi) = spherical_cells(dir, self.theta_bits, self.phi_bits);
+        self.key_of_cells(light, theta, phi)
+    }
+
+    /// The key of a shadow ray of light `light` whose light→point direction has the cells
+    /// `(theta, phi)` of this layout's widths ([`crsh_core::quantize::SphericalCells`]).
+    pub fn key_of_cells(&self, light: u32, theta: u64, phi: u64) -> u64 {
         let max_light = (1u64 << self.light_bits) - 1;
         let light = (light as u64).min(max_light);
-        let (theta, phi) = spherical_cells(dir, self.theta_bits, self.phi_bits);
         let dir = self
             .order
             .combine(&[(theta, self.theta_bits), (phi, self.phi_bits)]);
@@ -125,6 +131,12 @@ pub fn light_to_point_direction(ray: &Ray, light: Vec3) -> Result<Vec3> {
             "shadow ray with non-finite segment (origin {}, dir {}, t_max {})",
             ray.origin, ray.dir, ray.t_max
         )));
+    }
+    if ray.origin == light {
+        // The distance from the origin is 0 (every product and sum below is 0), never more
+        // than the end's (a sum of non-negative products): the comparison's outcome, without
+        // computing it.
+        return Ok(ray.dir);
     }
     let dist2 = |p: Vec3| {
         let v = p - light;
