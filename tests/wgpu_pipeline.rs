@@ -16,7 +16,16 @@ use crsh_scene::Scene;
 use crsh_wgpu::Wgpu;
 
 /// The presets whose every stage has a WGSL implementation: all of them.
-const GPU_PRESETS: [&str; 7] = ["brute", "bvh", "crsh", "rah", "grid", "tile_cone", "kdtree"];
+const GPU_PRESETS: [&str; 8] = [
+    "brute",
+    "bvh",
+    "crsh",
+    "rah",
+    "grid",
+    "tile_cone",
+    "kdtree",
+    "dual",
+];
 
 const W: u32 = 48;
 const H: u32 = 36;

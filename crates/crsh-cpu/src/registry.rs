@@ -49,7 +49,7 @@ impl BuiltinVariants for Cpu {
     }
 }
 
-/// The presets `brute`, `bvh`, `grid`, `kdtree`, `crsh`, `rah` and `tile_cone` (raster primaries,
+/// The presets `brute`, `bvh`, `grid`, `kdtree`, `crsh`, `rah`, `tile_cone` and `dual` (raster primaries,
 /// Whitted ray generation and Phong shading; they differ in how rays are traced), added to
 /// `registry`, whose variants they use. The wgpu backend registers the same ones.
 pub fn add_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<()> {
@@ -118,7 +118,35 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
              survivors",
             tile_cone_pipeline(),
         ),
+        (
+            "dual",
+            "issue 17's ray hierarchy against an object hierarchy: thesis hashes, radix sort, \
+             sphere-cone hierarchy (subdivision 16, depth 3), the dual traversal over a \
+             per-frame Morton LBVH (box tests, single rays), final tests on the candidates",
+            dual_pipeline(),
+        ),
     ]
+}
+
+/// The `dual` preset's pipeline, the fastest ray-hierarchy pipeline measured for issue 17 on
+/// the CPU (README, "Traversing an object hierarchy too"): `thesis` hash, `radix` sort (on the
+/// CPU the same order as `compress` in half the time: shadow keys rarely repeat, so the chunks
+/// are nearly as many as the rays), `sphere_cone` at subdivision 16 and depth 3 (the shape
+/// `auto_shape`'s pre-pass picks on Sponza, the dining room and cornell-mirror, without the
+/// pre-pass; `auto_shape` has no wgpu twin, this preset runs on both backends), `dual` with
+/// its defaults (LBVH objects, box test, single rays) and `brute` final tests.
+fn dual_pipeline() -> PipelineConfig {
+    let mut cfg = PipelineConfig::whitted("dual", "brute");
+    cfg.hash = Some(StageSpec::new("thesis"));
+    cfg.sort = Some(StageSpec::new("radix"));
+    let mut hierarchy = StageSpec::new("sphere_cone");
+    hierarchy
+        .params
+        .insert("subdivision".into(), ParamValue::Int(16));
+    hierarchy.params.insert("depth".into(), ParamValue::Int(3));
+    cfg.hierarchy = Some(hierarchy);
+    cfg.traverse = Some(StageSpec::new("dual"));
+    cfg
 }
 
 /// The `tile_cone` preset's pipeline: `tile` hash and `tile_cone` hierarchy with 16-pixel
@@ -164,7 +192,16 @@ mod tests {
         let names: Vec<&str> = registry.presets().iter().map(|p| p.name.as_str()).collect();
         assert_eq!(
             names,
-            ["brute", "bvh", "grid", "kdtree", "crsh", "rah", "tile_cone"]
+            [
+                "brute",
+                "bvh",
+                "grid",
+                "kdtree",
+                "crsh",
+                "rah",
+                "tile_cone",
+                "dual"
+            ]
         );
         for p in registry.presets() {
             let cfg = &p.config;
@@ -176,15 +213,38 @@ mod tests {
                 "brute"
             };
             assert_eq!(cfg.intersect.kind, expect);
-            let hierarchies = ["crsh", "rah", "tile_cone"];
+            let hierarchies = ["crsh", "rah", "tile_cone", "dual"];
             assert_eq!(cfg.hierarchy.is_some(), hierarchies.contains(&name));
-            assert_eq!(cfg.hash.is_some(), ["crsh", "tile_cone"].contains(&name));
-            if let Some(t) = &cfg.traverse {
+            let hashed = ["crsh", "tile_cone", "dual"];
+            assert_eq!(cfg.hash.is_some(), hashed.contains(&name));
+            if let Some(t) = cfg.traverse.as_ref().filter(|t| t.kind == "crsh") {
                 assert_eq!(t.bool("mesh_culling").unwrap(), name == "crsh");
             }
             assert_eq!(cfg.raygen.str("shadow_origin").unwrap(), "light");
             assert_eq!(cfg.shade.f64("ambient").unwrap(), 0.05);
         }
+    }
+
+    #[test]
+    fn the_dual_preset_is_issue_17s_pipeline() {
+        let registry = Registry::<Cpu>::builtin();
+        let cfg = registry.preset("dual").unwrap();
+        assert_eq!(cfg.hash.as_ref().unwrap().kind, "thesis");
+        assert_eq!(cfg.sort.as_ref().unwrap().kind, "radix");
+        let h = cfg.hierarchy.as_ref().unwrap();
+        assert_eq!(
+            (
+                h.kind.as_str(),
+                h.i64("subdivision").unwrap(),
+                h.i64("depth").unwrap()
+            ),
+            ("sphere_cone", 16, 3)
+        );
+        let t = cfg.traverse.as_ref().unwrap();
+        assert_eq!(t.kind, "dual");
+        assert_eq!(t.str("objects").unwrap(), "lbvh");
+        assert!(t.bool("box_test").unwrap() && t.bool("single_rays").unwrap());
+        assert_eq!(cfg.intersect.kind, "brute");
     }
 
     #[test]
