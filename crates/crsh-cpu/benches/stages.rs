@@ -8,7 +8,8 @@
 //! Groups (see the README's "Benchmarks"):
 //! - `hashing`: `thesis` with layout `interleave` and `concat`, and `morton`;
 //! - `sorting`: `compress` and `radix` on the keys of each hasher;
-//! - `hierarchy`: `sphere_cone` (subdivision 8, depth 2) over the thesis-sorted rays;
+//! - `hierarchy`: `sphere_cone` over the thesis-sorted rays at subdivision 8, depth 2, and at
+//!   16/3 with each `leaf_cone` (`incremental`, `extremes`);
 //! - `traversal`: the `crsh` traverser and the `dual` traverser with objects `lbvh` and
 //!   `grid` (object hierarchies built once, outside the timing), with a sink that only counts
 //!   the candidates;
@@ -205,23 +206,41 @@ fn benches(c: &mut Criterion) {
     }
     g.finish();
 
-    let st = stages(scene, &[]);
     let mut g = c.benchmark_group("hierarchy");
     g.throughput(Throughput::Elements(n));
-    let builder = st.hierarchy.as_ref().expect("a builder");
-    g.bench_function(format!("sphere_cone_s8_d2/{}", b.tag), |bench| {
-        bench.iter_batched(
-            || b.order.clone(),
-            |order| {
-                builder
-                    .build(&Cpu, &b.rays, order, &mut Stats::default())
-                    .unwrap()
-            },
-            BatchSize::LargeInput,
-        )
-    });
+    let shapes: [(&str, &[&str]); 3] = [
+        ("sphere_cone_s8_d2", &[]),
+        (
+            "sphere_cone_s16_d3",
+            &["hierarchy.subdivision=16", "hierarchy.depth=3"],
+        ),
+        (
+            "sphere_cone_s16_d3_extremes",
+            &[
+                "hierarchy.subdivision=16",
+                "hierarchy.depth=3",
+                "hierarchy.leaf_cone=extremes",
+            ],
+        ),
+    ];
+    for (name, sets) in shapes {
+        let st = stages(scene, sets);
+        let builder = st.hierarchy.as_ref().expect("a builder");
+        g.bench_function(format!("{name}/{}", b.tag), |bench| {
+            bench.iter_batched(
+                || b.order.clone(),
+                |order| {
+                    builder
+                        .build(&Cpu, &b.rays, order, &mut Stats::default())
+                        .unwrap()
+                },
+                BatchSize::LargeInput,
+            )
+        });
+    }
     g.finish();
 
+    let st = stages(scene, &[]);
     let mut g = c.benchmark_group("traversal");
     g.throughput(Throughput::Elements(n));
     g.sample_size(10);

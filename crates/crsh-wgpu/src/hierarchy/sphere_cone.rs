@@ -2,11 +2,13 @@
 //! eq. 3.8-3.15), built level by level, one invocation per node.
 //!
 //! The twin is [`crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder`] (same parameters
-//! `subdivision` and `depth`, same level sizes, the same constructions): leaf cones by the
-//! incremental eq. 3.8-3.11 in angle form (the CPU sums and halves the same angles on
-//! `(cos, sin)` pairs: the same cone up to rounding), leaf spheres as the exact minimal ball of
-//! the origins
-//! (Welzl's algorithm, here in its nested non-recursive form; rays from one point get radius
+//! `subdivision`, `depth`, `origins` and `leaf_cone`, same level sizes, the same
+//! constructions): leaf cones by the incremental eq. 3.8-3.11 in angle form (the CPU sums and
+//! halves the same angles on `(cos, sin)` pairs: the same cone up to rounding), or with
+//! `leaf_cone = extremes` from the same two heuristic axes and the same rule for wide nodes
+//! (decided in `f32` here, so a node whose candidate axes nearly tie may keep another one than
+//! the CPU: either gives a correct cone of nearly the same width), leaf spheres as the exact
+//! minimal ball of the origins (Welzl's algorithm, here in its nested non-recursive form; rays from one point get radius
 //! 0), upper levels folding the tight cone and sphere unions, then every stored bound
 //! re-measured against the stored axis and centre, and `reach` per node (the farthest point a
 //! ray of the node reaches, infinite for unbounded rays).
@@ -24,7 +26,7 @@ use bytemuck::{Pod, Zeroable};
 use crsh_core::{
     HierarchyBuilder, Ray, RayHierarchy, Registry, Result, SphereCone, StageSpec, Stats,
 };
-use crsh_cpu::hierarchy::sphere_cone::level_sizes;
+use crsh_cpu::hierarchy::sphere_cone::{level_sizes, LeafCone};
 
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
@@ -42,6 +44,9 @@ struct Params {
     below: u32,
     /// 1: bound the segment starts (`origins = start`).
     starts: u32,
+    /// 1: lowest cones by `leaf_cone = extremes`.
+    leaf_cone: u32,
+    pad: [u32; 3],
 }
 
 struct SphereConeKernels {
@@ -75,6 +80,7 @@ pub struct SphereConeBuilder {
     subdivision: u32,
     depth: u32,
     starts: bool,
+    leaf_cone: LeafCone,
 }
 
 /// Registers the wgpu `sphere_cone` under its CPU twin's catalogue entry (same name, parameters,
@@ -96,6 +102,7 @@ impl SphereConeBuilder {
             subdivision: cpu.subdivision(),
             depth: cpu.depth(),
             starts: cpu.bounds_starts(),
+            leaf_cone: cpu.leaf_cone(),
         })
     }
 }
@@ -139,6 +146,8 @@ impl HierarchyBuilder<Wgpu> for SphereConeBuilder {
                 sub: self.subdivision,
                 below: below as u32,
                 starts: u32::from(self.starts),
+                leaf_cone: u32::from(self.leaf_cone == LeafCone::Extremes),
+                pad: [0; 3],
             };
             let u = uniform(ctx, "crsh sphere-cone params", &params);
             let (children, child_reach) = if li == 0 {

@@ -20,7 +20,16 @@ struct Params {
     // 1: spheres bound the segment starts o + clamp(t_min, 0, t_max)·d (`origins = start`,
     // crsh_cpu's segment_starts), and reach runs from there.
     starts: u32,
+    // 1: lowest cones by `leaf_cone = extremes` (crsh_cpu's extremes_axis), else eq. 3.8-3.11.
+    leaf_cone: u32,
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
+
+// crsh_cpu's WIDE_LEAF_COS: below it an `extremes` node keeps the narrower of its heuristic
+// axis and eq. 3.8-3.11's.
+const WIDE_LEAF_COS: f32 = 0.97;
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> rays: array<Ray>;
@@ -174,6 +183,60 @@ fn leaf_start(r: Ray) -> vec4<f32> {
     return vec4<f32>(o + ray_dir(r) * t, r.t_max - t);
 }
 
+// The unit direction of leaf k of the node starting at `first`.
+fn leaf_dir(first: u32, k: u32) -> vec3<f32> {
+    return unit3(ray_dir(rays[order[first + k]]));
+}
+
+// The smallest dot product of `axis` with the node's n directions (cosine of the widest).
+fn min_dot(first: u32, n: u32, axis: vec3<f32>) -> f32 {
+    var m = 3.0;
+    for (var k = 0u; k < n; k++) {
+        m = min(m, dot(axis, leaf_dir(first, k)));
+    }
+    return m;
+}
+
+// The node's direction farthest from `origin_dir` (the first on a tie).
+fn farthest(first: u32, n: u32, origin_dir: vec3<f32>) -> vec3<f32> {
+    var m = 3.0;
+    var best = origin_dir;
+    for (var k = 0u; k < n; k++) {
+        let d = leaf_dir(first, k);
+        let c = dot(origin_dir, d);
+        if (c < m) {
+            m = c;
+            best = d;
+        }
+    }
+    return best;
+}
+
+// crsh_cpu's extremes_axis: the better (nearer widest ray) of the mean direction and the
+// bisector of two extreme rays, with that widest cosine in w; w = 2 when the directions nearly
+// cancel (eq. 3.8-3.11 alone then).
+fn extremes_axis(first: u32, n: u32) -> vec4<f32> {
+    var sum = vec3<f32>(0.0);
+    for (var k = 0u; k < n; k++) {
+        sum += leaf_dir(first, k);
+    }
+    if (length(sum) <= 1e-3 * f32(n)) {
+        return vec4<f32>(0.0, 0.0, 1.0, 2.0);
+    }
+    let mean = normalize(sum);
+    var best = vec4<f32>(mean, min_dot(first, n, mean));
+    let a = farthest(first, n, leaf_dir(first, 0u));
+    let pair = a + farthest(first, n, a);
+    if (length(pair) > 1e-6) {
+        let axis = normalize(pair);
+        let c = min_dot(first, n, axis);
+        if (c > best.w) {
+            best = vec4<f32>(axis, c);
+        }
+    }
+    return best;
+}
+
 // Lowest level: node i over leaves i·sub .. min((i+1)·sub, below).
 @compute @workgroup_size(WG)
 fn leaves(@builtin(global_invocation_id) gid: vec3<u32>,
@@ -201,6 +264,15 @@ fn leaves(@builtin(global_invocation_id) gid: vec3<u32>,
             axis = c.xyz;
             phi = c.w;
             cos_phi = cos_accurate(phi);
+        }
+    }
+    if (p.leaf_cone == 1u) {
+        let h = extremes_axis(first, n);
+        // A wide node keeps eq. 3.8-3.11's axis when that one is narrower (and not the
+        // whole sphere).
+        if (h.w <= 1.0 && (h.w >= WIDE_LEAF_COS || !(phi < PI && min_dot(first, n, unit3(axis)) > h.w))) {
+            axis = h.xyz;
+            phi = 0.0;
         }
     }
     // Stored cone: re-measured against the stored axis, widened.
