@@ -121,8 +121,9 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
         (
             "dual",
             "issue 17's ray hierarchy against an object hierarchy: thesis hashes, radix sort, \
-             sphere-cone hierarchy (subdivision 16, depth 3), the dual traversal over a \
-             per-frame Morton LBVH (box tests, single rays), final tests on the candidates",
+             sphere-cone hierarchy (subdivision 16, depth 3, leaf cones from extreme rays), the \
+             dual traversal over a per-frame Morton LBVH (box tests, single rays), final tests \
+             on the candidates",
             dual_pipeline(),
         ),
     ]
@@ -133,8 +134,10 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
 /// CPU the same order as `compress` in half the time: shadow keys rarely repeat, so the chunks
 /// are nearly as many as the rays), `sphere_cone` at subdivision 16 and depth 3 (the shape
 /// `auto_shape`'s pre-pass picks on Sponza, the dining room and cornell-mirror, without the
-/// pre-pass; `auto_shape` has no wgpu twin, this preset runs on both backends), `dual` with
-/// its defaults (LBVH objects, box test, single rays) and `brute` final tests.
+/// pre-pass; `auto_shape` has no wgpu twin, this preset runs on both backends) with lowest
+/// cones from extreme rays (`leaf_cone = extremes`: no sequential chain per node, and fewer
+/// tests on those scenes), `dual` with its defaults (LBVH objects, box test, single rays) and
+/// `brute` final tests.
 fn dual_pipeline() -> PipelineConfig {
     let mut cfg = PipelineConfig::whitted("dual", "brute");
     cfg.hash = Some(StageSpec::new("thesis"));
@@ -144,6 +147,9 @@ fn dual_pipeline() -> PipelineConfig {
         .params
         .insert("subdivision".into(), ParamValue::Int(16));
     hierarchy.params.insert("depth".into(), ParamValue::Int(3));
+    hierarchy
+        .params
+        .insert("leaf_cone".into(), ParamValue::Str("extremes".into()));
     cfg.hierarchy = Some(hierarchy);
     cfg.traverse = Some(StageSpec::new("dual"));
     cfg
@@ -240,6 +246,7 @@ mod tests {
             ),
             ("sphere_cone", 16, 3)
         );
+        assert_eq!(h.str("leaf_cone").unwrap(), "extremes");
         let t = cfg.traverse.as_ref().unwrap();
         assert_eq!(t.kind, "dual");
         assert_eq!(t.str("objects").unwrap(), "lbvh");
