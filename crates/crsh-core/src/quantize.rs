@@ -255,72 +255,59 @@ fn last_true_near(max: u64, guess: f64, test: impl Fn(u64) -> bool) -> u64 {
     last_true(max, test)
 }
 
-/// `atan2(y, x)` to within 2·10⁻⁶ rad (a degree-11 odd minimax polynomial on `[0, 1]` after
-/// octant reduction), for the starting guesses of [`theta_cell`] and [`phi_cell`] in fields
-/// wider than the tables (narrower ones use [`atan2_guess_f32`]): they only
-/// need the cell to within a few, and [`last_true_near`] finds the exact one from any guess,
-/// so the cells never depend on this accuracy. 0 for `x = y = 0`.
-#[inline]
-fn atan2_guess(y: f64, x: f64) -> f64 {
-    let (ax, ay) = (x.abs(), y.abs());
-    let (lo, hi) = (ax.min(ay), ax.max(ay));
-    if hi == 0.0 {
-        return 0.0;
-    }
-    let a = lo / hi;
-    let a2 = a * a;
-    let p = -0.011_721_20;
-    let p = p * a2 + 0.052_653_32;
-    let p = p * a2 - 0.116_432_87;
-    let p = p * a2 + 0.193_543_46;
-    let p = p * a2 - 0.332_623_47;
-    let p = p * a2 + 0.999_977_26;
-    let mut r = a * p;
-    if ay > ax {
-        r = std::f64::consts::FRAC_PI_2 - r;
-    }
-    if x < 0.0 {
-        r = std::f64::consts::PI - r;
-    }
-    if y < 0.0 {
-        -r
-    } else {
-        r
-    }
+/// Defines `$name`, `atan2(y, x)` in `$t` by a degree-11 odd minimax polynomial on `[0, 1]`
+/// after octant reduction (0 for `x = y = 0`), once for each precision the guesses use.
+macro_rules! atan2_polynomial {
+    ($(#[$doc:meta])* $name:ident, $t:ident) => {
+        $(#[$doc])*
+        #[inline]
+        fn $name(y: $t, x: $t) -> $t {
+            let (ax, ay) = (x.abs(), y.abs());
+            let (lo, hi) = (ax.min(ay), ax.max(ay));
+            if hi == 0.0 {
+                return 0.0;
+            }
+            let a = lo / hi;
+            let a2 = a * a;
+            let p: $t = -0.011_721_2;
+            let p = p * a2 + 0.052_653_32;
+            let p = p * a2 - 0.116_432_87;
+            let p = p * a2 + 0.193_543_46;
+            let p = p * a2 - 0.332_623_47;
+            let p = p * a2 + 0.999_977_26;
+            let mut r = a * p;
+            if ay > ax {
+                r = std::$t::consts::FRAC_PI_2 - r;
+            }
+            if x < 0.0 {
+                r = std::$t::consts::PI - r;
+            }
+            if y < 0.0 {
+                -r
+            } else {
+                r
+            }
+        }
+    };
 }
 
-/// [`atan2_guess`] in `f32` (the same polynomial; within 3·10⁻⁶ rad): the starting guess
-/// for fields of at most [`MAX_TABLE_BITS`] bits, whose cells are at least 3·10⁻⁶ rad wide
-/// (θ) or twice that (φ), so the guess is at most a cell or two off and cheaper to form
-/// than the `f64` one (single-precision square root and division). 0 for `x = y = 0`.
-#[inline]
-fn atan2_guess_f32(y: f32, x: f32) -> f32 {
-    let (ax, ay) = (x.abs(), y.abs());
-    let (lo, hi) = (ax.min(ay), ax.max(ay));
-    if hi == 0.0 {
-        return 0.0;
-    }
-    let a = lo / hi;
-    let a2 = a * a;
-    let p = -0.011_721_2_f32;
-    let p = p * a2 + 0.052_653_32;
-    let p = p * a2 - 0.116_432_87;
-    let p = p * a2 + 0.193_543_46;
-    let p = p * a2 - 0.332_623_47;
-    let p = p * a2 + 0.999_977_26;
-    let mut r = a * p;
-    if ay > ax {
-        r = std::f32::consts::FRAC_PI_2 - r;
-    }
-    if x < 0.0 {
-        r = std::f32::consts::PI - r;
-    }
-    if y < 0.0 {
-        -r
-    } else {
-        r
-    }
-}
+atan2_polynomial!(
+    /// `atan2(y, x)` to within 2·10⁻⁶ rad, for the starting guesses of [`theta_cell`] and
+    /// [`phi_cell`] in fields wider than the tables (narrower ones use [`atan2_guess_f32`]):
+    /// they only need the cell to within a few, and [`last_true_near`] finds the exact one
+    /// from any guess, so the cells never depend on this accuracy. 0 for `x = y = 0`.
+    atan2_guess,
+    f64
+);
+
+atan2_polynomial!(
+    /// [`atan2_guess`] in `f32` (the same polynomial; within 3·10⁻⁶ rad): the starting guess
+    /// for fields of at most [`MAX_TABLE_BITS`] bits, whose cells are at least 3·10⁻⁶ rad wide
+    /// (θ) or twice that (φ), so the guess is at most a cell or two off and cheaper to form
+    /// than the `f64` one (single-precision square root and division). 0 for `x = y = 0`.
+    atan2_guess_f32,
+    f32
+);
 
 /// The boundary `k` of `bits`, from the table when there is one.
 fn threshold_of(bits: u32, k: u64, tab: Option<&[f32]>, f: fn(u32, u64) -> f32) -> f32 {
