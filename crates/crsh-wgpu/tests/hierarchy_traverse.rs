@@ -59,8 +59,19 @@ fn gpu_hierarchy(
     sub: i64,
     depth: i64,
 ) -> RayHierarchy<Wgpu> {
-    let builder = SphereConeBuilder::new(g, &spec(sub, depth)).unwrap();
-    builder
+    gpu_build(b, g, rays, order, &spec(sub, depth))
+}
+
+/// The GPU `sphere_cone` hierarchy of `rays` in `order`, configured by `spec`.
+fn gpu_build(
+    b: &Wgpu,
+    g: &Arc<GpuScene>,
+    rays: &[Ray],
+    order: &[u32],
+    spec: &StageSpec,
+) -> RayHierarchy<Wgpu> {
+    SphereConeBuilder::new(g, spec)
+        .unwrap()
         .build(
             b,
             &b.upload(rays).unwrap(),
@@ -179,15 +190,7 @@ fn extreme_ray_leaf_cones_match_the_cpu_and_contain_their_rays() {
                     "leaf_cone".into(),
                     crsh_core::ParamValue::Str("extremes".into()),
                 );
-                let got = SphereConeBuilder::new(&g, &sp)
-                    .unwrap()
-                    .build(
-                        &b,
-                        &b.upload(&rays).unwrap(),
-                        b.upload(&order).unwrap(),
-                        &mut Stats::default(),
-                    )
-                    .unwrap();
+                let got = gpu_build(&b, &g, &rays, &order, &sp);
                 let what = format!("{name} {kind:?} sub {sub} depth {depth}");
                 assert_eq!(got.levels.len(), want.levels.len(), "{what}");
                 let gl = b.download(&got.levels[0]).unwrap();
@@ -249,15 +252,7 @@ fn hierarchy_over_segment_starts_matches_the_cpu() {
         let mut sp = spec(8, 2);
         sp.params
             .insert("origins".into(), crsh_core::ParamValue::Str("start".into()));
-        let got = SphereConeBuilder::new(&g, &sp)
-            .unwrap()
-            .build(
-                &b,
-                &b.upload(&rays).unwrap(),
-                b.upload(&order).unwrap(),
-                &mut Stats::default(),
-            )
-            .unwrap();
+        let got = gpu_build(&b, &g, &rays, &order, &sp);
         let moved = crsh_cpu::hierarchy::sphere_cone::segment_starts(&rays);
         let gl = b.download(&got.levels[0]).unwrap();
         let reach = b.download(&got.reach[0]).unwrap();

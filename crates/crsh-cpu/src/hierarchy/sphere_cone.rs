@@ -1267,15 +1267,20 @@ mod tests {
         assert!(cone.axis.z.abs() < 1e-12);
     }
 
+    /// The ray sets the containment tests build over.
+    fn ray_sets(rng: &mut Rng) -> Vec<(&'static str, Vec<Ray>)> {
+        vec![
+            ("coherent", coherent(rng, 1000)),
+            ("random", random(rng, 777)),
+            ("opposite", opposite(rng, 500)),
+            ("one point", one_point(rng, 640)),
+        ]
+    }
+
     #[test]
     fn children_inside_parents_on_varied_ray_sets() {
         let mut rng = Rng(0x1234_5678);
-        let sets: Vec<(&str, Vec<Ray>)> = vec![
-            ("coherent", coherent(&mut rng, 1000)),
-            ("random", random(&mut rng, 777)),
-            ("opposite", opposite(&mut rng, 500)),
-            ("one point", one_point(&mut rng, 640)),
-        ];
+        let sets = ray_sets(&mut rng);
         for (name, rays) in &sets {
             for (k, (s, depth)) in [(2, 8), (3, 4), (8, 2), (8, 8), (64, 3)]
                 .into_iter()
@@ -1304,12 +1309,7 @@ mod tests {
     #[test]
     fn extreme_ray_cones_contain_every_ray() {
         let mut rng = Rng(0x5eed);
-        let sets: Vec<(&str, Vec<Ray>)> = vec![
-            ("coherent", coherent(&mut rng, 1000)),
-            ("random", random(&mut rng, 777)),
-            ("opposite", opposite(&mut rng, 500)),
-            ("one point", one_point(&mut rng, 640)),
-        ];
+        let sets = ray_sets(&mut rng);
         for (name, rays) in &sets {
             for (k, (s, depth)) in [(2, 8), (3, 4), (8, 2), (16, 3), (64, 3), (8, 3)]
                 .into_iter()
