@@ -85,7 +85,9 @@ use crsh_core::{
 };
 use crsh_scene::Scene;
 
-use super::sphere_cone::{validate_leaves, SphereConeBuilder, DEFAULT_DEPTH, DEFAULT_SUBDIVISION};
+use super::sphere_cone::{
+    validate_leaves, LeafCone, SphereConeBuilder, DEFAULT_DEPTH, DEFAULT_SUBDIVISION,
+};
 use crate::backend::Cpu;
 use crate::traverse::dual::Dual;
 
@@ -137,6 +139,13 @@ pub fn info() -> StageVariantInfo {
         )
         .range(0.0, MAX_BOUND_COST),
     )
+    .param(ParamInfo::choice(
+        "leaf_cone",
+        "incremental",
+        &["incremental", "extremes"],
+        "how lowest cone axes are found, in the pre-pass's hierarchies and the batch's \
+         (`sphere_cone`'s parameter of the same name)",
+    ))
 }
 
 /// The shape of batches without a pre-pass: the sphere-cone builder's defaults.
@@ -271,6 +280,7 @@ pub struct AutoShape {
     shapes: Vec<(u32, u32)>,
     bound_cost: f64,
     min_batch: usize,
+    leaf_cone: LeafCone,
     chosen: Mutex<BTreeMap<u32, ShapeChoice>>,
 }
 
@@ -282,8 +292,25 @@ impl AutoShape {
             AutoShape::with_sample(scene, spec.u32_in("sample", 1..=1024)? as usize)?
                 .with_shapes(&parse_shapes(spec.str("shapes")?)?)?
                 .with_bound_cost(spec.f64("bound_cost")?)?
-                .with_min_batch(spec.u32_in("min_batch", 0..=MAX_MIN_BATCH)? as usize),
+                .with_min_batch(spec.u32_in("min_batch", 0..=MAX_MIN_BATCH)? as usize)
+                .with_leaf_cone(LeafCone::parse(spec.str("leaf_cone")?).ok_or_else(|| {
+                    CoreError::InvalidParam {
+                        key: "auto_shape.leaf_cone".into(),
+                        reason: "not one of incremental, extremes".into(),
+                    }
+                })?),
         )
+    }
+
+    /// The builder finding lowest cone axes by `leaf_cone` in every hierarchy it builds
+    /// (parameter `leaf_cone`; [`AutoShape::with_sample`] starts with eq. 3.8-3.11).
+    pub fn with_leaf_cone(self, leaf_cone: LeafCone) -> AutoShape {
+        AutoShape { leaf_cone, ..self }
+    }
+
+    /// The sphere-cone builder of shape `(sub, depth)` with this builder's `leaf_cone`.
+    fn builder(&self, sub: u32, depth: u32) -> Result<SphereConeBuilder> {
+        Ok(SphereConeBuilder::with_params(sub, depth)?.with_leaf_cone(self.leaf_cone))
     }
 
     /// The builder with one block in `sample` (1..=1024) sampled, and the default `shapes`,
@@ -301,6 +328,7 @@ impl AutoShape {
             shapes: parse_shapes(DEFAULT_SHAPES)?,
             bound_cost: DEFAULT_BOUND_COST,
             min_batch: DEFAULT_MIN_BATCH,
+            leaf_cone: LeafCone::Incremental,
             chosen: Mutex::new(BTreeMap::new()),
         })
     }
@@ -375,7 +403,7 @@ impl AutoShape {
             .par_iter()
             .map(|&(sub, depth)| -> Result<(f64, f64)> {
                 // The hierarchy the stage would build for the sample (reach bounds included).
-                let h = SphereConeBuilder::with_params(sub, depth)?.build(
+                let h = self.builder(sub, depth)?.build(
                     &Cpu,
                     &sample_rays,
                     (0..n as u32).collect(),
@@ -470,7 +498,7 @@ impl HierarchyBuilder<Cpu> for AutoShape {
                 shape
             }
         };
-        SphereConeBuilder::with_params(sub, depth)?.build(backend, rays, order, stats)
+        self.builder(sub, depth)?.build(backend, rays, order, stats)
     }
 }
 
@@ -648,12 +676,17 @@ mod tests {
             ("shapes", ParamValue::Str("16/3,4/2".into())),
             ("bound_cost", ParamValue::Float(3.0)),
             ("min_batch", ParamValue::Int(0)),
+            ("leaf_cone", ParamValue::Str("incremental".into())),
         ] {
             spec.params.insert(k.into(), v);
         }
         let from_spec = AutoShape::new(&scene, &spec).unwrap();
         assert_eq!(from_spec.shapes(), [(16, 3), (4, 2)]);
         assert_eq!(from_spec.pre_pass(&rays, &order, kind).unwrap(), c);
+        let mut bad = spec.clone();
+        bad.params
+            .insert("leaf_cone".into(), ParamValue::Str("widest".into()));
+        assert!(AutoShape::new(&scene, &bad).is_err());
         spec.params
             .insert("shapes".into(), ParamValue::Str("16/3,99/2".into()));
         assert!(AutoShape::new(&scene, &spec).is_err());
@@ -683,6 +716,20 @@ mod tests {
             .build(&Cpu, &rays, order.clone(), &mut Stats::default())
             .unwrap();
         assert_eq!(h.levels, plain.levels);
+        // With `leaf_cone = extremes`, the sphere-cone builder's extremes hierarchy.
+        let extremes = AutoShape::with_sample(&scene, 2)
+            .unwrap()
+            .with_min_batch(3001)
+            .with_leaf_cone(LeafCone::Extremes)
+            .build(&Cpu, &rays, order.clone(), &mut Stats::default())
+            .unwrap();
+        let want = SphereConeBuilder::with_params(DEFAULT_SUBDIVISION, DEFAULT_DEPTH)
+            .unwrap()
+            .with_leaf_cone(LeafCone::Extremes)
+            .build(&Cpu, &rays, order.clone(), &mut Stats::default())
+            .unwrap();
+        assert_eq!(extremes.levels, want.levels);
+        assert_ne!(extremes.levels, plain.levels);
         // At the threshold the pre-pass runs, and its choice is kept.
         let auto = auto.with_min_batch(3000);
         let mut stats = Stats::default();
