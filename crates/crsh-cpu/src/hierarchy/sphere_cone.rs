@@ -809,11 +809,12 @@ fn leaf_node(rays: &[Ray], leaves: &[u32], how: LeafCone) -> (SphereCone, f32) {
         }
         cone
     };
-    let cone = match (
-        how,
-        extremes_axis(dirs).filter(|_| how == LeafCone::Extremes),
-    ) {
-        (LeafCone::Extremes, Some((axis, cos))) => {
+    let extremes = match how {
+        LeafCone::Extremes => extremes_axis(dirs),
+        LeafCone::Incremental => None,
+    };
+    let cone = match extremes {
+        Some((axis, cos)) => {
             let heuristic = GrowingCone {
                 axis,
                 cos: 1.0,
@@ -831,7 +832,7 @@ fn leaf_node(rays: &[Ray], leaves: &[u32], how: LeafCone) -> (SphereCone, f32) {
                 }
             }
         }
-        _ => incremental(),
+        None => incremental(),
     };
     // Rays from one point (shadow rays leaving a light) need no Welzl.
     let ball = if origins.iter().all(|o| *o == origins[0]) {
