@@ -309,6 +309,12 @@ atan2_polynomial!(
     f32
 );
 
+/// The boundary table of a field of `bits` (from `table`, [`theta_table`] or [`phi_table`]),
+/// `None` for a field wider than the tables or of no bits (whose cell is 0 without a search).
+fn table_for(bits: u32, table: fn(u32) -> &'static [f32]) -> Option<&'static [f32]> {
+    (bits > 0 && bits <= MAX_TABLE_BITS).then(|| table(bits))
+}
+
 /// The boundary `k` of `bits`, from the table when there is one.
 fn threshold_of(bits: u32, k: u64, tab: Option<&[f32]>, f: fn(u32, u64) -> f32) -> f32 {
     match tab {
@@ -321,7 +327,7 @@ fn threshold_of(bits: u32, k: u64, tab: Option<&[f32]>, f: fn(u32, u64) -> f32) 
 /// `θ ≥ θ_k`, tested as `z ≤ 0 or ρ² ≥ tan²θ_k · z²` below the equator, `z ≤ 0` at it and
 /// `z < 0 and ρ² ≤ tan²(π − θ_k) · z²` above it (`ρ² = x² + y²`, squares by [`square`]).
 pub fn theta_cell(x: f32, y: f32, z: f32, bits: u32) -> u64 {
-    let tab = (bits <= MAX_TABLE_BITS).then(|| theta_table(bits));
+    let tab = table_for(bits, theta_table);
     let t = ThetaInput::of(x, y, z);
     t.cell(bits, tab, t.guess(bits, tab.is_some()))
 }
@@ -414,7 +420,7 @@ fn octant(x: f32, y: f32) -> u64 {
 /// `φ ≥ φ_k`, by octant, then within the octant by comparing the minor component `|n|` with
 /// `t_k · |m|` (the major one). `x = y = 0` (a pole) counts as `φ = 0`.
 pub fn phi_cell(x: f32, y: f32, bits: u32) -> u64 {
-    let tab = (bits <= MAX_TABLE_BITS).then(|| phi_table(bits));
+    let tab = table_for(bits, phi_table);
     let p = PhiInput::of(x, y);
     p.cell(bits, tab, p.guess(bits, tab.is_some()))
 }
@@ -515,14 +521,11 @@ const CELL_PASS: usize = 32;
 impl SphericalCells {
     /// The cells of `theta_bits` and `phi_bits` (each at most 32).
     pub fn new(theta_bits: u32, phi_bits: u32) -> SphericalCells {
-        let tab = |bits: u32, f: fn(u32) -> &'static [f32]| {
-            (bits > 0 && bits <= MAX_TABLE_BITS).then(|| f(bits))
-        };
         SphericalCells {
             theta_bits,
             phi_bits,
-            theta_tab: tab(theta_bits, theta_table),
-            phi_tab: tab(phi_bits, phi_table),
+            theta_tab: table_for(theta_bits, theta_table),
+            phi_tab: table_for(phi_bits, phi_table),
         }
     }
 
@@ -546,21 +549,28 @@ impl SphericalCells {
         }
     }
 
-    /// The `(θ, φ)` cells of one direction: [`spherical_cells`]`(d, theta_bits, phi_bits)`.
-    pub fn cells(&self, d: Vec3) -> (u64, u64) {
-        let (t, p) = Self::inputs(d);
+    /// The starting guesses of the cells of `inputs`.
+    #[inline]
+    fn guesses(&self, (t, p): &(ThetaInput, PhiInput)) -> (f64, f64) {
         (
-            t.cell(
-                self.theta_bits,
-                self.theta_tab,
-                t.guess(self.theta_bits, self.theta_tab.is_some()),
-            ),
-            p.cell(
-                self.phi_bits,
-                self.phi_tab,
-                p.guess(self.phi_bits, self.phi_tab.is_some()),
-            ),
+            t.guess(self.theta_bits, self.theta_tab.is_some()),
+            p.guess(self.phi_bits, self.phi_tab.is_some()),
         )
+    }
+
+    /// The exact cells of `inputs`, searched from `guesses`.
+    #[inline]
+    fn search(&self, (t, p): &(ThetaInput, PhiInput), (gt, gp): (f64, f64)) -> (u64, u64) {
+        (
+            t.cell(self.theta_bits, self.theta_tab, gt),
+            p.cell(self.phi_bits, self.phi_tab, gp),
+        )
+    }
+
+    /// The `(θ, φ)` cells of one direction (what [`spherical_cells`] returns).
+    pub fn cells(&self, d: Vec3) -> (u64, u64) {
+        let i = Self::inputs(d);
+        self.search(&i, self.guesses(&i))
     }
 
     /// The cells of every direction of `dirs` into `out` (`out[i]` the cells of `dirs[i]`,
@@ -574,21 +584,16 @@ impl SphericalCells {
             out.len() >= dirs.len(),
             "cells_of: output shorter than input"
         );
-        let (tb, pb) = (self.theta_bits, self.phi_bits);
-        let (tt, pt) = (self.theta_tab.is_some(), self.phi_tab.is_some());
         let mut inputs = [(ThetaInput::default(), PhiInput::default()); CELL_PASS];
         let mut guesses = [(0.0f64, 0.0f64); CELL_PASS];
         for (dirs, out) in dirs.chunks(CELL_PASS).zip(out.chunks_mut(CELL_PASS)) {
             let n = dirs.len();
             for ((d, i), g) in dirs.iter().zip(&mut inputs).zip(&mut guesses) {
                 *i = Self::inputs(*d);
-                *g = (i.0.guess(tb, tt), i.1.guess(pb, pt));
+                *g = self.guesses(i);
             }
             for ((o, i), g) in out.iter_mut().zip(&inputs[..n]).zip(&guesses[..n]) {
-                *o = (
-                    i.0.cell(tb, self.theta_tab, g.0),
-                    i.1.cell(pb, self.phi_tab, g.1),
-                );
+                *o = self.search(i, *g);
             }
         }
     }
@@ -612,10 +617,7 @@ pub fn spherical(d: Vec3) -> (f32, f32) {
 /// direction gets the cells of `(θ, φ) = (0, 0)`; `φ = ±π` (`d.y = ±0`, `d.x < 0`) is the last
 /// `φ` cell.
 pub fn spherical_cells(d: Vec3, theta_bits: u32, phi_bits: u32) -> (u64, u64) {
-    match scaled_direction(d) {
-        Some([x, y, z]) => (theta_cell(x, y, z, theta_bits), phi_cell(x, y, phi_bits)),
-        None => (0, phi_cell(1.0, 0.0, phi_bits)),
-    }
+    SphericalCells::new(theta_bits, phi_bits).cells(d)
 }
 
 /// Octahedral encoding of direction `d` into `[−1, 1]²` (Cigolle et al. 2014, "A survey of
