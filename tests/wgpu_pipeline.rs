@@ -163,7 +163,7 @@ fn every_preset_agrees_with_the_cpu_on_the_shared_cornell_boxes() {
 }
 
 /// Every preset runs on the GPU; a variant without a WGSL implementation (the f64 reference,
-/// ray-cast primaries, the watertight test) is refused with a message naming the stage, before any
+/// ray-cast primaries, the watertight test, inline final tests) is refused with a message naming the stage, before any
 /// device work.
 #[test]
 fn variants_the_gpu_lacks_are_clear_errors() {
@@ -188,6 +188,7 @@ fn variants_the_gpu_lacks_are_clear_errors() {
         ("bvh", "intersect.kind=brute64"),
         ("crsh", "intersect.test=watertight"),
         ("bvh", "primary.kind=raycast"),
+        ("dual", "traverse.final_tests=inline"),
     ] {
         let e = registries()
             .resolve(&config(preset, &[set]), BackendKind::Wgpu)

@@ -605,6 +605,17 @@ fn trace_batch_in<B: Backend>(
             histogram_ms = t.elapsed().as_secs_f64() * 1e3;
         }
         let intersector = &stages.intersector;
+        if let Some(test) = intersector.candidate_test() {
+            // A traverser that runs the final tests itself: one `traversal` stage.
+            let traced = timed(backend, stats, "traversal", |s| {
+                traverser
+                    .trace(backend, rays, kind, mode, test, &hierarchy, &mut hits, s)
+                    .transpose()
+            })?;
+            if traced.is_some() {
+                return Ok((hits, histogram_ms));
+            }
+        }
         let mut final_tests = std::time::Duration::ZERO;
         let t_trav = Instant::now();
         backend.begin_stage("traversal");

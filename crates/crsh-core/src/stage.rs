@@ -304,6 +304,28 @@ pub trait Traverser<B: Backend>: Send + Sync {
         sink: &mut dyn FnMut(CandidateBatch<B>, &mut Stats) -> Result<()>,
         stats: &mut Stats,
     ) -> Result<()>;
+    /// Traverses `hierarchy` over `rays` of `kind` and runs the final tests itself, with the
+    /// pipeline intersector's ray-triangle test `test` ([`Intersector::candidate_test`]),
+    /// merging each ray's hit into `hits` as [`Intersector::intersect`] merges them (query
+    /// `mode`). A traverser that tests pairs as soon as it finds them can drop an any-hit ray
+    /// at its first hit and shorten a closest-hit ray's segment as it goes. `None` (the
+    /// default) when the variant, or this configuration of it, does not: the pipeline then
+    /// calls [`Traverser::traverse`] and the intersector's final tests.
+    #[allow(clippy::too_many_arguments)]
+    fn trace(
+        &self,
+        backend: &B,
+        rays: &B::Buffer<Ray>,
+        kind: RayKind,
+        mode: HitMode,
+        test: &str,
+        hierarchy: &RayHierarchy<B>,
+        hits: &mut B::Buffer<Hit>,
+        stats: &mut Stats,
+    ) -> Option<Result<()>> {
+        let _ = (backend, rays, kind, mode, test, hierarchy, hits, stats);
+        None
+    }
 }
 
 /// What an intersector tests each ray against.
@@ -347,6 +369,13 @@ pub trait Intersector<B: Backend>: Send + Sync {
     /// pair them with a hierarchy are rejected when they are built.
     fn supports_candidates(&self) -> bool {
         true
+    }
+    /// The exact ray-triangle test this intersector runs on candidate pairs, by its `test`
+    /// parameter's name (`mt`, `watertight`, `projected`), so that a traverser that runs the
+    /// final tests itself ([`Traverser::trace`]) runs the same one; `None` (the default) when
+    /// it names none, and the pipeline leaves the final tests to [`Intersector::intersect`].
+    fn candidate_test(&self) -> Option<&str> {
+        None
     }
     /// For a scene whose triangles moved (`ctx.scene`: the same triangles, new positions), an
     /// intersector that reuses this one's work instead of building anew, e.g. a BVH whose

@@ -49,12 +49,26 @@ impl BuiltinVariants for Cpu {
     }
 }
 
-/// The presets `brute`, `bvh`, `grid`, `kdtree`, `crsh`, `rah`, `tile_cone` and `dual` (raster primaries,
-/// Whitted ray generation and Phong shading; they differ in how rays are traced), added to
-/// `registry`, whose variants they use. The wgpu backend registers the same ones.
+/// The presets `brute`, `bvh`, `grid`, `kdtree`, `crsh`, `rah`, `tile_cone`, `dual` and
+/// `dual_inline` (raster primaries, Whitted ray generation and Phong shading; they differ in
+/// how rays are traced), added to `registry`, whose variants they use. The wgpu backend
+/// registers the same ones less [`CPU_ONLY_PRESETS`] ([`add_gpu_presets`]).
 pub fn add_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<()> {
     for (name, doc, cfg) in presets() {
         registry.add_preset(name, doc, cfg)?;
+    }
+    Ok(())
+}
+
+/// The presets with a setting the wgpu backend lacks (`dual_inline`: inline final tests).
+pub const CPU_ONLY_PRESETS: [&str; 1] = ["dual_inline"];
+
+/// [`add_presets`] less [`CPU_ONLY_PRESETS`]: the wgpu backend's presets.
+pub fn add_gpu_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<()> {
+    for (name, doc, cfg) in presets() {
+        if !CPU_ONLY_PRESETS.contains(&name) {
+            registry.add_preset(name, doc, cfg)?;
+        }
     }
     Ok(())
 }
@@ -126,7 +140,26 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
              on the candidates",
             dual_pipeline(),
         ),
+        (
+            "dual_inline",
+            "the `dual` preset with inline final tests: the traversal tests each (lowest node, \
+             triangle) pair as soon as it finds it, so an any-hit ray leaves it at its first \
+             hit and a closest-hit ray's segment ends at its nearest hit so far (CPU only)",
+            dual_inline_pipeline(),
+        ),
     ]
+}
+
+/// The `dual_inline` preset's pipeline: [`dual_pipeline`] with `traverse.final_tests = inline`,
+/// the fastest ray-hierarchy pipeline measured for issue 17 on the CPU (README, "Inline final
+/// tests"). The wgpu traversal has no inline tests ([`CPU_ONLY_PRESETS`]).
+fn dual_inline_pipeline() -> PipelineConfig {
+    let mut cfg = dual_pipeline();
+    if let Some(t) = cfg.traverse.as_mut() {
+        t.params
+            .insert("final_tests".into(), ParamValue::Str("inline".into()));
+    }
+    cfg
 }
 
 /// The `dual` preset's pipeline, the fastest ray-hierarchy pipeline measured for issue 17 on
@@ -206,7 +239,8 @@ mod tests {
                 "crsh",
                 "rah",
                 "tile_cone",
-                "dual"
+                "dual",
+                "dual_inline"
             ]
         );
         for p in registry.presets() {
@@ -219,9 +253,9 @@ mod tests {
                 "brute"
             };
             assert_eq!(cfg.intersect.kind, expect);
-            let hierarchies = ["crsh", "rah", "tile_cone", "dual"];
+            let hierarchies = ["crsh", "rah", "tile_cone", "dual", "dual_inline"];
             assert_eq!(cfg.hierarchy.is_some(), hierarchies.contains(&name));
-            let hashed = ["crsh", "tile_cone", "dual"];
+            let hashed = ["crsh", "tile_cone", "dual", "dual_inline"];
             assert_eq!(cfg.hash.is_some(), hashed.contains(&name));
             if let Some(t) = cfg.traverse.as_ref().filter(|t| t.kind == "crsh") {
                 assert_eq!(t.bool("mesh_culling").unwrap(), name == "crsh");
@@ -251,7 +285,16 @@ mod tests {
         assert_eq!(t.kind, "dual");
         assert_eq!(t.str("objects").unwrap(), "lbvh");
         assert!(t.bool("box_test").unwrap() && t.bool("single_rays").unwrap());
+        assert_eq!(t.str("final_tests").unwrap(), "batched");
         assert_eq!(cfg.intersect.kind, "brute");
+        // `dual_inline` is the same pipeline with inline final tests.
+        let mut inline = registry.preset("dual_inline").unwrap();
+        let it = inline.traverse.as_mut().unwrap();
+        assert_eq!(it.str("final_tests").unwrap(), "inline");
+        it.params
+            .insert("final_tests".into(), ParamValue::Str("batched".into()));
+        inline.name = cfg.name.clone();
+        assert_eq!(inline, cfg);
     }
 
     #[test]

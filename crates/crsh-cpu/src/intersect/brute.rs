@@ -718,6 +718,10 @@ impl Intersector<Cpu> for BruteForce {
         "brute"
     }
 
+    fn candidate_test(&self) -> Option<&str> {
+        Some(self.tris.kind().name())
+    }
+
     fn intersect(
         &self,
         _backend: &Cpu,

@@ -283,6 +283,14 @@ impl NodeBound {
         self.axis.dot(v) >= self.cos_a * (d2 - rho2).sqrt() - self.sin_a * rho
     }
 
+    /// How far `p` lies along the node's axis from its centre, `(p − c)·a`: an ordering key
+    /// only ([`super::dual`] visits the nearer of two object nodes first when it tests pairs
+    /// inline), not a bound.
+    #[inline]
+    pub fn along_axis(&self, p: crsh_core::glam::Vec3) -> f64 {
+        (p.as_dvec3() - self.center).dot(self.axis)
+    }
+
     /// Whether the node's rays spread wider at `sphere`'s centre than `sphere`'s radius `R`:
     /// `r + D·sin α > R` with `D` the distance from the node's centre to the sphere's centre
     /// (`r + D > R` when the cone is a hemisphere or wider), evaluated without a square root.

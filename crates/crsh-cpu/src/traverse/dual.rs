@@ -215,19 +215,21 @@ use std::sync::Arc;
 
 use crsh_core::glam::{DVec3, Vec3};
 use crsh_core::{
-    f32_down, f32_up, lowest_node_leaves, Aabb, Candidate, CandidateBatch, CoreError, ParamInfo,
-    Ray, RayHierarchy, RayKind, Registry, Result, Sphere, StageKind, StageSpec, StageVariantInfo,
-    Stats, Traverser, ALL_LANES,
+    f32_down, f32_up, lowest_node_leaves, Aabb, Candidate, CandidateBatch, CoreError, Hit, HitMode,
+    ParamInfo, Ray, RayHierarchy, RayKind, Registry, Result, Sphere, StageKind, StageSpec,
+    StageVariantInfo, Stats, Traverser, ALL_LANES,
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
 
 use super::crsh::{budget_bytes, prepare_nodes, Crsh, NodeBound, ABS_MARGIN, REL_MARGIN};
 use crate::backend::Cpu;
-use crate::intersect::brute::merge_repeats;
+use crate::intersect::brute::{check_batch, merge_repeats};
 use crate::intersect::bvh::{build_bvh2, obvhs_triangle, BuildQuality};
 use crate::intersect::grid::{GridData, MAX_DENSITY, MIN_DENSITY};
+use crate::triangle::{AnyTriangleSet, TestKind, TriangleSet, TriangleTest, LANES};
 use obvhs::triangle::Triangle;
+use std::sync::OnceLock;
 
 /// The choices of parameter `objects`.
 pub const OBJECTS: [&str; 4] = ["lbvh", "bvh", "grid", "meshes"];
@@ -285,6 +287,16 @@ pub fn info() -> StageVariantInfo {
          than an object node descends to its single rays, each tested against the object \
          nodes' boxes below (incoherent rays: reflections off curved surfaces); false: \
          lowest nodes stay whole",
+    ))
+    .param(ParamInfo::choice(
+        "final_tests",
+        "batched",
+        &FINAL_TESTS,
+        "with `objects = lbvh`, `bvh` or `grid`: `batched` hands the (lowest node, triangle) \
+         pairs to the intersector in batches; `inline` tests each pair with the intersector's \
+         ray-triangle test as soon as the traversal finds it, so an any-hit ray leaves the \
+         traversal at its first hit and a closest-hit ray's segment ends at its nearest hit so \
+         far (lowest nodes of at most 32 rays; others, and `meshes`, stay batched)",
     ))
     .param(
         ParamInfo::float(
@@ -1184,7 +1196,41 @@ pub struct DualReport {
 #[derive(Clone, Debug)]
 pub struct Dual {
     objects: Objects,
+    /// With `final_tests = inline`: the scene, and its triangles prepared per ray-triangle
+    /// test (by [`TestKind`] order: `mt`, `watertight`, `projected`) on first use.
+    inline: Option<InlineSets>,
 }
+
+/// The triangles an inline traversal tests, prepared per ray-triangle test when first needed
+/// (`mt`, the default test, when the stage is built).
+#[derive(Clone, Debug)]
+struct InlineSets {
+    scene: Arc<Scene>,
+    sets: Arc<[OnceLock<AnyTriangleSet>; 3]>,
+}
+
+impl InlineSets {
+    fn new(scene: &Arc<Scene>) -> InlineSets {
+        let sets: [OnceLock<AnyTriangleSet>; 3] = Default::default();
+        let _ = sets[0].set(AnyTriangleSet::new(scene, TestKind::MollerTrumbore));
+        InlineSets {
+            scene: scene.clone(),
+            sets: Arc::new(sets),
+        }
+    }
+
+    fn get(&self, kind: TestKind) -> &AnyTriangleSet {
+        let i = match kind {
+            TestKind::MollerTrumbore => 0,
+            TestKind::Watertight => 1,
+            TestKind::Projected => 2,
+        };
+        self.sets[i].get_or_init(|| AnyTriangleSet::new(&self.scene, kind))
+    }
+}
+
+/// The choices of parameter `final_tests`.
+pub const FINAL_TESTS: [&str; 2] = ["batched", "inline"];
 
 /// The object side.
 #[derive(Clone, Debug)]
@@ -1309,41 +1355,40 @@ impl Task {
         }
     }
 
-    /// Runs until the stack is empty or `cap` candidates are held; returns them sorted, and
-    /// the counters.
-    fn run(&mut self, ctx: &Ctx<'_>, cap: usize) -> (Vec<(Candidate, u32)>, Counters) {
+    /// Runs until the stack is empty or `leaves` says stop, handing every (lowest node,
+    /// triangle) pair that passes to `leaves`; returns the counters.
+    fn run<L: Leaves>(&mut self, ctx: &Ctx<'_>, leaves: &mut L) -> Counters {
         let tree = ctx.tree;
-        let mut out: Vec<(Candidate, u32)> = Vec::new();
         let mut counts = Counters::new(ctx.nodes.len(), tree.max_depth + 1);
         while let Some(p) = self.stack.pop() {
-            if out.len() >= cap {
-                // Grid triangles arrive once per cell: merge them, and stop only if that
-                // frees less than a quarter of the share.
-                sort_and_merge(&mut out);
-                if out.len() >= cap - cap / 4 {
-                    self.stack.push(p);
-                    break;
-                }
+            if leaves.full() {
+                self.stack.push(p);
+                break;
             }
             if p.level == SINGLE {
                 // The node's live rays, one by one, against the object node's box (counted
                 // in the lowest level's row).
-                let leaves = lowest_node_leaves(
+                let mask = p.mask & leaves.live_rays(p.node);
+                if mask == 0 {
+                    continue;
+                }
+                let first = lowest_node_leaves(
                     p.node as usize,
                     ctx.hierarchy.subdivision,
                     ctx.hierarchy.leaf_offsets.as_deref(),
                     ctx.n_rays,
-                );
+                )
+                .start;
                 let bx = tree.bx(p.obj);
-                let (mut live, mut left) = (0u32, p.mask);
+                let (mut live, mut left) = (0u32, mask);
                 while left != 0 {
                     let i = left.trailing_zeros();
                     left &= left - 1;
-                    if clip(&ctx.segments[leaves.start + i as usize], bx).is_some() {
+                    if clip(leaves.segment(ctx, first + i as usize), bx).is_some() {
                         live |= 1 << i;
                     }
                 }
-                let (tested, passed) = (p.mask.count_ones() as u64, live.count_ones() as u64);
+                let (tested, passed) = (mask.count_ones() as u64, live.count_ones() as u64);
                 counts.ray[0][0] += tested;
                 counts.ray[0][1] += passed;
                 counts.obj[p.depth as usize][0] += tested;
@@ -1352,18 +1397,13 @@ impl Task {
                     continue;
                 }
                 if p.obj & LEAF != 0 {
-                    push_candidate(
-                        &mut out,
-                        cap,
-                        Candidate {
-                            node: p.node,
-                            tri: tree.leaf_tris[(p.obj & !LEAF) as usize],
-                        },
-                        live,
-                    );
+                    leaves.reach(p.node, tree.leaf_tris[(p.obj & !LEAF) as usize], live);
                 } else {
                     self.push_object_children(tree, Pair { mask: live, ..p });
                 }
+                continue;
+            }
+            if !leaves.live(p.level, p.node) {
                 continue;
             }
             let rn = &ctx.nodes[p.level as usize][p.node as usize];
@@ -1383,15 +1423,7 @@ impl Task {
             let lowest = p.level == 0;
             let split_rays = match (lowest, leaf) {
                 (true, true) => {
-                    push_candidate(
-                        &mut out,
-                        cap,
-                        Candidate {
-                            node: p.node,
-                            tri: tree.leaf_tris[(p.obj & !LEAF) as usize],
-                        },
-                        ALL_LANES,
-                    );
+                    leaves.reach(p.node, tree.leaf_tris[(p.obj & !LEAF) as usize], ALL_LANES);
                     continue;
                 }
                 (true, false) => {
@@ -1435,13 +1467,376 @@ impl Task {
                         ..p
                     });
                 }
+            } else if L::NEAR_FIRST {
+                let [a, b] = tree.inner[p.obj as usize].children;
+                let (da, db) = (
+                    nb.along_axis(tree.sphere(a).center),
+                    nb.along_axis(tree.sphere(b).center),
+                );
+                let (first, second) = if db < da { (b, a) } else { (a, b) };
+                for c in [second, first] {
+                    self.stack.push(Pair {
+                        obj: c,
+                        depth: p.depth + 1,
+                        ..p
+                    });
+                }
             } else {
                 self.push_object_children(tree, p);
             }
         }
-        sort_and_merge(&mut out);
-        (out, counts)
+        counts
     }
+}
+
+/// Where a task's traversal hands its (lowest node, triangle) pairs, and what it asks about
+/// the rays as it goes: [`Batched`] collects candidates for the intersector, [`Inline`] tests
+/// them at once.
+trait Leaves {
+    /// Whether a pair split on the object side visits the child nearer along the ray node's
+    /// axis first (else the left one).
+    const NEAR_FIRST: bool;
+    /// Whether the task must stop before its next pair.
+    fn full(&mut self) -> bool;
+    /// Whether ray node `node` of ray level `level` (0: the lowest) has a ray left to trace.
+    fn live(&self, level: u16, node: u32) -> bool;
+    /// The rays of lowest node `node` left to trace (bit `i`: its `i`-th leaf).
+    fn live_rays(&self, node: u32) -> u32;
+    /// The segment of leaf `leaf` as the single-ray test must see it now.
+    fn segment<'s>(&'s self, ctx: &'s Ctx<'_>, leaf: usize) -> &'s Segment;
+    /// The rays `lanes` of lowest node `node` reached triangle `tri`.
+    fn reach(&mut self, node: u32, tri: u32, lanes: u32);
+}
+
+/// Candidates for the intersector, at most `cap` held.
+struct Batched {
+    out: Vec<(Candidate, u32)>,
+    cap: usize,
+}
+
+impl Leaves for Batched {
+    const NEAR_FIRST: bool = false;
+
+    #[inline]
+    fn full(&mut self) -> bool {
+        if self.out.len() < self.cap {
+            return false;
+        }
+        // Grid triangles arrive once per cell: merge them, and stop only if that frees less
+        // than a quarter of the share.
+        sort_and_merge(&mut self.out);
+        self.out.len() >= self.cap - self.cap / 4
+    }
+
+    #[inline]
+    fn live(&self, _level: u16, _node: u32) -> bool {
+        true
+    }
+
+    #[inline]
+    fn live_rays(&self, _node: u32) -> u32 {
+        ALL_LANES
+    }
+
+    #[inline]
+    fn segment<'s>(&'s self, ctx: &'s Ctx<'_>, leaf: usize) -> &'s Segment {
+        &ctx.segments[leaf]
+    }
+
+    #[inline]
+    fn reach(&mut self, node: u32, tri: u32, lanes: u32) {
+        push_candidate(&mut self.out, self.cap, Candidate { node, tri }, lanes);
+    }
+}
+
+/// The rays of one task (a top ray node) traced inline: each (lowest node, triangle) pair is
+/// tested as soon as the traversal reaches it, with test `T`; an any-hit ray leaves the
+/// traversal at its first hit, a closest-hit ray's segment ends at its nearest hit so far.
+struct Inline<'a, T: TriangleTest> {
+    tris: &'a [T::Tri],
+    rays: &'a [Ray],
+    /// `hierarchy.order`: leaf → ray.
+    order: &'a [u32],
+    subdivision: u32,
+    offsets: Option<&'a [u32]>,
+    closest: bool,
+    /// The task's first lowest node and first leaf.
+    first_low: u32,
+    first_leaf: usize,
+    /// Per ray level `l ≥ 1` (entry `l − 1`): the task's first node there, and per node the
+    /// number of rays below it left to trace (any-hit only).
+    alive: Vec<(u32, Vec<u32>)>,
+    /// Per lowest node of the task: its rays left to trace.
+    live: Vec<u32>,
+    /// Per leaf of the task: its best hit so far.
+    hits: Vec<Hit>,
+    /// The task's segments (closest-hit only: their `t_max` shrinks with each nearer hit).
+    segments: Vec<Segment>,
+    /// Packets of [`LANES`] rays per lowest node (`per_node` of them, enough for the batch's
+    /// widest node), built when the node first reaches a triangle: `slot[k]` is where lowest
+    /// node `first_low + k`'s start in `packets` (`u32::MAX`: not built).
+    packets: Vec<T::Packet>,
+    slot: Vec<u32>,
+    per_node: usize,
+    tests: u64,
+    found: u64,
+}
+
+/// The smallest `f32` above `t` (finite `t`): a closest-hit ray's interval is open, and a later
+/// triangle at the same `t` with a lower id must still be seen.
+fn next_above(t: f32) -> f32 {
+    if t == 0.0 {
+        f32::from_bits(1)
+    } else if t > 0.0 {
+        f32::from_bits(t.to_bits() + 1)
+    } else {
+        f32::from_bits(t.to_bits() - 1)
+    }
+}
+
+impl<'a, T: TriangleTest> Inline<'a, T> {
+    /// The state of top node `top` (of level `top_level`), its rays' hits gathered from
+    /// `hits` (any-hit rays already hit are not traced).
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        ctx: &Ctx<'a>,
+        tris: &'a [T::Tri],
+        rays: &'a [Ray],
+        order: &'a [u32],
+        mode: HitMode,
+        top: usize,
+        widest: usize,
+        hits: &[Hit],
+    ) -> Inline<'a, T> {
+        let h = ctx.hierarchy;
+        let sub = ctx.sub;
+        let top_level = ctx.nodes.len() - 1;
+        let n_low = ctx.nodes[0].len();
+        let span = sub.pow(top_level as u32);
+        let first_low = (top * span).min(n_low);
+        let last_low = ((top + 1) * span).min(n_low);
+        let leaves_of =
+            |n: usize| lowest_node_leaves(n, h.subdivision, h.leaf_offsets.as_deref(), ctx.n_rays);
+        let first_leaf = leaves_of(first_low).start;
+        let last_leaf = if last_low > first_low {
+            leaves_of(last_low - 1).end
+        } else {
+            first_leaf
+        };
+        let closest = mode == HitMode::Closest;
+        let mine: Vec<Hit> = order[first_leaf..last_leaf]
+            .iter()
+            .map(|&r| hits[r as usize])
+            .collect();
+        let live: Vec<u32> = (first_low..last_low)
+            .map(|n| {
+                let leaves = leaves_of(n);
+                let mut m = ((1u64 << leaves.len()) - 1) as u32;
+                if !closest {
+                    for (i, leaf) in leaves.enumerate() {
+                        if mine[leaf - first_leaf].is_hit() {
+                            m &= !(1 << i);
+                        }
+                    }
+                }
+                m
+            })
+            .collect();
+        let alive = (1..=top_level)
+            .map(|l| {
+                let span_l = sub.pow(l as u32);
+                let first = (top * sub.pow((top_level - l) as u32)).min(ctx.nodes[l].len());
+                let last = ((top + 1) * sub.pow((top_level - l) as u32)).min(ctx.nodes[l].len());
+                let mut count = vec![0u32; last - first];
+                for (k, m) in live.iter().enumerate() {
+                    count[(first_low + k) / span_l - first] += m.count_ones();
+                }
+                (first as u32, count)
+            })
+            .collect();
+        let segments = if closest {
+            let mut s = ctx.segments[first_leaf..last_leaf].to_vec();
+            for (seg, hit) in s.iter_mut().zip(&mine) {
+                if hit.is_hit() {
+                    seg.t_max = seg.t_max.min(next_above(hit.t));
+                }
+            }
+            s
+        } else {
+            Vec::new()
+        };
+        let n = last_low - first_low;
+        Inline {
+            tris,
+            rays,
+            order,
+            subdivision: h.subdivision,
+            offsets: h.leaf_offsets.as_deref(),
+            closest,
+            first_low: first_low as u32,
+            first_leaf,
+            alive,
+            live,
+            hits: mine,
+            segments,
+            packets: Vec::new(),
+            slot: vec![u32::MAX; n],
+            per_node: widest.div_ceil(LANES),
+            tests: 0,
+            found: 0,
+        }
+    }
+
+    /// The ray of leaf `leaf` (absolute) with its interval ending at its best hit so far.
+    fn ray(&self, leaf: usize) -> Ray {
+        let r = self.rays[self.order[leaf] as usize];
+        if self.closest {
+            Ray {
+                t_max: self.segments[leaf - self.first_leaf].t_max,
+                ..r
+            }
+        } else {
+            r
+        }
+    }
+}
+
+impl<T: TriangleTest> Leaves for Inline<'_, T> {
+    const NEAR_FIRST: bool = true;
+
+    #[inline]
+    fn full(&mut self) -> bool {
+        false
+    }
+
+    #[inline]
+    fn live(&self, level: u16, node: u32) -> bool {
+        if self.closest {
+            return true;
+        }
+        if level == 0 {
+            return self.live[(node - self.first_low) as usize] != 0;
+        }
+        let (first, count) = &self.alive[level as usize - 1];
+        count[(node - first) as usize] != 0
+    }
+
+    #[inline]
+    fn live_rays(&self, node: u32) -> u32 {
+        self.live[(node - self.first_low) as usize]
+    }
+
+    #[inline]
+    fn segment<'s>(&'s self, ctx: &'s Ctx<'_>, leaf: usize) -> &'s Segment {
+        if self.closest {
+            &self.segments[leaf - self.first_leaf]
+        } else {
+            &ctx.segments[leaf]
+        }
+    }
+
+    fn reach(&mut self, node: u32, tri: u32, lanes: u32) {
+        let k = (node - self.first_low) as usize;
+        let want = lanes & self.live[k];
+        if want == 0 {
+            return;
+        }
+        let leaves = lowest_node_leaves(
+            node as usize,
+            self.subdivision,
+            self.offsets,
+            self.rays.len(),
+        );
+        if self.slot[k] == u32::MAX {
+            let at = self.packets.len();
+            self.slot[k] = at as u32;
+            self.packets.resize(at + self.per_node, T::empty_packet());
+            for (i, leaf) in leaves.clone().enumerate() {
+                let ray = self.ray(leaf);
+                T::set_lane(&mut self.packets[at + i / LANES], i % LANES, &ray);
+            }
+        }
+        let at = self.slot[k] as usize;
+        let t = &self.tris[tri as usize];
+        for j in 0..self.per_node {
+            let sub = (want >> (j * LANES)) & ((1 << LANES) - 1);
+            if sub == 0 {
+                continue;
+            }
+            self.tests += sub.count_ones() as u64;
+            let (mask, bh) = T::test_packet(&self.packets[at + j], t);
+            let mut hit = mask & sub;
+            self.found += hit.count_ones() as u64;
+            while hit != 0 {
+                let l = hit.trailing_zeros() as usize;
+                hit &= hit - 1;
+                let i = j * LANES + l;
+                let leaf = leaves.start + i;
+                let h = Hit {
+                    t: bh.t[l],
+                    tri,
+                    u: bh.u[l],
+                    v: bh.v[l],
+                };
+                let best = &mut self.hits[leaf - self.first_leaf];
+                if self.closest {
+                    if h.closer_than(best) {
+                        *best = h;
+                        let seg = &mut self.segments[leaf - self.first_leaf];
+                        seg.t_max = seg.t_max.min(next_above(h.t));
+                        let ray = self.ray(leaf);
+                        T::set_lane(&mut self.packets[at + j], l, &ray);
+                    }
+                } else {
+                    *best = h;
+                    self.live[k] &= !(1 << i);
+                    let low = node as usize;
+                    for (li, (first, count)) in self.alive.iter_mut().enumerate() {
+                        let span = (self.subdivision as usize).pow(li as u32 + 1);
+                        count[low / span - *first as usize] -= 1;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The ray side of a traversal of `tree` over `rays`: the object root, the ray nodes by level
+/// (lowest first; with `boxes`, their segment boxes, else the whole space) and, with `boxes`,
+/// the rays' segments in leaf order (what the node boxes and the single-ray tests read).
+/// `None` when the tree is empty.
+#[allow(clippy::type_complexity)]
+fn ray_side(
+    rays: &[Ray],
+    hierarchy: &RayHierarchy<Cpu>,
+    tree: &Lbvh,
+    boxes: bool,
+) -> Result<Option<(u32, Vec<Vec<RayNode>>, Vec<Segment>)>> {
+    let nodes = prepare_nodes(rays.len(), hierarchy)?;
+    let Some(root) = tree.root() else {
+        return Ok(None);
+    };
+    let segments = if boxes {
+        leaf_segments(rays, &hierarchy.order)
+    } else {
+        Vec::new()
+    };
+    let node_boxes = boxes.then(|| ray_node_boxes(&segments, hierarchy, &tree.bounds()));
+    let nodes = nodes
+        .into_iter()
+        .enumerate()
+        .map(|(l, level)| {
+            level
+                .into_iter()
+                .enumerate()
+                .map(|(n, bound)| RayNode {
+                    bx: node_boxes.as_ref().map_or(EVERYWHERE, |b| b[l][n]),
+                    bound,
+                })
+                .collect()
+        })
+        .collect();
+    Ok(Some((root, nodes, segments)))
 }
 
 /// Sorts a task's candidates by `(node, triangle)` and merges repeats (a triangle in several
@@ -1518,6 +1913,16 @@ impl Dual {
         };
         dual.set_box_test(spec.bool("box_test")?);
         dual.set_single_rays(spec.bool("single_rays")?);
+        match spec.str("final_tests")? {
+            "batched" => {}
+            "inline" => dual.set_inline(scene, true),
+            other => {
+                return Err(CoreError::InvalidParam {
+                    key: "traverse.final_tests".into(),
+                    reason: format!("`{other}` is not one of {}", FINAL_TESTS.join(", ")),
+                })
+            }
+        }
         Ok(dual)
     }
 
@@ -1542,7 +1947,10 @@ impl Dual {
                 })
             }
         };
-        Ok(Dual { objects })
+        Ok(Dual {
+            objects,
+            inline: None,
+        })
     }
 
     /// The traverser with `objects = grid` at density `k` (seed 002 eq. 1, within
@@ -1568,6 +1976,7 @@ impl Dual {
                 box_test: true,
                 single_rays: true,
             },
+            inline: None,
         })
     }
 
@@ -1593,6 +2002,18 @@ impl Dual {
         if let Objects::Lbvh { single_rays, .. } = &mut self.objects {
             *single_rays = on;
         }
+    }
+
+    /// Turns inline final tests on or off (`final_tests = inline`, see *Inline final tests*;
+    /// `objects = lbvh`, `bvh` or `grid`): on prepares `scene`'s triangles for `mt`.
+    pub fn set_inline(&mut self, scene: &Arc<Scene>, on: bool) {
+        self.inline =
+            (on && matches!(self.objects, Objects::Lbvh { .. })).then(|| InlineSets::new(scene));
+    }
+
+    /// Whether the final tests run inline ([`Traverser::trace`]).
+    pub fn inline(&self) -> bool {
+        self.inline.is_some()
     }
 
     /// Whether lowest nodes may descend to single rays (`objects = lbvh`, `bvh` or `grid` with
@@ -1675,35 +2096,13 @@ impl Dual {
         if rays.is_empty() {
             return Ok(report);
         }
-        let nodes = prepare_nodes(rays.len(), hierarchy)?;
-        let Some(root) = tree.root() else {
+        let Some((root, nodes, segments)) =
+            ray_side(rays, hierarchy, tree, box_test || single_rays)?
+        else {
             return Ok(report);
         };
         let top_level = nodes.len() - 1;
         let n_top = nodes[top_level].len();
-        // The rays' segments in leaf order: what the node boxes and the single-ray tests read.
-        let segments = if box_test || single_rays {
-            leaf_segments(rays, &hierarchy.order)
-        } else {
-            Vec::new()
-        };
-        let boxes =
-            (box_test || single_rays).then(|| ray_node_boxes(&segments, hierarchy, &tree.bounds()));
-        let nodes: Vec<Vec<RayNode>> = nodes
-            .into_iter()
-            .enumerate()
-            .map(|(l, level)| {
-                level
-                    .into_iter()
-                    .enumerate()
-                    .map(|(n, bound)| RayNode {
-                        bx: boxes.as_ref().map_or(EVERYWHERE, |b| b[l][n]),
-                        bound,
-                    })
-                    .collect()
-            })
-            .collect();
-        drop(boxes);
         let ctx = Ctx {
             n_rays: rays.len(),
             segments: &segments,
@@ -1732,8 +2131,18 @@ impl Dual {
             if active.is_empty() {
                 break;
             }
-            let results: Vec<(Vec<(Candidate, u32)>, Counters)> =
-                active.par_iter_mut().map(|t| t.run(&ctx, cap)).collect();
+            let results: Vec<(Vec<(Candidate, u32)>, Counters)> = active
+                .par_iter_mut()
+                .map(|t| {
+                    let mut b = Batched {
+                        out: Vec::new(),
+                        cap,
+                    };
+                    let counts = t.run(&ctx, &mut b);
+                    sort_and_merge(&mut b.out);
+                    (b.out, counts)
+                })
+                .collect();
             report.rounds += 1;
             let n_pairs: usize = results.iter().map(|r| r.0.len()).sum();
             let held: u64 = results.iter().map(|r| r.0.capacity() as u64).sum::<u64>();
@@ -1773,9 +2182,167 @@ impl Dual {
     }
 }
 
+impl Dual {
+    /// Traces `rays` of `kind` with inline final tests (test `test`, query `mode`), merging
+    /// each ray's hit into `hits`; `Ok(None)` when this traverser does not run them inline
+    /// here: `final_tests = batched`, `objects = meshes`, an edge-width query, or a lowest node
+    /// of more than 32 rays. See *Inline final tests* in the module doc.
+    #[allow(clippy::too_many_arguments)]
+    pub fn trace_with_report(
+        &self,
+        rays: &[Ray],
+        kind: RayKind,
+        mode: HitMode,
+        test: TestKind,
+        hierarchy: &RayHierarchy<Cpu>,
+        hits: &mut [Hit],
+        stats: &mut Stats,
+    ) -> Result<Option<DualReport>> {
+        let (
+            Some(sets),
+            Objects::Lbvh {
+                tree,
+                box_test,
+                single_rays,
+                ..
+            },
+        ) = (&self.inline, &self.objects)
+        else {
+            return Ok(None);
+        };
+        if !matches!(mode, HitMode::Any | HitMode::Closest) {
+            return Ok(None);
+        }
+        let mut report = DualReport::default();
+        if rays.is_empty() {
+            crsh_core::ray::check_hits_per_ray("rays", rays.len(), hits.len())?;
+            return Ok(Some(report));
+        }
+        let Some((root, nodes, segments)) = ray_side(rays, hierarchy, tree, true)? else {
+            check_batch(rays, hits)?;
+            return Ok(Some(report));
+        };
+        let offsets = hierarchy.leaf_offsets.as_deref();
+        let widest = (0..nodes[0].len())
+            .map(|n| lowest_node_leaves(n, hierarchy.subdivision, offsets, rays.len()).len())
+            .max()
+            .unwrap_or(0);
+        if widest > 32 {
+            return Ok(None);
+        }
+        check_batch(rays, hits)?;
+        let ctx = Ctx {
+            n_rays: rays.len(),
+            segments: &segments,
+            hierarchy,
+            single_rays: *single_rays,
+            box_test: *box_test,
+            nodes: &nodes,
+            sub: hierarchy.subdivision as usize,
+            tree,
+        };
+        let (tests, found, counts) = match sets.get(test) {
+            AnyTriangleSet::MollerTrumbore(s) => {
+                trace_tasks(&ctx, s, rays, mode, root, widest, hits)
+            }
+            AnyTriangleSet::Watertight(s) => trace_tasks(&ctx, s, rays, mode, root, widest, hits),
+            AnyTriangleSet::Projected(s) => trace_tasks(&ctx, s, rays, mode, root, widest, hits),
+        };
+        counts.record(kind, stats);
+        stats.add_level(kind, 0, tests, found);
+        stats.add_ray_triangle(tests);
+        report.rounds = nodes[nodes.len() - 1].len().div_ceil(ROUND_TASKS);
+        Ok(Some(report))
+    }
+}
+
+/// Every top ray node's traversal with inline final tests of test `T` ([`Inline`]), in rounds
+/// of [`ROUND_TASKS`] tasks run in parallel; each task's hits are merged into `hits` after its
+/// round. Returns the ray-triangle tests, the hits they found and the pair counters.
+fn trace_tasks<'a, T: TriangleTest>(
+    ctx: &Ctx<'a>,
+    set: &'a TriangleSet<T>,
+    rays: &'a [Ray],
+    mode: HitMode,
+    root: u32,
+    widest: usize,
+    hits: &mut [Hit],
+) -> (u64, u64, Counters) {
+    let order = ctx.hierarchy.order.as_slice();
+    let top_level = ctx.nodes.len() - 1;
+    let n_top = ctx.nodes[top_level].len();
+    let mut counts = Counters::new(ctx.nodes.len(), ctx.tree.max_depth + 1);
+    let (mut tests, mut found) = (0u64, 0u64);
+    for first in (0..n_top).step_by(ROUND_TASKS) {
+        let current: &[Hit] = hits;
+        let round: Vec<(usize, Vec<Hit>, u64, u64, Counters)> = (first
+            ..(first + ROUND_TASKS).min(n_top))
+            .into_par_iter()
+            .map(|top| {
+                let mut state = Inline::<T>::new(
+                    ctx,
+                    set.triangles(),
+                    rays,
+                    order,
+                    mode,
+                    top,
+                    widest,
+                    current,
+                );
+                let mut task = Task {
+                    stack: vec![Pair {
+                        node: top as u32,
+                        obj: root,
+                        level: top_level as u16,
+                        depth: 0,
+                        mask: 0,
+                    }],
+                };
+                let c = task.run(ctx, &mut state);
+                (state.first_leaf, state.hits, state.tests, state.found, c)
+            })
+            .collect();
+        for (first_leaf, task_hits, t, f, c) in round {
+            for (leaf, h) in order[first_leaf..].iter().zip(task_hits) {
+                hits[*leaf as usize] = h;
+            }
+            tests += t;
+            found += f;
+            counts.add(&c);
+        }
+    }
+    (tests, found, counts)
+}
+
 impl Traverser<Cpu> for Dual {
     fn name(&self) -> &str {
         "dual"
+    }
+
+    fn trace(
+        &self,
+        _backend: &Cpu,
+        rays: &Vec<Ray>,
+        kind: RayKind,
+        mode: HitMode,
+        test: &str,
+        hierarchy: &RayHierarchy<Cpu>,
+        hits: &mut Vec<Hit>,
+        stats: &mut Stats,
+    ) -> Option<Result<()>> {
+        self.inline.as_ref()?;
+        let Some(test) = TestKind::from_name(test) else {
+            return Some(Err(CoreError::InvalidParam {
+                key: "intersect.test".into(),
+                reason: format!(
+                    "`{test}` is not one of {}",
+                    crate::triangle::TEST_NAMES.join(", ")
+                ),
+            }));
+        };
+        self.trace_with_report(rays, kind, mode, test, hierarchy, hits, stats)
+            .transpose()
+            .map(|r| r.map(|_| ()))
     }
 
     fn traverse(
@@ -2822,6 +3389,339 @@ pub(crate) mod tests {
                     mask.is_some_and(|m| m == ALL_LANES || m & (1 << (leaf % 8)) != 0),
                     "ray {r}: {c:?} has mask {mask:?}"
                 );
+            }
+        }
+    }
+
+    /// `trav`'s inline final tests (test `test`, `mode`) of `rays` over `h`, merged into
+    /// `start`: the hits, the stats and the report.
+    fn trace_inline(
+        trav: &Dual,
+        rays: &[Ray],
+        h: &RayHierarchy<Cpu>,
+        mode: HitMode,
+        test: TestKind,
+        start: &[Hit],
+    ) -> (Vec<Hit>, Stats, DualReport) {
+        let mut hits = start.to_vec();
+        let mut stats = Stats::default();
+        let report = trav
+            .trace_with_report(rays, RayKind::Shadow, mode, test, h, &mut hits, &mut stats)
+            .unwrap()
+            .expect("inline final tests");
+        (hits, stats, report)
+    }
+
+    /// `objects` with inline final tests.
+    fn inline_dual(scene: &Arc<Scene>, objects: &str) -> Dual {
+        let mut trav = Dual::with_options(scene, objects, 64.0).unwrap();
+        trav.set_inline(scene, true);
+        assert!(trav.inline());
+        trav
+    }
+
+    #[test]
+    fn inline_final_tests_give_the_brute_force_hits() {
+        let scenes = [
+            (Arc::new(soup(3, 150)), "soup"),
+            (Arc::new(clustered(4, 6, 30)), "clusters"),
+            (Arc::new(rooms(7, Vec3::ZERO)), "rooms"),
+        ];
+        for (si, (scene, name)) in scenes.iter().enumerate() {
+            let rays = test_rays(scene, 20 + si as u64, 230);
+            for test in [TestKind::MollerTrumbore, TestKind::Watertight] {
+                let brute = BruteForce::with_test(scene, test);
+                let refs = [HitMode::Closest, HitMode::Any].map(|m| reference(&brute, &rays, m));
+                for (sub, levels) in [(2u32, 3usize), (4, 1), (8, 2), (16, 2), (32, 1)] {
+                    let orders = [(0..rays.len() as u32).collect(), shuffled(rays.len(), 9)];
+                    for (oi, order) in orders.into_iter().enumerate() {
+                        let h = build(&rays, order, sub, levels);
+                        for objects in ["lbvh", "bvh", "grid"] {
+                            let trav = inline_dual(scene, objects);
+                            for (mode, want) in [HitMode::Closest, HitMode::Any].iter().zip(&refs) {
+                                let what = format!(
+                                    "{name} {test:?} sub {sub} levels {levels} order {oi} \
+                                     {objects} {mode:?}"
+                                );
+                                let miss = vec![Hit::MISS; rays.len()];
+                                let run = || trace_inline(&trav, &rays, &h, *mode, test, &miss);
+                                let (hits, stats, report) = crate::with_threads(1, run).unwrap();
+                                assert_same(&hits, want, *mode, &what);
+                                let three = crate::with_threads(3, run).unwrap();
+                                assert_eq!(three.0, hits, "{what}");
+                                assert_eq!(three.1, stats, "{what}");
+                                assert_eq!(three.2, report, "{what}");
+                                // The pair rows sum to the bounds on each side; the final
+                                // tests are the level-0 row and never exceed brute force.
+                                let ray_rows: u64 = stats
+                                    .levels
+                                    .iter()
+                                    .filter(|l| l.level > 0)
+                                    .map(|l| l.tests)
+                                    .sum();
+                                let obj_rows: u64 =
+                                    stats.object_levels.iter().map(|l| l.tests).sum();
+                                assert_eq!(ray_rows, stats.tests.bounds, "{what}");
+                                assert_eq!(obj_rows, stats.tests.bounds, "{what}");
+                                let row0 = stats.levels.iter().find(|l| l.level == 0).unwrap();
+                                assert_eq!(row0.tests, stats.tests.ray_triangle, "{what}");
+                                assert_eq!(row0.hits + row0.misses, row0.tests, "{what}");
+                                assert!(
+                                    stats.tests.ray_triangle
+                                        < (rays.len() * scene.triangle_count()) as u64,
+                                    "{what}"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn inline_final_tests_without_boxes_or_single_rays_stay_exact() {
+        let scene = Arc::new(rooms(5, Vec3::new(3.0, -2.0, 1.0)));
+        let brute = BruteForce::from_scene(&scene);
+        let rays = room_rays(&scene, 6, 400, Vec3::new(3.0, -2.0, 1.0));
+        let h = build(&rays, shuffled(rays.len(), 2), 8, 2);
+        for (boxes, single) in [(false, false), (true, false), (false, true)] {
+            let mut trav = inline_dual(&scene, "lbvh");
+            trav.set_box_test(boxes);
+            trav.set_single_rays(single);
+            for mode in [HitMode::Closest, HitMode::Any] {
+                let want = reference(&brute, &rays, mode);
+                let miss = vec![Hit::MISS; rays.len()];
+                let (hits, ..) =
+                    trace_inline(&trav, &rays, &h, mode, TestKind::MollerTrumbore, &miss);
+                assert_same(
+                    &hits,
+                    &want,
+                    mode,
+                    &format!("boxes {boxes} single {single}"),
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn inline_final_tests_merge_into_the_hits_they_are_given() {
+        let scene = Arc::new(clustered(8, 5, 25));
+        let brute = BruteForce::from_scene(&scene);
+        let rays = test_rays(&scene, 3, 200);
+        let h = build(&rays, shuffled(rays.len(), 4), 8, 2);
+        let trav = inline_dual(&scene, "lbvh");
+        for mode in [HitMode::Closest, HitMode::Any] {
+            // Every third ray starts with a hit: a near one on triangle 0 (kept by either
+            // mode), every other third with a far one (closest-hit replaces it when the scene
+            // has a nearer hit).
+            let start: Vec<Hit> = (0..rays.len())
+                .map(|i| match i % 3 {
+                    0 => Hit {
+                        t: rays[i].t_min.max(0.0) + 1e-3,
+                        tri: 0,
+                        u: 0.25,
+                        v: 0.25,
+                    },
+                    1 => Hit {
+                        t: 1e30,
+                        tri: 1,
+                        u: 0.5,
+                        v: 0.5,
+                    },
+                    _ => Hit::MISS,
+                })
+                .collect();
+            let mut want = start.clone();
+            brute
+                .intersect(
+                    &Cpu,
+                    &rays,
+                    Query::Scene,
+                    mode,
+                    &mut want,
+                    &mut Stats::default(),
+                )
+                .unwrap();
+            let (got, stats, _) =
+                trace_inline(&trav, &rays, &h, mode, TestKind::MollerTrumbore, &start);
+            assert_same(&got, &want, mode, &format!("{mode:?}"));
+            if mode == HitMode::Any {
+                // Rays that start hit keep their hit and cost no final test.
+                for i in (0..rays.len()).filter(|i| i % 3 != 2) {
+                    assert_eq!(got[i], start[i], "ray {i}");
+                }
+                let fresh = vec![Hit::MISS; rays.len()];
+                let (_, all, _) =
+                    trace_inline(&trav, &rays, &h, mode, TestKind::MollerTrumbore, &fresh);
+                let sum = |s: &Stats| s.tests.bounds + s.tests.ray_triangle;
+                assert!(sum(&stats) < sum(&all));
+            }
+        }
+    }
+
+    #[test]
+    fn any_hit_rays_leave_the_inline_traversal_at_their_first_hit() {
+        // A wall of two triangles in front of a cloud of 400 small triangles: shadow rays
+        // through the wall into the cloud. Batched, every ray's node meets the cloud's
+        // triangles; inline, a ray stops at the wall when the traversal meets it first, and
+        // a node whose rays all stopped is not tested again.
+        let mut positions = vec![
+            Vec3::new(-5.0, -5.0, 0.0),
+            Vec3::new(5.0, -5.0, 0.0),
+            Vec3::new(5.0, 5.0, 0.0),
+            Vec3::new(-5.0, 5.0, 0.0),
+        ];
+        let mut indices = vec![[0, 1, 2], [0, 2, 3]];
+        let mut rng = TestRng(77);
+        for _ in 0..400 {
+            let c = rng.vec3(-2.0, 2.0) - Vec3::new(0.0, 0.0, 4.0);
+            let base = positions.len() as u32;
+            positions.extend([c, c + rng.vec3(-0.1, 0.1), c + rng.vec3(-0.1, 0.1)]);
+            indices.push([base, base + 1, base + 2]);
+        }
+        let normals = vec![Vec3::Z; positions.len()];
+        let scene = Arc::new(crate::surface::tests::raw_scene(
+            positions, normals, indices,
+        ));
+        let rays: Vec<Ray> = (0..512)
+            .map(|i| {
+                let x = (i % 32) as f32 / 16.0 - 1.0;
+                let y = (i / 32) as f32 / 8.0 - 1.0;
+                let dir = Vec3::new(x * 0.2, y * 0.2, -1.0).normalize();
+                test_ray(Vec3::new(x, y, 1.0), dir, 0.0, 8.0, i)
+            })
+            .collect();
+        let h = build(&rays, (0..rays.len() as u32).collect(), 8, 2);
+        let brute = BruteForce::from_scene(&scene);
+        let want = reference(&brute, &rays, HitMode::Any);
+        assert!(want.iter().all(Hit::is_hit), "the wall occludes every ray");
+        let miss = vec![Hit::MISS; rays.len()];
+        let trav = inline_dual(&scene, "lbvh");
+        let (got, inline, _) = trace_inline(
+            &trav,
+            &rays,
+            &h,
+            HitMode::Any,
+            TestKind::MollerTrumbore,
+            &miss,
+        );
+        assert_same(&got, &want, HitMode::Any, "inline");
+        let batched = Dual::with_options(&scene, "lbvh", 64.0).unwrap();
+        let (hits, _, stats, _) = trace(&batched, &brute, &rays, &h, HitMode::Any);
+        assert_same(&hits, &want, HitMode::Any, "batched");
+        assert!(
+            (inline.tests.bounds + inline.tests.ray_triangle) * 2
+                < stats.tests.bounds + stats.tests.ray_triangle,
+            "inline {:?} against batched {:?}",
+            inline.tests,
+            stats.tests
+        );
+    }
+
+    #[test]
+    fn inline_final_tests_decline_what_they_do_not_run() {
+        let scene = Arc::new(soup(5, 60));
+        let rays = test_rays(&scene, 8, 130);
+        let miss = vec![Hit::MISS; rays.len()];
+        let h = build(&rays, (0..rays.len() as u32).collect(), 8, 2);
+        let run = |trav: &Dual, h: &RayHierarchy<Cpu>, mode: HitMode| {
+            let mut hits = miss.clone();
+            trav.trace_with_report(
+                &rays,
+                RayKind::Shadow,
+                mode,
+                TestKind::MollerTrumbore,
+                h,
+                &mut hits,
+                &mut Stats::default(),
+            )
+            .map(|r| r.is_some())
+        };
+        // Batched (the default), `meshes`, edge-width queries, lowest nodes of 64 rays.
+        let batched = Dual::with_options(&scene, "lbvh", 64.0).unwrap();
+        assert!(!batched.inline());
+        assert!(!run(&batched, &h, HitMode::Any).unwrap());
+        let mut meshes = Dual::with_options(&scene, "meshes", 64.0).unwrap();
+        meshes.set_inline(&scene, true);
+        assert!(!meshes.inline());
+        assert!(!run(&meshes, &h, HitMode::Any).unwrap());
+        let trav = inline_dual(&scene, "lbvh");
+        let edge = HitMode::EdgeWidth(crsh_core::edge_width::EdgePairing::Any);
+        assert!(!run(&trav, &h, edge).unwrap());
+        let wide = build(&rays, (0..rays.len() as u32).collect(), 64, 1);
+        assert!(!run(&trav, &wide, HitMode::Any).unwrap());
+        assert!(run(&trav, &h, HitMode::Closest).unwrap());
+        // Bad input is an error, as the intersector's.
+        let mut bad = rays.clone();
+        bad[17].dir = Vec3::ZERO;
+        let mut hits = miss.clone();
+        let err = trav
+            .trace_with_report(
+                &bad,
+                RayKind::Shadow,
+                HitMode::Any,
+                TestKind::MollerTrumbore,
+                &h,
+                &mut hits,
+                &mut Stats::default(),
+            )
+            .unwrap_err();
+        assert!(err.to_string().contains("ray 17"), "{err}");
+        let mut short = vec![Hit::MISS; 3];
+        assert!(trav
+            .trace_with_report(
+                &rays,
+                RayKind::Shadow,
+                HitMode::Any,
+                TestKind::MollerTrumbore,
+                &h,
+                &mut short,
+                &mut Stats::default(),
+            )
+            .is_err());
+    }
+
+    #[test]
+    fn frames_with_inline_final_tests_equal_brute_force_frames() {
+        let registry = Registry::<Cpu>::builtin();
+        for name in ["office-boxes", "cornell-mirrors"] {
+            let scene = Arc::new(crsh_scene::builtin::build(name).unwrap());
+            let ctx = StageContext::new(&Cpu, &scene, FrameSize::new(40, 30).unwrap());
+            let plain = registry
+                .build(&ctx, &PipelineConfig::whitted("brute", "brute"))
+                .unwrap();
+            let opts = FrameOptions::default().with_max_depth(2);
+            let want = render_frame(&Cpu, &plain, &opts, None, &mut |_| {}).unwrap();
+            for (sub, depth, objects, test) in [
+                (8, 2, "lbvh", "mt"),
+                (16, 3, "lbvh", "watertight"),
+                (4, 2, "grid", "mt"),
+            ] {
+                let sets = vec![
+                    "traverse.kind=dual".to_string(),
+                    "traverse.final_tests=inline".to_string(),
+                    format!("traverse.objects={objects}"),
+                    format!("hierarchy.subdivision={sub}"),
+                    format!("hierarchy.depth={depth}"),
+                    format!("intersect.test={test}"),
+                ];
+                let what = format!("{name} {sets:?}");
+                let got = frame(&scene, &sets, 1);
+                if test == "mt" {
+                    assert_eq!(got.image, want.image, "{what}");
+                }
+                let acc = got.stats.accuracy.clone().unwrap();
+                assert!(acc.rays > 0);
+                assert_eq!(acc.agreeing, acc.rays, "{what}: {acc:?}");
+                // One stage: the final tests are part of the traversal.
+                assert!(got.stats.timings_ms.contains_key("traversal"), "{what}");
+                assert!(!got.stats.timings_ms.contains_key("final_tests"), "{what}");
+                assert!(got.stats.tests.ray_triangle > 0, "{what}");
+                let three = frame(&scene, &sets, 3);
+                assert_eq!(three.image, got.image, "{what}");
+                assert_eq!(three.stats.tests, got.stats.tests, "{what}");
+                assert_eq!(three.stats.levels, got.stats.levels, "{what}");
             }
         }
     }

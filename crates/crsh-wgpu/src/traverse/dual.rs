@@ -248,11 +248,16 @@ struct Tree {
 }
 
 /// Registers the wgpu `dual` under its CPU twin's catalogue entry (same name, parameters,
-/// defaults and documentation).
+/// defaults and documentation), with `final_tests` narrowed to `batched`.
 pub fn register(registry: &mut Registry<Wgpu>) -> Result<()> {
-    registry.add_traverser(crsh_cpu::traverse::dual::info(), |ctx, spec| {
-        Ok(Box::new(Dual::new(ctx.scene, spec)?))
-    })?;
+    let mut info = crsh_cpu::traverse::dual::info();
+    for p in &mut info.params {
+        if p.name == "final_tests" {
+            // Inline final tests have no device twin: the device traverses breadth first.
+            p.choices = &["batched"];
+        }
+    }
+    registry.add_traverser(info, |ctx, spec| Ok(Box::new(Dual::new(ctx.scene, spec)?)))?;
     Ok(())
 }
 
@@ -266,6 +271,15 @@ impl Dual {
     /// `objects = lbvh`, `bvh` or `grid` the object hierarchy is built now, on the host by the
     /// CPU twin's code, and uploaded.
     pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<Dual> {
+        if spec.str("final_tests")? == "inline" {
+            return Err(CoreError::Unsupported {
+                stage: "traverse",
+                variant: "dual".into(),
+                what: "`final_tests = inline` on wgpu (the device traverses breadth first and \
+                       tests the candidates in batches; inline final tests are CPU only)"
+                    .into(),
+            });
+        }
         let cpu = crsh_cpu::traverse::dual::Dual::new(&scene.scene, spec)?;
         let Some(tree) = cpu.lbvh() else {
             let crsh = crate::traverse::crsh::Crsh::with_options(
