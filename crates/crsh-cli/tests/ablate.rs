@@ -1894,7 +1894,7 @@ fn dual_plan_is_exact_on_every_cell() {
     );
     assert_ok(&o);
     assert!(
-        text(&o.stdout).contains("51 cells, 3 timed runs each (nothing run)"),
+        text(&o.stdout).contains("57 cells, 3 timed runs each (nothing run)"),
         "{}",
         text(&o.stdout)
     );
@@ -1911,7 +1911,7 @@ fn dual_plan_is_exact_on_every_cell() {
     assert_ok(&o);
     let v = read_json(&dir.join("out/results.json"));
     let cs = cells(&v);
-    assert_eq!(cs.len(), 2 * 17);
+    assert_eq!(cs.len(), 2 * 19);
     for scene in ["office-boxes", "cornell-mirrors"] {
         let per_ray = |label: &str| -> f64 {
             let c = cs
@@ -1964,7 +1964,7 @@ fn with_scenes(shipped: &str, scenes: &[&str]) -> String {
 #[test]
 fn dual_plans_validate() {
     let dir = scratch("dual-plans");
-    for (plan, cells) in [("plans/dual.toml", 51), ("plans/dual-wgpu.toml", 27)] {
+    for (plan, cells) in [("plans/dual.toml", 57), ("plans/dual-wgpu.toml", 27)] {
         let path = repo_root().join(plan);
         let shipped = std::fs::read_to_string(&path).unwrap();
         assert!(shipped.contains("\"traverse.kind\" = \"dual\""), "{plan}");

@@ -12,7 +12,9 @@
 //!   16/3 with each `leaf_cone` (`incremental`, `extremes`);
 //! - `traversal`: the `crsh` traverser and the `dual` traverser with objects `lbvh` and
 //!   `grid` (object hierarchies built once, outside the timing), with a sink that only counts
-//!   the candidates;
+//!   the candidates; and `dual_lbvh_inline`, the `lbvh` traversal with inline final tests
+//!   (`final_tests = inline`: traversal and final tests in one, compare with `dual_lbvh` plus
+//!   `final_tests/brute_dual_candidates_mt`);
 //! - `final_tests`: the `brute` intersector on the candidate batches of the `crsh` traversal,
 //!   with each ray-triangle test (`intersect.test` = `mt`, `watertight`, `projected`), and on
 //!   those of `dual_lbvh` (lane masks included) with `mt`;
@@ -279,6 +281,35 @@ fn benches(c: &mut Criterion) {
             })
         });
     }
+    // `dual_lbvh` with inline final tests: traversal and final tests in one call.
+    let inline = stages(
+        scene,
+        &["traverse.kind=dual", "traverse.final_tests=inline"],
+    );
+    let inline_traverser = inline.traverser.as_ref().expect("a traverser");
+    let test = inline
+        .intersector
+        .candidate_test()
+        .expect("brute names its test");
+    g.bench_function(format!("dual_lbvh_inline/{}", b.tag), |bench| {
+        bench.iter(|| {
+            let mut hits = vec![Hit::MISS; b.rays.len()];
+            inline_traverser
+                .trace(
+                    &Cpu,
+                    &b.rays,
+                    RayKind::Shadow,
+                    RayKind::Shadow.hit_mode(),
+                    test,
+                    &b.hierarchy,
+                    &mut hits,
+                    &mut Stats::default(),
+                )
+                .expect("inline final tests")
+                .unwrap();
+            hits
+        })
+    });
     g.finish();
     // The `dual_lbvh` traversal's candidate batches (with their lane masks).
     let mut dual_candidates = Vec::new();
