@@ -689,7 +689,7 @@ fn check_rays(rays: &[Ray]) -> Result<()> {
 }
 
 /// Checks that `order` is a permutation of `0..n`.
-fn check_permutation(order: &[u32], n: usize) -> Result<()> {
+pub(crate) fn check_permutation(order: &[u32], n: usize) -> Result<()> {
     if order.len() != n {
         return Err(CoreError::InvalidInput(format!(
             "hierarchy order has {} entries for {n} rays",

@@ -275,7 +275,7 @@ use rayon::prelude::*;
 
 use super::crsh::{budget_bytes, prepare_nodes, Crsh, NodeBound, ABS_MARGIN, REL_MARGIN};
 use crate::backend::Cpu;
-use crate::intersect::brute::{check_batch, merge_repeats};
+use crate::intersect::brute::{check_batch, check_permutation, merge_repeats};
 use crate::intersect::bvh::{build_bvh2, obvhs_triangle, BuildQuality};
 use crate::intersect::grid::{GridData, MAX_DENSITY, MIN_DENSITY};
 use crate::triangle::{AnyTriangleSet, TestKind, TriangleSet, TriangleTest, LANES};
@@ -2282,6 +2282,7 @@ impl Dual {
             return Ok(None);
         }
         check_batch(rays, hits)?;
+        check_permutation(&hierarchy.order, rays.len())?;
         let ctx = Ctx {
             n_rays: rays.len(),
             segments: &segments,
@@ -3719,6 +3720,22 @@ pub(crate) mod tests {
             )
             .unwrap_err();
         assert!(err.to_string().contains("ray 17"), "{err}");
+        // An order that is not a permutation of the rays is an error, not a panic.
+        let mut dup: Vec<u32> = (0..rays.len() as u32).collect();
+        dup[5] = dup[6];
+        let dup = build(&rays, dup, 8, 2);
+        let mut hits = miss.clone();
+        assert!(trav
+            .trace_with_report(
+                &rays,
+                RayKind::Shadow,
+                HitMode::Any,
+                TestKind::MollerTrumbore,
+                &dup,
+                &mut hits,
+                &mut Stats::default(),
+            )
+            .is_err());
         let mut short = vec![Hit::MISS; 3];
         assert!(trav
             .trace_with_report(
