@@ -1606,8 +1606,6 @@ impl Leaves for Batched {
 struct Inline<'a, T: TriangleTest> {
     tris: &'a [T::Tri],
     rays: &'a [Ray],
-    /// `hierarchy.order`: leaf → ray.
-    order: &'a [u32],
     subdivision: u32,
     offsets: Option<&'a [u32]>,
     closest: bool,
@@ -1623,6 +1621,8 @@ struct Inline<'a, T: TriangleTest> {
     hits: Vec<Hit>,
     /// The task's segments (closest-hit only: their `t_max` shrinks with each nearer hit).
     segments: Vec<Segment>,
+    /// Every ray's segment in leaf order ([`Ctx::segments`]).
+    all_segments: &'a [Segment],
     /// Packets of [`LANES`] rays per lowest node (`per_node` of them, enough for the batch's
     /// widest node), built when the node first reaches a triangle: `slot[k]` is where lowest
     /// node `first_low + k`'s start in `packets` (`u32::MAX`: not built).
@@ -1720,7 +1720,6 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
         Inline {
             tris,
             rays,
-            order,
             subdivision: h.subdivision,
             offsets: h.leaf_offsets.as_deref(),
             closest,
@@ -1730,6 +1729,7 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
             live,
             hits: mine,
             segments,
+            all_segments: ctx.segments,
             packets: Vec::new(),
             slot: vec![u32::MAX; n],
             per_node: widest.div_ceil(LANES),
@@ -1739,16 +1739,15 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
     }
 
     /// The ray of leaf `leaf` (absolute) with its interval ending at its best hit so far.
+    /// Read from the segments gathered in leaf order (what the triangle tests read of a ray),
+    /// not through `order` again.
     fn ray(&self, leaf: usize) -> Ray {
-        let r = self.rays[self.order[leaf] as usize];
-        if self.closest {
-            Ray {
-                t_max: self.segments[leaf - self.first_leaf].t_max,
-                ..r
-            }
+        let s = if self.closest {
+            &self.segments[leaf - self.first_leaf]
         } else {
-            r
-        }
+            &self.all_segments[leaf]
+        };
+        Ray::new(RayKind::Shadow, s.origin, s.dir, s.t_min, s.t_max)
     }
 }
 
