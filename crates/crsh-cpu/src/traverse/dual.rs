@@ -180,8 +180,8 @@
 //! them: an any-hit ray that has one is not traced), and thread counts.
 //!
 //! Tasks keep their own rays' hits, masks and packets (a task's rays are its top node's, a
-//! contiguous run of leaves), so they need no synchronization; [`ROUND_TASKS`] of them run
-//! in parallel, and their hits are written back after each round. No candidate arrays exist,
+//! contiguous run of leaves), so they need no synchronization; up to 256 of them run in
+//! parallel, and their hits are written back after each round. No candidate arrays exist,
 //! so `candidate_budget_mb` does not apply; memory is O(rays) for the hits and segments plus
 //! the round's tasks' packets. The pair counters are the batched mode's rows; the final tests
 //! are the level-0 row and [`Stats::add_ray_triangle`], inside the `traversal` stage time (the
@@ -192,9 +192,11 @@
 //! intersector as before). The wgpu twin has no inline tests: its catalogue offers
 //! `final_tests = batched` only, and the `dual_inline` preset is CPU-only.
 //!
-//! Sponza, 1024², depth 3 (1.24M shadow rays, 2026-12-04, this 2-core machine, alternating
-//! runs, identical images): traversal and final tests 382-394 ms batched against 239-283 ms
-//! inline; 16.79M bound and 29.17M ray-triangle tests batched against 13.07M and 31.75M.
+//! Sponza, 1024², depth 3 (1.24M shadow rays, 2026-12-04, this 2-core machine, the `dual`
+//! and `dual_inline` presets in alternating runs, identical images): traversal and final
+//! tests 370-411 ms batched against 240-245 ms inline, 16.79M bound and 29.17M ray-triangle
+//! tests against 13.07M and 31.75M; the dining room 356-389 against 182-189 ms (38.5 against
+//! 23.8 tests per ray). The README has the table.
 //!
 //! # Memory bound and determinism
 //!
