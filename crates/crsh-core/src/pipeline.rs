@@ -605,11 +605,20 @@ fn trace_batch_in<B: Backend>(
             histogram_ms = t.elapsed().as_secs_f64() * 1e3;
         }
         let intersector = &stages.intersector;
-        if let Some(test) = intersector.candidate_test() {
+        if intersector.candidate_test().is_some() {
             // A traverser that runs the final tests itself: one `traversal` stage.
             let traced = timed(backend, stats, "traversal", |s| {
                 traverser
-                    .trace(backend, rays, kind, mode, test, &hierarchy, &mut hits, s)
+                    .trace(
+                        backend,
+                        rays,
+                        kind,
+                        mode,
+                        &**intersector,
+                        &hierarchy,
+                        &mut hits,
+                        s,
+                    )
                     .transpose()
             })?;
             if traced.is_some() {

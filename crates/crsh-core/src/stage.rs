@@ -305,12 +305,14 @@ pub trait Traverser<B: Backend>: Send + Sync {
         stats: &mut Stats,
     ) -> Result<()>;
     /// Traverses `hierarchy` over `rays` of `kind` and runs the final tests itself, with the
-    /// pipeline intersector's ray-triangle test `test` ([`Intersector::candidate_test`]),
-    /// merging each ray's hit into `hits` as [`Intersector::intersect`] merges them (query
-    /// `mode`). A traverser that tests pairs as soon as it finds them can drop an any-hit ray
-    /// at its first hit and shorten a closest-hit ray's segment as it goes. `None` (the
-    /// default) when the variant, or this configuration of it, does not: the pipeline then
-    /// calls [`Traverser::traverse`] and the intersector's final tests.
+    /// ray-triangle test of the pipeline's `intersector` ([`Intersector::candidate_test`];
+    /// its prepared triangles where the traverser knows the variant,
+    /// [`Intersector::as_any`]), merging each ray's hit into `hits` as
+    /// [`Intersector::intersect`] merges them (query `mode`). A traverser that tests pairs as
+    /// soon as it finds them can drop an any-hit ray at its first hit and shorten a
+    /// closest-hit ray's segment as it goes. `None` (the default) when the variant, or this
+    /// configuration of it, does not: the pipeline then calls [`Traverser::traverse`] and the
+    /// intersector's final tests.
     #[allow(clippy::too_many_arguments)]
     fn trace(
         &self,
@@ -318,12 +320,21 @@ pub trait Traverser<B: Backend>: Send + Sync {
         rays: &B::Buffer<Ray>,
         kind: RayKind,
         mode: HitMode,
-        test: &str,
+        intersector: &dyn Intersector<B>,
         hierarchy: &RayHierarchy<B>,
         hits: &mut B::Buffer<Hit>,
         stats: &mut Stats,
     ) -> Option<Result<()>> {
-        let _ = (backend, rays, kind, mode, test, hierarchy, hits, stats);
+        let _ = (
+            backend,
+            rays,
+            kind,
+            mode,
+            intersector,
+            hierarchy,
+            hits,
+            stats,
+        );
         None
     }
 }
@@ -375,6 +386,12 @@ pub trait Intersector<B: Backend>: Send + Sync {
     /// final tests itself ([`Traverser::trace`]) runs the same one; `None` (the default) when
     /// it names none, and the pipeline leaves the final tests to [`Intersector::intersect`].
     fn candidate_test(&self) -> Option<&str> {
+        None
+    }
+    /// The variant itself, for a stage of the same backend that can use its prepared data
+    /// (a traverser running the final tests inline reuses `brute`'s prepared triangles instead
+    /// of preparing them again); `None` (the default) keeps it opaque.
+    fn as_any(&self) -> Option<&dyn std::any::Any> {
         None
     }
     /// For a scene whose triangles moved (`ctx.scene`: the same triangles, new positions), an

@@ -287,10 +287,6 @@ fn benches(c: &mut Criterion) {
         &["traverse.kind=dual", "traverse.final_tests=inline"],
     );
     let inline_traverser = inline.traverser.as_ref().expect("a traverser");
-    let test = inline
-        .intersector
-        .candidate_test()
-        .expect("brute names its test");
     g.bench_function(format!("dual_lbvh_inline/{}", b.tag), |bench| {
         bench.iter(|| {
             let mut hits = vec![Hit::MISS; b.rays.len()];
@@ -300,7 +296,7 @@ fn benches(c: &mut Criterion) {
                     &b.rays,
                     RayKind::Shadow,
                     RayKind::Shadow.hit_mode(),
-                    test,
+                    &*inline.intersector,
                     &b.hierarchy,
                     &mut hits,
                     &mut Stats::default(),

@@ -722,6 +722,10 @@ impl Intersector<Cpu> for BruteForce {
         Some(self.tris.kind().name())
     }
 
+    fn as_any(&self) -> Option<&dyn std::any::Any> {
+        Some(self)
+    }
+
     fn intersect(
         &self,
         _backend: &Cpu,

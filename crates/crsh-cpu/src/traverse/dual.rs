@@ -269,15 +269,15 @@ use std::sync::Arc;
 use crsh_core::glam::{DVec3, Vec3};
 use crsh_core::{
     f32_down, f32_up, lowest_node_leaves, Aabb, Candidate, CandidateBatch, CoreError, Hit, HitMode,
-    ParamInfo, Ray, RayHierarchy, RayKind, Registry, Result, Sphere, StageKind, StageSpec,
-    StageVariantInfo, Stats, Traverser, ALL_LANES,
+    Intersector, ParamInfo, Ray, RayHierarchy, RayKind, Registry, Result, Sphere, StageKind,
+    StageSpec, StageVariantInfo, Stats, Traverser, ALL_LANES,
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
 
 use super::crsh::{budget_bytes, prepare_nodes, Crsh, NodeBound, ABS_MARGIN, REL_MARGIN};
 use crate::backend::Cpu;
-use crate::intersect::brute::{check_batch, check_permutation, merge_repeats};
+use crate::intersect::brute::{check_batch, check_permutation, merge_repeats, BruteForce};
 use crate::intersect::bvh::{build_bvh2, obvhs_triangle, BuildQuality};
 use crate::intersect::grid::{GridData, MAX_DENSITY, MIN_DENSITY};
 use crate::triangle::{AnyTriangleSet, TestKind, TriangleSet, TriangleTest, LANES};
@@ -1250,12 +1250,13 @@ pub struct DualReport {
 pub struct Dual {
     objects: Objects,
     /// With `final_tests = inline`: the scene, and its triangles prepared per ray-triangle
-    /// test (by [`TestKind`] order: `mt`, `watertight`, `projected`) on first use.
+    /// test (by [`TestKind`] order: `mt`, `watertight`, `projected`) on first use when the
+    /// intersector is not `brute` (whose prepared triangles are used otherwise).
     inline: Option<InlineSets>,
 }
 
-/// The triangles an inline traversal tests, prepared per ray-triangle test when first needed
-/// (`mt`, the default test, when the stage is built).
+/// The triangles an inline traversal tests when the pipeline's intersector does not share
+/// its own, prepared per ray-triangle test when first needed.
 #[derive(Clone, Debug)]
 struct InlineSets {
     scene: Arc<Scene>,
@@ -1264,12 +1265,16 @@ struct InlineSets {
 
 impl InlineSets {
     fn new(scene: &Arc<Scene>) -> InlineSets {
-        let sets: [OnceLock<AnyTriangleSet>; 3] = Default::default();
-        let _ = sets[0].set(AnyTriangleSet::new(scene, TestKind::MollerTrumbore));
         InlineSets {
             scene: scene.clone(),
-            sets: Arc::new(sets),
+            sets: Arc::default(),
         }
+    }
+
+    /// How many tests' triangles this stage prepared itself.
+    #[cfg(test)]
+    fn prepared(&self) -> usize {
+        self.sets.iter().filter(|s| s.get().is_some()).count()
     }
 
     fn get(&self, kind: TestKind) -> &AnyTriangleSet {
@@ -2057,7 +2062,7 @@ impl Dual {
     }
 
     /// Turns inline final tests on or off (`final_tests = inline`, see *Inline final tests*;
-    /// `objects = lbvh`, `bvh` or `grid`): on prepares `scene`'s triangles for `mt`.
+    /// `objects = lbvh`, `bvh` or `grid`; `scene` is the one the stage was built for).
     pub fn set_inline(&mut self, scene: &Arc<Scene>, on: bool) {
         self.inline =
             (on && matches!(self.objects, Objects::Lbvh { .. })).then(|| InlineSets::new(scene));
@@ -2235,23 +2240,24 @@ impl Dual {
 }
 
 impl Dual {
-    /// Traces `rays` of `kind` with inline final tests (test `test`, query `mode`), merging
-    /// each ray's hit into `hits`; `Ok(None)` when this traverser does not run them inline
-    /// here: `final_tests = batched`, `objects = meshes`, an edge-width query, or a lowest node
-    /// of more than 32 rays. See *Inline final tests* in the module doc.
+    /// Traces `rays` of `kind` with inline final tests (query `mode`) against `tris` (this
+    /// scene's triangles prepared for a ray-triangle test, e.g. [`BruteForce::triangles`]),
+    /// merging each ray's hit into `hits`; `Ok(None)` when this traverser does not run them
+    /// inline here: `final_tests = batched`, `objects = meshes`, an edge-width query, or a
+    /// lowest node of more than 32 rays. See *Inline final tests* in the module doc.
     #[allow(clippy::too_many_arguments)]
     pub fn trace_with_report(
         &self,
         rays: &[Ray],
         kind: RayKind,
         mode: HitMode,
-        test: TestKind,
+        tris: &AnyTriangleSet,
         hierarchy: &RayHierarchy<Cpu>,
         hits: &mut [Hit],
         stats: &mut Stats,
     ) -> Result<Option<DualReport>> {
         let (
-            Some(sets),
+            Some(_),
             Objects::Lbvh {
                 tree,
                 box_test,
@@ -2294,7 +2300,19 @@ impl Dual {
             sub: hierarchy.subdivision as usize,
             tree,
         };
-        let (tests, found, counts) = match sets.get(test) {
+        // Triangles prepared for another scene would be read out of range.
+        if let Some(&id) = tree
+            .leaf_tris
+            .iter()
+            .max()
+            .filter(|&&id| id as usize >= tris.len())
+        {
+            return Err(CoreError::InvalidInput(format!(
+                "the object hierarchy names triangle {id}, but only {} are prepared",
+                tris.len()
+            )));
+        }
+        let (tests, found, counts) = match tris {
             AnyTriangleSet::MollerTrumbore(s) => {
                 trace_tasks(&ctx, s, rays, mode, root, widest, hits)
             }
@@ -2378,22 +2396,34 @@ impl Traverser<Cpu> for Dual {
         rays: &Vec<Ray>,
         kind: RayKind,
         mode: HitMode,
-        test: &str,
+        intersector: &dyn Intersector<Cpu>,
         hierarchy: &RayHierarchy<Cpu>,
         hits: &mut Vec<Hit>,
         stats: &mut Stats,
     ) -> Option<Result<()>> {
-        self.inline.as_ref()?;
-        let Some(test) = TestKind::from_name(test) else {
-            return Some(Err(CoreError::InvalidParam {
-                key: "intersect.test".into(),
-                reason: format!(
-                    "`{test}` is not one of {}",
-                    crate::triangle::TEST_NAMES.join(", ")
-                ),
-            }));
+        let sets = self.inline.as_ref()?;
+        // `brute`'s prepared triangles when the intersector is `brute`; else this stage's own,
+        // prepared for the test the intersector names.
+        let brute = intersector
+            .as_any()
+            .and_then(|a| a.downcast_ref::<BruteForce>());
+        let tris = match brute {
+            Some(b) => b.triangles(),
+            None => {
+                let name = intersector.candidate_test()?;
+                let Some(test) = TestKind::from_name(name) else {
+                    return Some(Err(CoreError::InvalidParam {
+                        key: "intersect.test".into(),
+                        reason: format!(
+                            "`{name}` is not one of {}",
+                            crate::triangle::TEST_NAMES.join(", ")
+                        ),
+                    }));
+                };
+                sets.get(test)
+            }
         };
-        self.trace_with_report(rays, kind, mode, test, hierarchy, hits, stats)
+        self.trace_with_report(rays, kind, mode, tris, hierarchy, hits, stats)
             .transpose()
             .map(|r| r.map(|_| ()))
     }
@@ -3446,20 +3476,20 @@ pub(crate) mod tests {
         }
     }
 
-    /// `trav`'s inline final tests (test `test`, `mode`) of `rays` over `h`, merged into
+    /// `trav`'s inline final tests (`mode`, triangles `tris`) of `rays` over `h`, merged into
     /// `start`: the hits, the stats and the report.
     fn trace_inline(
         trav: &Dual,
         rays: &[Ray],
         h: &RayHierarchy<Cpu>,
         mode: HitMode,
-        test: TestKind,
+        tris: &AnyTriangleSet,
         start: &[Hit],
     ) -> (Vec<Hit>, Stats, DualReport) {
         let mut hits = start.to_vec();
         let mut stats = Stats::default();
         let report = trav
-            .trace_with_report(rays, RayKind::Shadow, mode, test, h, &mut hits, &mut stats)
+            .trace_with_report(rays, RayKind::Shadow, mode, tris, h, &mut hits, &mut stats)
             .unwrap()
             .expect("inline final tests");
         (hits, stats, report)
@@ -3497,7 +3527,9 @@ pub(crate) mod tests {
                                      {objects} {mode:?}"
                                 );
                                 let miss = vec![Hit::MISS; rays.len()];
-                                let run = || trace_inline(&trav, &rays, &h, *mode, test, &miss);
+                                let run = || {
+                                    trace_inline(&trav, &rays, &h, *mode, brute.triangles(), &miss)
+                                };
                                 let (hits, stats, report) = crate::with_threads(1, run).unwrap();
                                 assert_same(&hits, want, *mode, &what);
                                 let three = crate::with_threads(3, run).unwrap();
@@ -3545,8 +3577,7 @@ pub(crate) mod tests {
             for mode in [HitMode::Closest, HitMode::Any] {
                 let want = reference(&brute, &rays, mode);
                 let miss = vec![Hit::MISS; rays.len()];
-                let (hits, ..) =
-                    trace_inline(&trav, &rays, &h, mode, TestKind::MollerTrumbore, &miss);
+                let (hits, ..) = trace_inline(&trav, &rays, &h, mode, brute.triangles(), &miss);
                 assert_same(
                     &hits,
                     &want,
@@ -3596,8 +3627,7 @@ pub(crate) mod tests {
                     &mut Stats::default(),
                 )
                 .unwrap();
-            let (got, stats, _) =
-                trace_inline(&trav, &rays, &h, mode, TestKind::MollerTrumbore, &start);
+            let (got, stats, _) = trace_inline(&trav, &rays, &h, mode, brute.triangles(), &start);
             assert_same(&got, &want, mode, &format!("{mode:?}"));
             if mode == HitMode::Any {
                 // Rays that start hit keep their hit and cost no final test.
@@ -3605,8 +3635,7 @@ pub(crate) mod tests {
                     assert_eq!(got[i], start[i], "ray {i}");
                 }
                 let fresh = vec![Hit::MISS; rays.len()];
-                let (_, all, _) =
-                    trace_inline(&trav, &rays, &h, mode, TestKind::MollerTrumbore, &fresh);
+                let (_, all, _) = trace_inline(&trav, &rays, &h, mode, brute.triangles(), &fresh);
                 let sum = |s: &Stats| s.tests.bounds + s.tests.ray_triangle;
                 assert!(sum(&stats) < sum(&all));
             }
@@ -3651,14 +3680,8 @@ pub(crate) mod tests {
         assert!(want.iter().all(Hit::is_hit), "the wall occludes every ray");
         let miss = vec![Hit::MISS; rays.len()];
         let trav = inline_dual(&scene, "lbvh");
-        let (got, inline, _) = trace_inline(
-            &trav,
-            &rays,
-            &h,
-            HitMode::Any,
-            TestKind::MollerTrumbore,
-            &miss,
-        );
+        let (got, inline, _) =
+            trace_inline(&trav, &rays, &h, HitMode::Any, brute.triangles(), &miss);
         assert_same(&got, &want, HitMode::Any, "inline");
         let batched = Dual::with_options(&scene, "lbvh", 64.0).unwrap();
         let (hits, _, stats, _) = trace(&batched, &brute, &rays, &h, HitMode::Any);
@@ -3676,6 +3699,7 @@ pub(crate) mod tests {
     fn inline_final_tests_decline_what_they_do_not_run() {
         let scene = Arc::new(soup(5, 60));
         let rays = test_rays(&scene, 8, 130);
+        let brute = BruteForce::from_scene(&scene);
         let miss = vec![Hit::MISS; rays.len()];
         let h = build(&rays, (0..rays.len() as u32).collect(), 8, 2);
         let run = |trav: &Dual, h: &RayHierarchy<Cpu>, mode: HitMode| {
@@ -3684,7 +3708,7 @@ pub(crate) mod tests {
                 &rays,
                 RayKind::Shadow,
                 mode,
-                TestKind::MollerTrumbore,
+                brute.triangles(),
                 h,
                 &mut hits,
                 &mut Stats::default(),
@@ -3714,7 +3738,7 @@ pub(crate) mod tests {
                 &bad,
                 RayKind::Shadow,
                 HitMode::Any,
-                TestKind::MollerTrumbore,
+                brute.triangles(),
                 &h,
                 &mut hits,
                 &mut Stats::default(),
@@ -3731,7 +3755,7 @@ pub(crate) mod tests {
                 &rays,
                 RayKind::Shadow,
                 HitMode::Any,
-                TestKind::MollerTrumbore,
+                brute.triangles(),
                 &dup,
                 &mut hits,
                 &mut Stats::default(),
@@ -3743,7 +3767,7 @@ pub(crate) mod tests {
                 &rays,
                 RayKind::Shadow,
                 HitMode::Any,
-                TestKind::MollerTrumbore,
+                brute.triangles(),
                 &h,
                 &mut short,
                 &mut Stats::default(),
@@ -3793,5 +3817,90 @@ pub(crate) mod tests {
                 assert_eq!(three.stats.levels, got.stats.levels, "{what}");
             }
         }
+    }
+
+    /// An intersector that names its test but does not share its triangles (`as_any` is
+    /// `None`): `brute` behind an opaque wrapper.
+    struct Opaque(BruteForce);
+
+    impl Intersector<Cpu> for Opaque {
+        fn name(&self) -> &str {
+            "opaque"
+        }
+
+        fn candidate_test(&self) -> Option<&str> {
+            self.0.candidate_test()
+        }
+
+        fn intersect(
+            &self,
+            backend: &Cpu,
+            rays: &Vec<Ray>,
+            query: Query<'_, Cpu>,
+            mode: HitMode,
+            hits: &mut Vec<Hit>,
+            stats: &mut Stats,
+        ) -> Result<()> {
+            self.0.intersect(backend, rays, query, mode, hits, stats)
+        }
+    }
+
+    #[test]
+    fn inline_final_tests_use_the_intersectors_test_and_brutes_triangles() {
+        let scene = Arc::new(clustered(12, 5, 25));
+        let rays = test_rays(&scene, 5, 200);
+        let h = build(&rays, shuffled(rays.len(), 3), 8, 2);
+        let trav = inline_dual(&scene, "lbvh");
+        let sets = trav.inline.as_ref().unwrap();
+        for test in [TestKind::Watertight, TestKind::Projected] {
+            let brute = BruteForce::with_test(&scene, test);
+            let want = reference(&brute, &rays, HitMode::Closest);
+            let trace_with = |isect: &dyn Intersector<Cpu>| {
+                let mut hits = vec![Hit::MISS; rays.len()];
+                let mut stats = Stats::default();
+                trav.trace(
+                    &Cpu,
+                    &rays,
+                    RayKind::Reflection,
+                    HitMode::Closest,
+                    isect,
+                    &h,
+                    &mut hits,
+                    &mut stats,
+                )
+                .expect("inline")
+                .unwrap();
+                hits
+            };
+            // `brute` shares its prepared triangles: the stage prepares none of its own.
+            let before = sets.prepared();
+            assert_same(&trace_with(&brute), &want, HitMode::Closest, "brute");
+            assert_eq!(sets.prepared(), before, "{test:?}");
+            // An opaque intersector: the stage prepares the test it names, once.
+            let opaque = Opaque(BruteForce::with_test(&scene, test));
+            assert_same(&trace_with(&opaque), &want, HitMode::Closest, "opaque");
+            assert_same(
+                &trace_with(&opaque),
+                &want,
+                HitMode::Closest,
+                "opaque again",
+            );
+            assert_eq!(sets.prepared(), before + 1, "{test:?}");
+        }
+        // Triangles of a smaller scene are an error, not an out-of-range read.
+        let small = BruteForce::from_scene(&soup(2, 10));
+        let mut hits = vec![Hit::MISS; rays.len()];
+        let err = trav
+            .trace_with_report(
+                &rays,
+                RayKind::Shadow,
+                HitMode::Any,
+                small.triangles(),
+                &h,
+                &mut hits,
+                &mut Stats::default(),
+            )
+            .unwrap_err();
+        assert!(err.to_string().contains("prepared"), "{err}");
     }
 }
