@@ -3048,17 +3048,43 @@ pub(crate) mod tests {
         .unwrap()
     }
 
+    /// The built-in scenes the frame tests render, each with its brute-force frame (40×30,
+    /// depth 2).
+    fn brute_frames() -> Vec<(&'static str, Arc<Scene>, Frame<Cpu>)> {
+        let registry = Registry::<Cpu>::builtin();
+        ["office-boxes", "cornell-mirrors"]
+            .into_iter()
+            .map(|name| {
+                let scene = Arc::new(crsh_scene::builtin::build(name).unwrap());
+                let ctx = StageContext::new(&Cpu, &scene, FrameSize::new(40, 30).unwrap());
+                let plain = registry
+                    .build(&ctx, &PipelineConfig::whitted("brute", "brute"))
+                    .unwrap();
+                let opts = FrameOptions::default().with_max_depth(2);
+                let want = render_frame(&Cpu, &plain, &opts, None, &mut |_| {}).unwrap();
+                (name, scene, want)
+            })
+            .collect()
+    }
+
+    /// [`frame`] with `sets` on one thread, checked: every ray agrees with the reference, and
+    /// three threads give the same image and counts.
+    fn checked_frame(scene: &Arc<Scene>, sets: &[String], what: &str) -> Frame<Cpu> {
+        let got = frame(scene, sets, 1);
+        let acc = got.stats.accuracy.clone().unwrap();
+        assert!(acc.rays > 0);
+        assert_eq!(acc.agreeing, acc.rays, "{what}: {acc:?}");
+        let three = frame(scene, sets, 3);
+        assert_eq!(three.image, got.image, "{what}");
+        assert_eq!(three.stats.tests, got.stats.tests, "{what}");
+        assert_eq!(three.stats.levels, got.stats.levels, "{what}");
+        assert_eq!(three.stats.object_levels, got.stats.object_levels, "{what}");
+        got
+    }
+
     #[test]
     fn frames_with_dual_traversal_equal_brute_force_frames() {
-        let registry = Registry::<Cpu>::builtin();
-        for name in ["office-boxes", "cornell-mirrors"] {
-            let scene = Arc::new(crsh_scene::builtin::build(name).unwrap());
-            let ctx = StageContext::new(&Cpu, &scene, FrameSize::new(40, 30).unwrap());
-            let plain = registry
-                .build(&ctx, &PipelineConfig::whitted("brute", "brute"))
-                .unwrap();
-            let opts = FrameOptions::default().with_max_depth(2);
-            let want = render_frame(&Cpu, &plain, &opts, None, &mut |_| {}).unwrap();
+        for (name, scene, want) in brute_frames() {
             for (sub, depth) in [(8, 2), (4, 3), (16, 1)] {
                 for objects in OBJECTS {
                     let sets = vec![
@@ -3068,20 +3094,12 @@ pub(crate) mod tests {
                         format!("hierarchy.depth={depth}"),
                     ];
                     let what = format!("{name} {sets:?}");
-                    let got = frame(&scene, &sets, 1);
+                    let got = checked_frame(&scene, &sets, &what);
                     assert_eq!(got.stats.stages["traverse"], "dual", "{what}");
                     assert_eq!(got.image, want.image, "{what}");
-                    let acc = got.stats.accuracy.clone().unwrap();
-                    assert!(acc.rays > 0);
-                    assert_eq!(acc.agreeing, acc.rays, "{what}: {acc:?}");
                     let s = &got.stats;
                     assert!(s.tests.ray_triangle < s.tests.brute_force, "{what}");
                     assert_eq!(s.object_levels.is_empty(), objects == "meshes", "{what}");
-                    let three = frame(&scene, &sets, 3);
-                    assert_eq!(three.image, got.image, "{what}");
-                    assert_eq!(three.stats.tests, got.stats.tests, "{what}");
-                    assert_eq!(three.stats.levels, got.stats.levels, "{what}");
-                    assert_eq!(three.stats.object_levels, got.stats.object_levels, "{what}");
                 }
             }
         }
@@ -3777,15 +3795,7 @@ pub(crate) mod tests {
 
     #[test]
     fn frames_with_inline_final_tests_equal_brute_force_frames() {
-        let registry = Registry::<Cpu>::builtin();
-        for name in ["office-boxes", "cornell-mirrors"] {
-            let scene = Arc::new(crsh_scene::builtin::build(name).unwrap());
-            let ctx = StageContext::new(&Cpu, &scene, FrameSize::new(40, 30).unwrap());
-            let plain = registry
-                .build(&ctx, &PipelineConfig::whitted("brute", "brute"))
-                .unwrap();
-            let opts = FrameOptions::default().with_max_depth(2);
-            let want = render_frame(&Cpu, &plain, &opts, None, &mut |_| {}).unwrap();
+        for (name, scene, want) in brute_frames() {
             for (sub, depth, objects, test) in [
                 (8, 2, "lbvh", "mt"),
                 (16, 3, "lbvh", "watertight"),
@@ -3800,21 +3810,14 @@ pub(crate) mod tests {
                     format!("intersect.test={test}"),
                 ];
                 let what = format!("{name} {sets:?}");
-                let got = frame(&scene, &sets, 1);
+                let got = checked_frame(&scene, &sets, &what);
                 if test == "mt" {
                     assert_eq!(got.image, want.image, "{what}");
                 }
-                let acc = got.stats.accuracy.clone().unwrap();
-                assert!(acc.rays > 0);
-                assert_eq!(acc.agreeing, acc.rays, "{what}: {acc:?}");
                 // One stage: the final tests are part of the traversal.
                 assert!(got.stats.timings_ms.contains_key("traversal"), "{what}");
                 assert!(!got.stats.timings_ms.contains_key("final_tests"), "{what}");
                 assert!(got.stats.tests.ray_triangle > 0, "{what}");
-                let three = frame(&scene, &sets, 3);
-                assert_eq!(three.image, got.image, "{what}");
-                assert_eq!(three.stats.tests, got.stats.tests, "{what}");
-                assert_eq!(three.stats.levels, got.stats.levels, "{what}");
             }
         }
     }
