@@ -64,3 +64,21 @@ pub mod trim;
 
 pub use backend::Cpu;
 pub use registry::with_threads;
+
+/// Asks the processor to start loading the cache line of `x` (a hint: it changes no result;
+/// nothing on targets without a prefetch instruction, or for `None`). For gathers through a
+/// permutation, where each load would otherwise wait for memory in turn.
+#[inline(always)]
+pub(crate) fn prefetch<T>(x: Option<&T>) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(x) = x {
+        // SAFETY: a prefetch reads nothing the program observes and never faults, and `x` is
+        // a valid reference.
+        unsafe {
+            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+            _mm_prefetch::<_MM_HINT_T0>((x as *const T).cast::<i8>());
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = x;
+}

@@ -533,11 +533,19 @@ impl Segment {
     }
 }
 
-/// The rays' segments in leaf order (`order`'s).
+/// The rays' segments in leaf order (`order`'s): a gather through a permutation, so each ray a
+/// few places ahead is prefetched while this one is read.
 fn leaf_segments(rays: &[Ray], order: &[u32]) -> Vec<Segment> {
+    const AHEAD: usize = 16;
     order
         .par_iter()
-        .map(|&i| Segment::of(&rays[i as usize]))
+        .enumerate()
+        .map(|(i, &r)| {
+            if let Some(&next) = order.get(i + AHEAD) {
+                crate::prefetch(rays.get(next as usize));
+            }
+            Segment::of(&rays[r as usize])
+        })
         .collect()
 }
 
@@ -1654,7 +1662,7 @@ fn next_above(t: f32) -> f32 {
 
 impl<'a, T: TriangleTest> Inline<'a, T> {
     /// The state of top node `top` (of level `top_level`), its rays' hits gathered from
-    /// `hits` (any-hit rays already hit are not traced).
+    /// `hits` (any-hit rays already hit are not traced; `None`: every hit is a miss).
     #[allow(clippy::too_many_arguments)]
     fn new(
         ctx: &Ctx<'a>,
@@ -1664,7 +1672,7 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
         mode: HitMode,
         top: usize,
         widest: usize,
-        hits: &[Hit],
+        hits: Option<&[Hit]>,
     ) -> Inline<'a, T> {
         let h = ctx.hierarchy;
         let sub = ctx.sub;
@@ -1682,10 +1690,14 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
             first_leaf
         };
         let closest = mode == HitMode::Closest;
-        let mine: Vec<Hit> = order[first_leaf..last_leaf]
-            .iter()
-            .map(|&r| hits[r as usize])
-            .collect();
+        // A fresh batch (every hit a miss, as the pipeline starts) needs no gather.
+        let mine: Vec<Hit> = match hits {
+            Some(hits) => order[first_leaf..last_leaf]
+                .iter()
+                .map(|&r| hits[r as usize])
+                .collect(),
+            None => vec![Hit::MISS; last_leaf - first_leaf],
+        };
         let live: Vec<u32> = (first_low..last_low)
             .map(|n| {
                 let leaves = leaves_of(n);
@@ -2344,8 +2356,16 @@ fn trace_tasks<'a, T: TriangleTest>(
     let n_top = ctx.nodes[top_level].len();
     let mut counts = Counters::new(ctx.nodes.len(), ctx.tree.max_depth + 1);
     let (mut tests, mut found) = (0u64, 0u64);
+    let miss = |h: &Hit| {
+        let m = Hit::MISS;
+        (h.t.to_bits(), h.tri, h.u.to_bits(), h.v.to_bits())
+            == (m.t.to_bits(), m.tri, m.u.to_bits(), m.v.to_bits())
+    };
+    let fresh = hits.par_iter().all(miss);
     for first in (0..n_top).step_by(ROUND_TASKS) {
-        let current: &[Hit] = hits;
+        // After a round some rays have hits, but the next round's rays are others: a fresh
+        // batch stays one for them.
+        let current: Option<&[Hit]> = (!fresh).then_some(&*hits);
         let round: Vec<(usize, Vec<Hit>, u64, u64, Counters)> = (first
             ..(first + ROUND_TASKS).min(n_top))
             .into_par_iter()
