@@ -3733,25 +3733,37 @@ pub(crate) mod tests {
         );
     }
 
+    /// `trav`'s inline final tests of `rays` (as shadow rays, `mode`) over `h` with `tris`, from
+    /// `n` misses: what [`Dual::trace_with_report`] answers.
+    fn inline_result(
+        trav: &Dual,
+        rays: &[Ray],
+        h: &RayHierarchy<Cpu>,
+        mode: HitMode,
+        tris: &AnyTriangleSet,
+        n: usize,
+    ) -> Result<Option<DualReport>> {
+        let mut hits = vec![Hit::MISS; n];
+        trav.trace_with_report(
+            rays,
+            RayKind::Shadow,
+            mode,
+            tris,
+            h,
+            &mut hits,
+            &mut Stats::default(),
+        )
+    }
+
     #[test]
     fn inline_final_tests_decline_what_they_do_not_run() {
         let scene = Arc::new(soup(5, 60));
         let rays = test_rays(&scene, 8, 130);
-        let brute = BruteForce::from_scene(&scene);
-        let miss = vec![Hit::MISS; rays.len()];
-        let h = build(&rays, (0..rays.len() as u32).collect(), 8, 2);
+        let n = rays.len();
+        let tris = BruteForce::from_scene(&scene).triangles().clone();
+        let h = build(&rays, (0..n as u32).collect(), 8, 2);
         let run = |trav: &Dual, h: &RayHierarchy<Cpu>, mode: HitMode| {
-            let mut hits = miss.clone();
-            trav.trace_with_report(
-                &rays,
-                RayKind::Shadow,
-                mode,
-                brute.triangles(),
-                h,
-                &mut hits,
-                &mut Stats::default(),
-            )
-            .map(|r| r.is_some())
+            inline_result(trav, &rays, h, mode, &tris, n).map(|r| r.is_some())
         };
         // Batched (the default), `meshes`, edge-width queries, lowest nodes of 64 rays.
         let batched = Dual::with_options(&scene, "lbvh", 64.0).unwrap();
@@ -3764,53 +3776,21 @@ pub(crate) mod tests {
         let trav = inline_dual(&scene, "lbvh");
         let edge = HitMode::EdgeWidth(crsh_core::edge_width::EdgePairing::Any);
         assert!(!run(&trav, &h, edge).unwrap());
-        let wide = build(&rays, (0..rays.len() as u32).collect(), 64, 1);
+        let wide = build(&rays, (0..n as u32).collect(), 64, 1);
         assert!(!run(&trav, &wide, HitMode::Any).unwrap());
         assert!(run(&trav, &h, HitMode::Closest).unwrap());
         // Bad input is an error, as the intersector's.
         let mut bad = rays.clone();
         bad[17].dir = Vec3::ZERO;
-        let mut hits = miss.clone();
-        let err = trav
-            .trace_with_report(
-                &bad,
-                RayKind::Shadow,
-                HitMode::Any,
-                brute.triangles(),
-                &h,
-                &mut hits,
-                &mut Stats::default(),
-            )
-            .unwrap_err();
+        let err = inline_result(&trav, &bad, &h, HitMode::Any, &tris, n).unwrap_err();
         assert!(err.to_string().contains("ray 17"), "{err}");
         // An order that is not a permutation of the rays is an error, not a panic.
-        let mut dup: Vec<u32> = (0..rays.len() as u32).collect();
+        let mut dup: Vec<u32> = (0..n as u32).collect();
         dup[5] = dup[6];
         let dup = build(&rays, dup, 8, 2);
-        let mut hits = miss.clone();
-        assert!(trav
-            .trace_with_report(
-                &rays,
-                RayKind::Shadow,
-                HitMode::Any,
-                brute.triangles(),
-                &dup,
-                &mut hits,
-                &mut Stats::default(),
-            )
-            .is_err());
-        let mut short = vec![Hit::MISS; 3];
-        assert!(trav
-            .trace_with_report(
-                &rays,
-                RayKind::Shadow,
-                HitMode::Any,
-                brute.triangles(),
-                &h,
-                &mut short,
-                &mut Stats::default(),
-            )
-            .is_err());
+        assert!(run(&trav, &dup, HitMode::Any).is_err());
+        // As are hits of another length.
+        assert!(inline_result(&trav, &rays, &h, HitMode::Any, &tris, 3).is_err());
     }
 
     #[test]
@@ -3912,18 +3892,15 @@ pub(crate) mod tests {
         }
         // Triangles of a smaller scene are an error, not an out-of-range read.
         let small = BruteForce::from_scene(&soup(2, 10));
-        let mut hits = vec![Hit::MISS; rays.len()];
-        let err = trav
-            .trace_with_report(
-                &rays,
-                RayKind::Shadow,
-                HitMode::Any,
-                small.triangles(),
-                &h,
-                &mut hits,
-                &mut Stats::default(),
-            )
-            .unwrap_err();
+        let err = inline_result(
+            &trav,
+            &rays,
+            &h,
+            HitMode::Any,
+            small.triangles(),
+            rays.len(),
+        )
+        .unwrap_err();
         assert!(err.to_string().contains("prepared"), "{err}");
     }
 }
