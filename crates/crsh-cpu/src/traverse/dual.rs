@@ -152,8 +152,9 @@
 //! still meets every node and triangle its node reaches, and a reflection ray meets every
 //! triangle box along its whole line. With `final_tests = inline` the pipeline asks the
 //! traverser to run the final tests itself ([`Traverser::trace`], with the intersector's
-//! ray-triangle test, [`crsh_core::Intersector::candidate_test`]), and each task tests a pair
-//! the moment it finds it:
+//! ray-triangle test, [`crsh_core::Intersector::candidate_test`], on `brute`'s own prepared
+//! triangles, which [`crsh_core::Intersector::as_any`] reaches; another intersector's test gets
+//! a set prepared once by this stage), and each task tests a pair the moment it finds it:
 //!
 //! - the node's rays named by the pair (all of them, or the lane mask of single rays) that are
 //!   still traced sit in packets of [`LANES`] (built when the node first reaches a triangle)
