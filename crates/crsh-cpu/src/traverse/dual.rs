@@ -1621,7 +1621,7 @@ impl Leaves for Batched {
 /// traversal at its first hit, a closest-hit ray's segment ends at its nearest hit so far.
 struct Inline<'a, T: TriangleTest> {
     tris: &'a [T::Tri],
-    rays: &'a [Ray],
+    n_rays: usize,
     subdivision: u32,
     offsets: Option<&'a [u32]>,
     closest: bool,
@@ -1664,18 +1664,16 @@ fn next_above(t: f32) -> f32 {
 impl<'a, T: TriangleTest> Inline<'a, T> {
     /// The state of top node `top` (of level `top_level`), its rays' hits gathered from
     /// `hits` (any-hit rays already hit are not traced; `None`: every hit is a miss).
-    #[allow(clippy::too_many_arguments)]
     fn new(
         ctx: &Ctx<'a>,
         tris: &'a [T::Tri],
-        rays: &'a [Ray],
-        order: &'a [u32],
         mode: HitMode,
         top: usize,
         widest: usize,
         hits: Option<&[Hit]>,
     ) -> Inline<'a, T> {
         let h = ctx.hierarchy;
+        let order = h.order.as_slice();
         let sub = ctx.sub;
         let top_level = ctx.nodes.len() - 1;
         let n_low = ctx.nodes[0].len();
@@ -1739,7 +1737,7 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
         let n = last_low - first_low;
         Inline {
             tris,
-            rays,
+            n_rays: ctx.n_rays,
             subdivision: h.subdivision,
             offsets: h.leaf_offsets.as_deref(),
             closest,
@@ -1758,15 +1756,20 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
         }
     }
 
-    /// The ray of leaf `leaf` (absolute) with its interval ending at its best hit so far.
-    /// Read from the segments gathered in leaf order (what the triangle tests read of a ray),
-    /// not through `order` again.
-    fn ray(&self, leaf: usize) -> Ray {
-        let s = if self.closest {
+    /// The segment of leaf `leaf` (absolute), its interval ending at its best hit so far.
+    #[inline]
+    fn seg(&self, leaf: usize) -> &Segment {
+        if self.closest {
             &self.segments[leaf - self.first_leaf]
         } else {
             &self.all_segments[leaf]
-        };
+        }
+    }
+
+    /// The ray of leaf `leaf` as the triangle tests read it: from its segment ([`Inline::seg`],
+    /// gathered in leaf order), not through `order` again.
+    fn ray(&self, leaf: usize) -> Ray {
+        let s = self.seg(leaf);
         Ray::new(RayKind::Shadow, s.origin, s.dir, s.t_min, s.t_max)
     }
 }
@@ -1797,12 +1800,8 @@ impl<T: TriangleTest> Leaves for Inline<'_, T> {
     }
 
     #[inline]
-    fn segment<'s>(&'s self, ctx: &'s Ctx<'_>, leaf: usize) -> &'s Segment {
-        if self.closest {
-            &self.segments[leaf - self.first_leaf]
-        } else {
-            &ctx.segments[leaf]
-        }
+    fn segment<'s>(&'s self, _ctx: &'s Ctx<'_>, leaf: usize) -> &'s Segment {
+        self.seg(leaf)
     }
 
     fn reach(&mut self, node: u32, tri: u32, lanes: u32) {
@@ -1811,12 +1810,7 @@ impl<T: TriangleTest> Leaves for Inline<'_, T> {
         if want == 0 {
             return;
         }
-        let leaves = lowest_node_leaves(
-            node as usize,
-            self.subdivision,
-            self.offsets,
-            self.rays.len(),
-        );
+        let leaves = lowest_node_leaves(node as usize, self.subdivision, self.offsets, self.n_rays);
         if self.slot[k] == u32::MAX {
             let at = self.packets.len();
             self.slot[k] = at as u32;
@@ -2289,30 +2283,16 @@ impl Dual {
             crsh_core::ray::check_hits_per_ray("rays", rays.len(), hits.len())?;
             return Ok(Some(report));
         }
-        let Some((root, nodes, segments)) = ray_side(rays, hierarchy, tree, true)? else {
-            check_batch(rays, hits)?;
-            return Ok(Some(report));
-        };
+        // Declined before any gather, so that the batched traversal does not repeat it.
         let offsets = hierarchy.leaf_offsets.as_deref();
-        let widest = (0..nodes[0].len())
+        let lowest = hierarchy.levels.first().map_or(0, Vec::len);
+        let widest = (0..lowest)
             .map(|n| lowest_node_leaves(n, hierarchy.subdivision, offsets, rays.len()).len())
             .max()
             .unwrap_or(0);
         if widest > 32 {
             return Ok(None);
         }
-        check_batch(rays, hits)?;
-        check_permutation(&hierarchy.order, rays.len())?;
-        let ctx = Ctx {
-            n_rays: rays.len(),
-            segments: &segments,
-            hierarchy,
-            single_rays: *single_rays,
-            box_test: *box_test,
-            nodes: &nodes,
-            sub: hierarchy.subdivision as usize,
-            tree,
-        };
         // Triangles prepared for another scene would be read out of range.
         if let Some(&id) = tree
             .leaf_tris
@@ -2325,12 +2305,26 @@ impl Dual {
                 tris.len()
             )));
         }
+        let Some((root, nodes, segments)) = ray_side(rays, hierarchy, tree, true)? else {
+            check_batch(rays, hits)?;
+            return Ok(Some(report));
+        };
+        check_batch(rays, hits)?;
+        check_permutation(&hierarchy.order, rays.len())?;
+        let ctx = Ctx {
+            n_rays: rays.len(),
+            segments: &segments,
+            hierarchy,
+            single_rays: *single_rays,
+            box_test: *box_test,
+            nodes: &nodes,
+            sub: hierarchy.subdivision as usize,
+            tree,
+        };
         let (tests, found, counts) = match tris {
-            AnyTriangleSet::MollerTrumbore(s) => {
-                trace_tasks(&ctx, s, rays, mode, root, widest, hits)
-            }
-            AnyTriangleSet::Watertight(s) => trace_tasks(&ctx, s, rays, mode, root, widest, hits),
-            AnyTriangleSet::Projected(s) => trace_tasks(&ctx, s, rays, mode, root, widest, hits),
+            AnyTriangleSet::MollerTrumbore(s) => trace_tasks(&ctx, s, mode, root, widest, hits),
+            AnyTriangleSet::Watertight(s) => trace_tasks(&ctx, s, mode, root, widest, hits),
+            AnyTriangleSet::Projected(s) => trace_tasks(&ctx, s, mode, root, widest, hits),
         };
         counts.record(kind, stats);
         stats.add_level(kind, 0, tests, found);
@@ -2346,7 +2340,6 @@ impl Dual {
 fn trace_tasks<'a, T: TriangleTest>(
     ctx: &Ctx<'a>,
     set: &'a TriangleSet<T>,
-    rays: &'a [Ray],
     mode: HitMode,
     root: u32,
     widest: usize,
@@ -2357,12 +2350,8 @@ fn trace_tasks<'a, T: TriangleTest>(
     let n_top = ctx.nodes[top_level].len();
     let mut counts = Counters::new(ctx.nodes.len(), ctx.tree.max_depth + 1);
     let (mut tests, mut found) = (0u64, 0u64);
-    let miss = |h: &Hit| {
-        let m = Hit::MISS;
-        (h.t.to_bits(), h.tri, h.u.to_bits(), h.v.to_bits())
-            == (m.t.to_bits(), m.tri, m.u.to_bits(), m.v.to_bits())
-    };
-    let fresh = hits.par_iter().all(miss);
+    let miss = bytemuck::bytes_of(&Hit::MISS);
+    let fresh = hits.par_iter().all(|h| bytemuck::bytes_of(h) == miss);
     for first in (0..n_top).step_by(ROUND_TASKS) {
         // After a round some rays have hits, but the next round's rays are others: a fresh
         // batch stays one for them.
@@ -2371,16 +2360,7 @@ fn trace_tasks<'a, T: TriangleTest>(
             ..(first + ROUND_TASKS).min(n_top))
             .into_par_iter()
             .map(|top| {
-                let mut state = Inline::<T>::new(
-                    ctx,
-                    set.triangles(),
-                    rays,
-                    order,
-                    mode,
-                    top,
-                    widest,
-                    current,
-                );
+                let mut state = Inline::<T>::new(ctx, set.triangles(), mode, top, widest, current);
                 let mut task = Task {
                     stack: vec![Pair {
                         node: top as u32,
