@@ -42,6 +42,39 @@ fn cpu_rays(s: &Arc<Scene>, kind: RayKind) -> (Vec<Ray>, Vec<u32>) {
     (rays, order)
 }
 
+/// One ray set of these tests: a built-in scene, its upload, a ray kind, and the CPU's rays of
+/// that kind in the CPU's order ([`cpu_rays`]).
+struct RaySet {
+    name: &'static str,
+    scene: Arc<Scene>,
+    gpu: Arc<GpuScene>,
+    kind: RayKind,
+    rays: Vec<Ray>,
+    order: Vec<u32>,
+}
+
+/// The shadow and reflection rays of `cornell-mirrors` and `office-boxes`, each scene uploaded
+/// once.
+fn ray_sets(b: &Wgpu) -> Vec<RaySet> {
+    let mut out = Vec::new();
+    for name in ["cornell-mirrors", "office-boxes"] {
+        let scene = scene(name);
+        let gpu = GpuScene::new(b, &scene).unwrap();
+        for kind in [RayKind::Shadow, RayKind::Reflection] {
+            let (rays, order) = cpu_rays(&scene, kind);
+            out.push(RaySet {
+                name,
+                scene: Arc::clone(&scene),
+                gpu: Arc::clone(&gpu),
+                kind,
+                rays,
+                order,
+            });
+        }
+    }
+    out
+}
+
 fn spec(sub: i64, depth: i64) -> StageSpec {
     let mut s = crsh_cpu::hierarchy::sphere_cone::info().defaults();
     s.params
@@ -88,71 +121,74 @@ fn hierarchy_nodes_match_the_cpu_and_contain_their_rays() {
     else {
         return;
     };
-    for name in ["cornell-mirrors", "office-boxes"] {
-        let s = scene(name);
-        let g = GpuScene::new(&b, &s).unwrap();
+    for RaySet {
+        name,
+        scene: s,
+        gpu: g,
+        kind,
+        rays,
+        order,
+    } in ray_sets(&b)
+    {
         let diag = s.bounds.diagonal();
-        for kind in [RayKind::Shadow, RayKind::Reflection] {
-            let (rays, order) = cpu_rays(&s, kind);
-            assert!(rays.len() > 20, "{name} {kind:?}: {} rays", rays.len());
-            for (sub, depth) in [(8, 2), (4, 3), (64, 2), (2, 8)] {
-                let cpu = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(
-                    sub as u32,
-                    depth as u32,
-                )
+        assert!(rays.len() > 20, "{name} {kind:?}: {} rays", rays.len());
+        for (sub, depth) in [(8, 2), (4, 3), (64, 2), (2, 8)] {
+            let cpu = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(
+                sub as u32,
+                depth as u32,
+            )
+            .unwrap();
+            let want = cpu
+                .build(&Cpu, &rays, order.clone(), &mut Stats::default())
                 .unwrap();
-                let want = cpu
-                    .build(&Cpu, &rays, order.clone(), &mut Stats::default())
-                    .unwrap();
-                let got = gpu_hierarchy(&b, &g, &rays, &order, sub, depth);
-                assert_eq!(got.levels.len(), want.levels.len());
-                let what = format!("{name} {kind:?} sub {sub} depth {depth}");
-                for (li, (gl, wl)) in got.levels.iter().zip(&want.levels).enumerate() {
-                    let gl = b.download(gl).unwrap();
-                    assert_eq!(gl.len(), wl.len(), "{what}: level {li}");
-                    for (i, (gn, wn)) in gl.iter().zip(wl).enumerate() {
-                        let tol = 2e-4 * diag.max(1.0);
+            let got = gpu_hierarchy(&b, &g, &rays, &order, sub, depth);
+            assert_eq!(got.levels.len(), want.levels.len());
+            let what = format!("{name} {kind:?} sub {sub} depth {depth}");
+            for (li, (gl, wl)) in got.levels.iter().zip(&want.levels).enumerate() {
+                let gl = b.download(gl).unwrap();
+                assert_eq!(gl.len(), wl.len(), "{what}: level {li}");
+                for (i, (gn, wn)) in gl.iter().zip(wl).enumerate() {
+                    let tol = 2e-4 * diag.max(1.0);
+                    assert!(
+                        (gn.sphere.center - wn.sphere.center).length() <= tol
+                            && (gn.sphere.radius - wn.sphere.radius).abs() <= tol
+                            && (gn.cone.half_angle - wn.cone.half_angle).abs() <= 1e-3,
+                        "{what}: level {li} node {i}: gpu {gn:?} cpu {wn:?}"
+                    );
+                    if wn.cone.half_angle < 3.0 {
                         assert!(
-                            (gn.sphere.center - wn.sphere.center).length() <= tol
-                                && (gn.sphere.radius - wn.sphere.radius).abs() <= tol
-                                && (gn.cone.half_angle - wn.cone.half_angle).abs() <= 1e-3,
-                            "{what}: level {li} node {i}: gpu {gn:?} cpu {wn:?}"
+                            gn.cone.axis.dot(wn.cone.axis) > 1.0 - 1e-5,
+                            "{what}: node {i} axis"
                         );
-                        if wn.cone.half_angle < 3.0 {
-                            assert!(
-                                gn.cone.axis.dot(wn.cone.axis) > 1.0 - 1e-5,
-                                "{what}: node {i} axis"
-                            );
-                        }
-                    }
-                    // Containment, in f64: every ray of every lowest node; every child of
-                    // every upper node (its sphere and cone).
-                    if li == 0 {
-                        for (leaf, &r) in order.iter().enumerate() {
-                            let node = &gl[leaf / sub as usize];
-                            let ray = &rays[r as usize];
-                            assert!(
-                                covers(node, ray.origin, ray.dir),
-                                "{what}: leaf {leaf} not covered by {node:?}"
-                            );
-                        }
                     }
                 }
-                let reach = b.download(&got.reach[0]).unwrap();
-                for (leaf, &r) in order.iter().enumerate() {
-                    let node = &b.download(&got.levels[0]).unwrap()[leaf / sub as usize];
-                    let ray = &rays[r as usize];
-                    let end = ray.origin.as_dvec3() + ray.dir.as_dvec3() * ray.t_max as f64;
-                    if ray.t_max.is_finite() {
+                // Containment, in f64: every ray of every lowest node; every child of
+                // every upper node (its sphere and cone).
+                if li == 0 {
+                    for (leaf, &r) in order.iter().enumerate() {
+                        let node = &gl[leaf / sub as usize];
+                        let ray = &rays[r as usize];
                         assert!(
-                            (end - node.sphere.center.as_dvec3()).length()
-                                <= reach[leaf / sub as usize] as f64,
-                            "{what}: reach"
+                            covers(node, ray.origin, ray.dir),
+                            "{what}: leaf {leaf} not covered by {node:?}"
                         );
                     }
-                    if leaf > 64 {
-                        break;
-                    }
+                }
+            }
+            let reach = b.download(&got.reach[0]).unwrap();
+            for (leaf, &r) in order.iter().enumerate() {
+                let node = &b.download(&got.levels[0]).unwrap()[leaf / sub as usize];
+                let ray = &rays[r as usize];
+                let end = ray.origin.as_dvec3() + ray.dir.as_dvec3() * ray.t_max as f64;
+                if ray.t_max.is_finite() {
+                    assert!(
+                        (end - node.sphere.center.as_dvec3()).length()
+                            <= reach[leaf / sub as usize] as f64,
+                        "{what}: reach"
+                    );
+                }
+                if leaf > 64 {
+                    break;
                 }
             }
         }
@@ -170,50 +206,53 @@ fn extreme_ray_leaf_cones_match_the_cpu_and_contain_their_rays() {
         return;
     };
     use crsh_cpu::hierarchy::sphere_cone::LeafCone;
-    for name in ["cornell-mirrors", "office-boxes"] {
-        let s = scene(name);
-        let g = GpuScene::new(&b, &s).unwrap();
-        for kind in [RayKind::Shadow, RayKind::Reflection] {
-            let (rays, order) = cpu_rays(&s, kind);
-            for (sub, depth) in [(16, 3), (8, 2), (4, 3)] {
-                let cpu = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(
-                    sub as u32,
-                    depth as u32,
-                )
-                .unwrap()
-                .with_leaf_cone(LeafCone::Extremes);
-                let want = cpu
-                    .build(&Cpu, &rays, order.clone(), &mut Stats::default())
-                    .unwrap();
-                let mut sp = spec(sub, depth);
-                sp.params.insert(
-                    "leaf_cone".into(),
-                    crsh_core::ParamValue::Str("extremes".into()),
-                );
-                let got = gpu_build(&b, &g, &rays, &order, &sp);
-                let what = format!("{name} {kind:?} sub {sub} depth {depth}");
-                assert_eq!(got.levels.len(), want.levels.len(), "{what}");
-                let gl = b.download(&got.levels[0]).unwrap();
-                let wl = &want.levels[0];
-                assert_eq!(gl.len(), wl.len(), "{what}");
-                let differ = gl
-                    .iter()
-                    .zip(wl)
-                    .filter(|(gn, wn)| (gn.cone.half_angle - wn.cone.half_angle).abs() > 1e-3)
-                    .count();
+    for RaySet {
+        name,
+        scene: _,
+        gpu: g,
+        kind,
+        rays,
+        order,
+    } in ray_sets(&b)
+    {
+        for (sub, depth) in [(16, 3), (8, 2), (4, 3)] {
+            let cpu = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(
+                sub as u32,
+                depth as u32,
+            )
+            .unwrap()
+            .with_leaf_cone(LeafCone::Extremes);
+            let want = cpu
+                .build(&Cpu, &rays, order.clone(), &mut Stats::default())
+                .unwrap();
+            let mut sp = spec(sub, depth);
+            sp.params.insert(
+                "leaf_cone".into(),
+                crsh_core::ParamValue::Str("extremes".into()),
+            );
+            let got = gpu_build(&b, &g, &rays, &order, &sp);
+            let what = format!("{name} {kind:?} sub {sub} depth {depth}");
+            assert_eq!(got.levels.len(), want.levels.len(), "{what}");
+            let gl = b.download(&got.levels[0]).unwrap();
+            let wl = &want.levels[0];
+            assert_eq!(gl.len(), wl.len(), "{what}");
+            let differ = gl
+                .iter()
+                .zip(wl)
+                .filter(|(gn, wn)| (gn.cone.half_angle - wn.cone.half_angle).abs() > 1e-3)
+                .count();
+            assert!(
+                differ * 100 <= gl.len(),
+                "{what}: {differ} of {} lowest cones differ",
+                gl.len()
+            );
+            for (leaf, &r) in order.iter().enumerate() {
+                let node = &gl[leaf / sub as usize];
+                let ray = &rays[r as usize];
                 assert!(
-                    differ * 100 <= gl.len(),
-                    "{what}: {differ} of {} lowest cones differ",
-                    gl.len()
+                    covers(node, ray.origin, ray.dir),
+                    "{what}: leaf {leaf} not covered by {node:?}"
                 );
-                for (leaf, &r) in order.iter().enumerate() {
-                    let node = &gl[leaf / sub as usize];
-                    let ray = &rays[r as usize];
-                    assert!(
-                        covers(node, ray.origin, ray.dir),
-                        "{what}: leaf {leaf} not covered by {node:?}"
-                    );
-                }
             }
         }
     }
@@ -313,108 +352,111 @@ fn traversal_keeps_every_cpu_candidate() {
     let Some(b) = crsh_wgpu::testing::shared_backend("traversal_keeps_every_cpu_candidate") else {
         return;
     };
-    for name in ["cornell-mirrors", "office-boxes"] {
-        let s = scene(name);
-        let g = GpuScene::new(&b, &s).unwrap();
-        for kind in [RayKind::Shadow, RayKind::Reflection] {
-            let (rays, order) = cpu_rays(&s, kind);
-            let cpu_h = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(8, 2)
-                .unwrap()
-                .build(&Cpu, &rays, order, &mut Stats::default())
-                .unwrap();
-            let gpu_h = upload_hierarchy(&b, &cpu_h);
-            let gpu_rays = b.upload(&rays).unwrap();
-            for (culling, budget) in [(true, 64.0), (false, 64.0), (true, 0.002)] {
-                let what = format!("{name} {kind:?} culling {culling} budget {budget}");
-                let cpu = crsh_cpu::traverse::crsh::Crsh::new(&s, &traverse_spec(culling, budget))
-                    .unwrap();
-                let mut want: Vec<Candidate> = Vec::new();
-                let mut cpu_stats = Stats::default();
-                cpu.traverse(
-                    &Cpu,
-                    &rays,
-                    kind,
-                    &cpu_h,
-                    &mut |batch, _| {
-                        want.extend(batch.pairs);
-                        Ok(())
-                    },
-                    &mut cpu_stats,
-                )
-                .unwrap();
-                let gpu = crsh_wgpu::traverse::crsh::Crsh::new(&g, &traverse_spec(culling, budget))
-                    .unwrap();
-                let mut got: Vec<Candidate> = Vec::new();
-                let mut batches = 0;
-                let mut gpu_stats = Stats::default();
-                gpu.traverse(
-                    &b,
-                    &gpu_rays,
-                    kind,
-                    &gpu_h,
-                    &mut |batch, _| {
-                        let pairs = b.download(&batch.pairs).unwrap();
-                        assert!(
-                            pairs.windows(2).all(|w| w[0] < w[1]),
-                            "{what}: pairs not increasing"
-                        );
-                        got.extend(pairs);
-                        batches += 1;
-                        Ok(())
-                    },
-                    &mut gpu_stats,
-                )
-                .unwrap();
-                got.sort_unstable();
-                want.sort_unstable();
-                let mut gi = got.iter().peekable();
-                for w in &want {
-                    while gi.peek().is_some_and(|g| *g < w) {
-                        gi.next();
-                    }
-                    assert_eq!(
-                        gi.peek(),
-                        Some(&w),
-                        "{what}: CPU candidate {w:?} missing on the GPU"
+    for RaySet {
+        name,
+        scene: s,
+        gpu: g,
+        kind,
+        rays,
+        order,
+    } in ray_sets(&b)
+    {
+        let cpu_h = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(8, 2)
+            .unwrap()
+            .build(&Cpu, &rays, order, &mut Stats::default())
+            .unwrap();
+        let gpu_h = upload_hierarchy(&b, &cpu_h);
+        let gpu_rays = b.upload(&rays).unwrap();
+        for (culling, budget) in [(true, 64.0), (false, 64.0), (true, 0.002)] {
+            let what = format!("{name} {kind:?} culling {culling} budget {budget}");
+            let cpu =
+                crsh_cpu::traverse::crsh::Crsh::new(&s, &traverse_spec(culling, budget)).unwrap();
+            let mut want: Vec<Candidate> = Vec::new();
+            let mut cpu_stats = Stats::default();
+            cpu.traverse(
+                &Cpu,
+                &rays,
+                kind,
+                &cpu_h,
+                &mut |batch, _| {
+                    want.extend(batch.pairs);
+                    Ok(())
+                },
+                &mut cpu_stats,
+            )
+            .unwrap();
+            let gpu =
+                crsh_wgpu::traverse::crsh::Crsh::new(&g, &traverse_spec(culling, budget)).unwrap();
+            let mut got: Vec<Candidate> = Vec::new();
+            let mut batches = 0;
+            let mut gpu_stats = Stats::default();
+            gpu.traverse(
+                &b,
+                &gpu_rays,
+                kind,
+                &gpu_h,
+                &mut |batch, _| {
+                    let pairs = b.download(&batch.pairs).unwrap();
+                    assert!(
+                        pairs.windows(2).all(|w| w[0] < w[1]),
+                        "{what}: pairs not increasing"
                     );
+                    got.extend(pairs);
+                    batches += 1;
+                    Ok(())
+                },
+                &mut gpu_stats,
+            )
+            .unwrap();
+            got.sort_unstable();
+            want.sort_unstable();
+            let mut gi = got.iter().peekable();
+            for w in &want {
+                while gi.peek().is_some_and(|g| *g < w) {
+                    gi.next();
                 }
-                assert!(!want.is_empty(), "{what}: no candidates");
-                assert!(
-                    (got.len() as f64) <= want.len() as f64 * 1.05 + 10.0,
-                    "{what}: GPU {} candidates, CPU {}",
-                    got.len(),
-                    want.len()
+                assert_eq!(
+                    gi.peek(),
+                    Some(&w),
+                    "{what}: CPU candidate {w:?} missing on the GPU"
                 );
-                if budget < 1.0 {
-                    assert!(batches > 1, "{what}: one batch");
+            }
+            assert!(!want.is_empty(), "{what}: no candidates");
+            assert!(
+                (got.len() as f64) <= want.len() as f64 * 1.05 + 10.0,
+                "{what}: GPU {} candidates, CPU {}",
+                got.len(),
+                want.len()
+            );
+            if budget < 1.0 {
+                assert!(batches > 1, "{what}: one batch");
+            }
+            assert_eq!(gpu_stats.mesh_culling.is_empty(), !culling);
+            for (k, c) in &cpu_stats.mesh_culling {
+                let gm = &gpu_stats.mesh_culling[k];
+                assert_eq!(gm.tests, c.tests, "{what}: mesh culling tests");
+                assert!(
+                    gm.hits >= c.hits,
+                    "{what}: the GPU culled a mesh the CPU kept"
+                );
+            }
+            assert_eq!(gpu_stats.levels.len(), cpu_stats.levels.len(), "{what}");
+            // The top level tests the same pairs; below, the GPU's few extra survivors
+            // add tests and hits. (Under a tiny budget the batches abandoned and retried
+            // differ: the CPU sizes them from its arrays' capacities, the GPU from their
+            // lengths, and abandoned batches' tests count; only the rows are compared.)
+            let top = cpu_h.levels.len() as u32;
+            let within = |g: u64, c: u64| g >= c && g as f64 <= c as f64 * 1.05 + 10.0;
+            for (gl, cl) in gpu_stats.levels.iter().zip(&cpu_stats.levels) {
+                assert_eq!(gl.level, cl.level, "{what}");
+                // (With mesh culling the GPU may keep a mesh more for a node: more tests.)
+                if gl.level == top && budget >= 1.0 && !culling {
+                    assert_eq!(gl.tests, cl.tests, "{what}: top level tests");
                 }
-                assert_eq!(gpu_stats.mesh_culling.is_empty(), !culling);
-                for (k, c) in &cpu_stats.mesh_culling {
-                    let gm = &gpu_stats.mesh_culling[k];
-                    assert_eq!(gm.tests, c.tests, "{what}: mesh culling tests");
-                    assert!(
-                        gm.hits >= c.hits,
-                        "{what}: the GPU culled a mesh the CPU kept"
-                    );
-                }
-                assert_eq!(gpu_stats.levels.len(), cpu_stats.levels.len(), "{what}");
-                // The top level tests the same pairs; below, the GPU's few extra survivors
-                // add tests and hits. (Under a tiny budget the batches abandoned and retried
-                // differ: the CPU sizes them from its arrays' capacities, the GPU from their
-                // lengths, and abandoned batches' tests count; only the rows are compared.)
-                let top = cpu_h.levels.len() as u32;
-                let within = |g: u64, c: u64| g >= c && g as f64 <= c as f64 * 1.05 + 10.0;
-                for (gl, cl) in gpu_stats.levels.iter().zip(&cpu_stats.levels) {
-                    assert_eq!(gl.level, cl.level, "{what}");
-                    // (With mesh culling the GPU may keep a mesh more for a node: more tests.)
-                    if gl.level == top && budget >= 1.0 && !culling {
-                        assert_eq!(gl.tests, cl.tests, "{what}: top level tests");
-                    }
-                    assert!(
-                        budget < 1.0 || (within(gl.tests, cl.tests) && within(gl.hits, cl.hits)),
-                        "{what}: {gl:?} vs {cl:?}"
-                    );
-                }
+                assert!(
+                    budget < 1.0 || (within(gl.tests, cl.tests) && within(gl.hits, cl.hits)),
+                    "{what}: {gl:?} vs {cl:?}"
+                );
             }
         }
     }
