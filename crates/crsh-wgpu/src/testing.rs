@@ -3,9 +3,10 @@
 
 use std::sync::{Arc, OnceLock};
 
-use crsh_core::glam::Vec3;
+use crsh_core::glam::{DVec3, Vec3};
 use crsh_core::{
-    FrameSize, Intersector, PipelineConfig, Ray, RayKind, Registry, StageContext, StageSpec, Stages,
+    FrameSize, Hit, HitMode, Intersector, PipelineConfig, Ray, RayKind, Registry, StageContext,
+    StageSpec, Stages,
 };
 use crsh_cpu::Cpu;
 use crsh_scene::Scene;
@@ -83,5 +84,159 @@ pub fn ray(origin: Vec3, dir: Vec3, t_min: f32, t_max: f32, kind: RayKind, i: u3
         light: 0,
         source: i,
         ..Ray::new(kind, origin, dir, t_min, t_max)
+    }
+}
+
+/// Relative tolerance of a hit's `t`, and absolute tolerance of its barycentrics, between the
+/// device and a CPU twin running the same ray-triangle test. WGSL lets a compiler fuse `a·b + c`
+/// and round divisions to 2.5 ULP, so the device's values need not equal the CPU's bit for bit
+/// (on lavapipe they do; on an NVIDIA H200, 2026-12-04, `u` and `v` differed by up to 8 ULP).
+pub const HIT_T_REL: f32 = 1e-5;
+/// See [`HIT_T_REL`].
+pub const HIT_UV_ABS: f32 = 1e-5;
+
+/// Whether device hit `a` and CPU hit `b` of one ray agree up to the rounding WGSL allows: the
+/// same hit or miss for any-hit rays; for closest-hit rays the same triangle, `t` within
+/// [`HIT_T_REL`] and `u`, `v` within [`HIT_UV_ABS`].
+pub fn hits_agree(mode: HitMode, a: &Hit, b: &Hit) -> bool {
+    match mode {
+        HitMode::Any | HitMode::EdgeWidth(_) => a.is_hit() == b.is_hit(),
+        HitMode::Closest => {
+            a.tri == b.tri
+                && (!a.is_hit()
+                    || ((a.t - b.t).abs() <= HIT_T_REL * a.t.abs().max(b.t.abs())
+                        && (a.u - b.u).abs() <= HIT_UV_ABS
+                        && (a.v - b.v).abs() <= HIT_UV_ABS))
+        }
+    }
+}
+
+/// The barycentrics of `ray` on triangle `tri` of `scene` in f64, and the test's condition
+/// number `|d|·(|s| + |e1| + |e2|)·(|e1| + |e2|) / |det|` (`s` from the first vertex to the
+/// origin): the rounding errors of `u = s·(d×e2)/det` and `v = d·(s×e1)/det` are about that
+/// many times the unit roundoff. It grows as one over the sine of the angle between the ray
+/// and the plane, and with the origin's distance over the triangle's size.
+fn conditioned_barycentrics(scene: &Scene, ray: &Ray, tri: u32) -> Option<(f64, f64, f64)> {
+    let tri = tri as usize;
+    if tri >= scene.triangle_count() {
+        return None;
+    }
+    let [p0, p1, p2] = scene.triangle(tri).map(|v| v.as_dvec3());
+    let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
+    let (e1, e2) = (p1 - p0, p2 - p0);
+    let p = d.cross(e2);
+    let det = e1.dot(p);
+    let s = o - p0;
+    let u = s.dot(p) / det;
+    let v = d.dot(s.cross(e1)) / det;
+    let (l1, l2) = (e1.length(), e2.length());
+    let condition = d.length() * (s.length() + l1 + l2) * (l1 + l2) / det.abs();
+    Some((u, v, condition))
+}
+
+/// Whether a disagreement between hits `a` and `b` of `ray` on `scene` is float rounding:
+/// - both hit different triangles at the same `t` within 1e-5 relative (a tie);
+/// - both hit the same triangle, `t`, `u` and `v` within 1e-5 times the test's condition
+///   number ([`hits_agree`] allows 1e-5 whatever the ray: a ray at a slant to the triangle
+///   rounds more);
+/// - one of the hit triangles, re-tested in f64, is met within 1e-5 times the condition number
+///   of an edge.
+///
+/// The condition number (`|d|·(|s| + |e1| + |e2|)·(|e1| + |e2|) / |det|`) grows as one over the sine of the angle
+/// between the ray and the triangle's plane, so a ray grazing a triangle (or lying in its
+/// plane) explains any disagreement on it, and a ray meeting a nearby triangle head-on only
+/// one within about 1e-4 of an edge.
+pub fn rounding_explains(scene: &Scene, ray: &Ray, a: &Hit, b: &Hit) -> bool {
+    if a.is_hit()
+        && b.is_hit()
+        && a.tri != b.tri
+        && (a.t - b.t).abs() <= 1e-5 * a.t.abs().max(b.t.abs())
+    {
+        return true;
+    }
+    if a.is_hit() && b.is_hit() && a.tri == b.tri {
+        if let Some((_, _, condition)) = conditioned_barycentrics(scene, ray, a.tri) {
+            let tol = 1e-5 * condition.max(1.0);
+            let (da, db) = (a.t as f64, b.t as f64);
+            if !tol.is_finite()
+                || ((da - db).abs() <= tol * da.abs().max(db.abs())
+                    && ((a.u - b.u) as f64).abs() <= tol
+                    && ((a.v - b.v) as f64).abs() <= tol)
+            {
+                return true;
+            }
+        }
+    }
+    [a, b].iter().filter(|h| h.is_hit()).any(|h| {
+        let Some((u, v, condition)) = conditioned_barycentrics(scene, ray, h.tri) else {
+            return false;
+        };
+        let margin = u.min(v).min(1.0 - u - v).abs();
+        margin < 1e-5 * condition.max(1.0) || !DVec3::new(u, v, condition).is_finite()
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A ray from `from` through the point of triangle `tri` at barycentrics `(u, v)`, with the
+    /// hit it should report.
+    fn aimed(scene: &Scene, tri: u32, from: Vec3, u: f32, v: f32) -> (Ray, Hit) {
+        let [a, b, c] = scene.triangle(tri as usize);
+        let p = a + (b - a) * u + (c - a) * v;
+        let d = p - from;
+        let ray = ray(from, d, 0.0, f32::INFINITY, RayKind::Reflection, 0);
+        (ray, Hit { t: 1.0, tri, u, v })
+    }
+
+    /// The tolerances explain rounding and nothing more: a head-on ray's other triangle, or
+    /// its barycentrics off by 1e-3, are not explained; the same ray at an edge, a tie, or a
+    /// ray in the triangle's plane are.
+    #[test]
+    fn rounding_explains_edges_ties_and_grazing_rays_only() {
+        let scene = crsh_scene::builtin::build("cornell-mirrors").unwrap();
+        let [a, b, c] = scene.triangle(0);
+        let n = (b - a).cross(c - a).normalize();
+        let centre = (a + b + c) / 3.0;
+        let head_on = centre + n * 0.5;
+        let (ray, hit) = aimed(&scene, 0, head_on, 0.3, 0.3);
+        let far = Hit {
+            t: 3.0,
+            tri: 5,
+            u: 0.2,
+            v: 0.2,
+        };
+        assert!(hits_agree(HitMode::Closest, &hit, &hit));
+        assert!(!hits_agree(HitMode::Closest, &hit, &far));
+        assert!(hits_agree(HitMode::Any, &hit, &far));
+        assert!(!rounding_explains(&scene, &ray, &hit, &far));
+        assert!(!rounding_explains(&scene, &ray, &hit, &Hit::MISS));
+        let off = Hit {
+            u: hit.u + 1e-3,
+            ..hit
+        };
+        assert!(!hits_agree(HitMode::Closest, &hit, &off));
+        assert!(!rounding_explains(&scene, &ray, &hit, &off));
+        // At an edge (u = 0), against a miss or another triangle.
+        let (edge_ray, edge_hit) = aimed(&scene, 0, head_on, 0.0, 0.5);
+        assert!(rounding_explains(&scene, &edge_ray, &edge_hit, &Hit::MISS));
+        assert!(rounding_explains(&scene, &edge_ray, &far, &edge_hit));
+        // A tie: another triangle at the same t.
+        let tie = Hit {
+            t: 1.0 + 1e-6,
+            ..far
+        };
+        assert!(rounding_explains(&scene, &ray, &hit, &tie));
+        // A ray almost in the triangle's plane: its barycentrics are ill-conditioned.
+        let (graze_ray, graze_hit) =
+            aimed(&scene, 0, centre + (a - centre) * 40.0 + n * 1e-5, 0.3, 0.3);
+        assert!(rounding_explains(
+            &scene,
+            &graze_ray,
+            &graze_hit,
+            &Hit::MISS
+        ));
+        assert!(rounding_explains(&scene, &graze_ray, &graze_hit, &off));
     }
 }

@@ -99,16 +99,37 @@ const DIR_TOL: f32 = 2e-6;
 /// near a chord's tangent (measured on lavapipe: up to 9.8e-5), and where a start or end lies on
 /// a hemisphere's boundary (a Wächter start, 1.5e-5 above the floor, on the lifted base plane)
 /// the rounding flips it in or out: the whole interval changes. Such rays ("flips", beyond
-/// this tolerance) must stay under 1 in 1000 per batch (measured: 31 of 952,432 rays over both
-/// built-in scenes, every set, AO and diffuse, changing 2 of 122,054 ended counts); the query
-/// itself is checked exactly by the twin comparison ([`TWIN_T_REL`]).
+/// this tolerance) must stay under 1 in 200 per batch, plus one (lavapipe: 31 of 952,432 rays
+/// over both built-in scenes, every set, AO and diffuse, changing 2 of 122,054 ended counts;
+/// an NVIDIA H200, 2026-12-04, which fuses `a·b + c`: 2 of 1,164 in one batch); the query
+/// itself is checked by the twin comparison ([`TWIN_T_REL`]).
 const OFFSET_T_REL: f32 = 1e-4;
 
-/// The relative difference allowed between the device's offsets and the CPU's applied to the
-/// very same rays (the device generator's rays without offsets): the query's `sqrt` and
-/// divisions need not be correctly rounded in WGSL and the compiler may fuse `a·b + c`
-/// (measured on lavapipe: 0, bit for bit, and the same counts of rays ended).
+/// The difference allowed between the device's offsets and the CPU's applied to the very same
+/// rays (the device generator's rays without offsets), relative to the larger of the interval
+/// end and the ray's origin coordinates: the query's `sqrt` and divisions need not be correctly
+/// rounded in WGSL and the compiler may fuse `a·b + c`, and the rounding of a point near the
+/// origin is an absolute error on the scale of the origin, not of the short offset `t`
+/// (measured on lavapipe: 0, bit for bit, and the same counts of rays ended; on an NVIDIA H200,
+/// 2026-12-04: 6.6e-8 on a `t_min` of 0.033 from an origin at 0.97).
 const TWIN_T_REL: f32 = 1e-6;
+
+/// Where a ray cuts a hemisphere's sphere nearly at a tangent, the query's root
+/// `sqrt(b² − c)` turns the rounding of `b² − c` into an error of about `sqrt(ε)` times the
+/// scale: the twin comparison lets such rays differ by up to this much (relative to the larger
+/// of the interval end and the origin's coordinates), one in 100 per batch (lavapipe: none; an
+/// NVIDIA H200, 2026-12-04, which fuses `a·b + c`: 8 of 1,164 Wächter shadow rays from the
+/// surface with the `center` set, `t_min` 0.13622 against 0.13628 on one).
+const TANGENT_ABS: f32 = 1e-3;
+
+/// Relative tolerance of a shadow ray's interval end to end: its length goes through `sqrt`
+/// and a division (lavapipe: equal; an NVIDIA H200, 2026-12-04: one ULP).
+const SHADOW_T_REL: f32 = 1e-6;
+
+/// `a` and `b` within `rel` of the largest of their magnitudes and `scale`.
+fn close_at(a: f32, b: f32, rel: f32, scale: f32) -> bool {
+    a == b || (a - b).abs() <= rel * a.abs().max(b.abs()).max(scale).max(1e-6)
+}
 
 /// `|a − b|` relative to the larger magnitude (0 when equal, infinities included).
 fn rel_diff(a: f32, b: f32) -> f32 {
@@ -134,22 +155,24 @@ fn check_rays(what: &str, got: &[Ray], want: &[Ray], exact: bool, t_rel: f32) ->
             (w.kind, w.pixel, w.light, w.depth, w.source),
             "{what}: ray {i} identity"
         );
+        // Interval ends are computed from points on the scale of the origin.
+        let scale = g.origin.abs().max_element();
         let ok = if exact {
             let d = (g.dir - w.dir).abs().max_element();
             worst = worst.max(d);
             (0..3).all(|k| close(g.origin[k], w.origin[k], 1e-6))
                 && d <= DIR_TOL
                 && g.throughput == w.throughput
-                && close(g.t_min, w.t_min, t_rel)
-                && close(g.t_max, w.t_max, t_rel)
+                && close_at(g.t_min, w.t_min, t_rel, scale)
+                && close_at(g.t_max, w.t_max, t_rel, scale)
         } else {
-            let t_rel = t_rel.max(1e-7);
+            let t_rel = t_rel.max(SHADOW_T_REL);
             (0..3).all(|k| {
                 close(g.origin[k], w.origin[k], 1e-6)
                     && close(g.dir[k], w.dir[k], 1e-6)
                     && close(g.throughput[k], w.throughput[k], 1e-6)
-            }) && close(g.t_min, w.t_min, t_rel)
-                && close(g.t_max, w.t_max, t_rel)
+            }) && close_at(g.t_min, w.t_min, t_rel, scale)
+                && close_at(g.t_max, w.t_max, t_rel, scale)
         };
         assert!(ok, "{what}: ray {i}: gpu {g:?} cpu {w:?}");
     }
@@ -240,35 +263,74 @@ fn compare_generators(
         let ended = |s: &Stats| s.per_kind.get(kind.name()).map_or(0, |k| k.offset_ended);
         // The twin: the device's query and the CPU's on the same rays.
         assert_eq!(unmoved.len(), got.len(), "{here}: ray count");
-        for (i, (g, w)) in got.iter().zip(&unmoved).enumerate() {
-            c.twin_t = c
-                .twin_t
-                .max(rel_diff(g.t_min, w.t_min).max(rel_diff(g.t_max, w.t_max)));
-            assert!(
-                close(g.t_min, w.t_min, TWIN_T_REL) && close(g.t_max, w.t_max, TWIN_T_REL),
-                "{here}: ray {i}: device query {g:?}, CPU query on the device's ray {w:?}"
-            );
+        // Near a tangent or on a hemisphere's boundary the same query on the same ray may
+        // round to another interval (`TANGENT_ABS`, `OFFSET_T_REL`): counted and bounded.
+        let (mut tangents, mut twin_flips) = (0, 0);
+        for (g, w) in got.iter().zip(&unmoved) {
+            let scale = w.origin.abs().max_element();
+            let within = |rel| {
+                close_at(g.t_min, w.t_min, rel, scale) && close_at(g.t_max, w.t_max, rel, scale)
+            };
+            if within(TWIN_T_REL) {
+                c.twin_t = c
+                    .twin_t
+                    .max(rel_diff(g.t_min, w.t_min).max(rel_diff(g.t_max, w.t_max)));
+            } else if within(TANGENT_ABS) {
+                tangents += 1;
+            } else {
+                twin_flips += 1;
+            }
         }
-        assert_eq!(ended(&stats), twin_ended, "{here}: rays ended (twin)");
+        assert!(
+            tangents <= got.len() / 100 + 1,
+            "{here}: {tangents} of {} twin intervals near a tangent",
+            got.len()
+        );
+        assert!(
+            twin_flips <= got.len() / 200 + 1,
+            "{here}: {twin_flips} of {} twin intervals flipped",
+            got.len()
+        );
+        assert!(
+            ended(&stats).abs_diff(twin_ended) <= twin_flips as u64,
+            "{here}: rays ended: device {} twin {twin_ended} ({twin_flips} flips)",
+            ended(&stats)
+        );
         // End to end against the CPU generator: every field as without offsets; intervals
-        // equal where origin and direction are, else within `t_rel` or flipped (see
+        // equal up to rounding where origin and direction are, else within `t_rel` or flipped (see
         // `OFFSET_T_REL`).
         let exact = kind != RayKind::Shadow;
         let loose = if t_rel > 0.0 { f32::INFINITY } else { 0.0 };
         let (dir, _) = check_rays(&here, &got, &want, exact, loose);
         let mut flips = 0;
-        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+        let mut tangents = 0;
+        for (g, w) in got.iter().zip(&want) {
             let d = rel_diff(g.t_min, w.t_min).max(rel_diff(g.t_max, w.t_max));
             if (g.origin, g.dir) == (w.origin, w.dir) {
-                assert_eq!((g.t_min, g.t_max), (w.t_min, w.t_max), "{here}: ray {i}");
-            } else if d <= t_rel {
+                // The same query on the same ray: equal up to its rounding (`TWIN_T_REL`;
+                // `TANGENT_ABS` near a tangent; else a flip at a hemisphere's boundary).
+                let scale = w.origin.abs().max_element();
+                let within = |rel| {
+                    close_at(g.t_min, w.t_min, rel, scale) && close_at(g.t_max, w.t_max, rel, scale)
+                };
+                if !within(TANGENT_ABS) {
+                    flips += 1;
+                } else if !within(TWIN_T_REL) {
+                    tangents += 1;
+                }
+            } else if d <= t_rel.max(if exact { 0.0 } else { SHADOW_T_REL }) {
                 c.t = c.t.max(d);
             } else {
                 flips += 1;
             }
         }
         assert!(
-            flips * 1000 <= got.len(),
+            tangents <= got.len() / 100 + 1,
+            "{here}: {tangents} of {} intervals near a tangent",
+            got.len()
+        );
+        assert!(
+            flips <= got.len() / 200 + 1,
             "{here}: {flips} of {} intervals flipped",
             got.len()
         );

@@ -75,25 +75,10 @@ fn scene(name: &str) -> Arc<Scene> {
     Arc::new(crsh_scene::builtin::build(name).unwrap())
 }
 
-/// Whether a GPU/CPU disagreement on `ray` is float rounding at an edge: re-tested in f64,
-/// one of the two triangles is hit within a relative 1e-5 of its edge, or their `t` agree.
+/// Whether a GPU/CPU disagreement on `ray` is float rounding at an edge, a tie or a grazing
+/// ray ([`crsh_wgpu::testing::rounding_explains`]).
 fn explained(scene: &Scene, ray: &Ray, a: &Hit, b: &Hit) -> bool {
-    if a.is_hit() && b.is_hit() && (a.t - b.t).abs() <= 1e-5 * a.t.abs().max(b.t.abs()) {
-        return true;
-    }
-    [a, b].iter().filter(|h| h.is_hit()).any(|h| {
-        let [p0, p1, p2] = scene.triangle(h.tri as usize).map(|v| v.as_dvec3());
-        let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
-        let (e1, e2) = (p1 - p0, p2 - p0);
-        let p = d.cross(e2);
-        let det = e1.dot(p);
-        let s = o - p0;
-        let u = s.dot(p) / det;
-        let q = s.cross(e1);
-        let v = d.dot(q) / det;
-        let margin = u.min(v).min(1.0 - u - v).abs();
-        margin < 1e-5 || !DVec3::new(u, v, det).is_finite()
-    })
+    crsh_wgpu::testing::rounding_explains(scene, ray, a, b)
 }
 
 fn compare(scene: &Scene, rays: &[Ray], got: &[Hit], want: &[Hit], mode: HitMode) -> usize {

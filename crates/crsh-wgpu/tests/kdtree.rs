@@ -1,12 +1,13 @@
 //! The wgpu `kdtree` against its CPU twin (`crsh_cpu::kdtree::trace_single` on the same tree)
-//! and against brute force (CPU and wgpu): hits bit for bit, and the inner-node, leaf and
+//! and against brute force (CPU and wgpu): the same hits (up to the rounding WGSL allows,
+//! [`crsh_wgpu::testing::hits_agree`]; bit for bit on llvmpipe), and the inner-node, leaf and
 //! triangle-test counts, on the built-in scenes with random, axis-parallel, on-plane,
 //! grazing and missing rays; an empty tree; the deepest tree the device stack holds and the
 //! first one it refuses; bad input.
 //!
 //! The device's Möller-Trumbore (`mt.wgsl`) rounds unlike the CPU's on a few rays that graze
-//! a triangle's edge (llvmpipe: about 0.3 % of these rays); [`check`] leaves those out of the
-//! comparison with the CPU. Trees are kept at depth 10-12: the CPU twin visits large parts of
+//! a triangle's edge or lie in its plane (llvmpipe: about 0.3 % of these rays); [`check`]
+//! leaves those out of the comparison with the CPU. Trees are kept at depth 10-12: the CPU twin visits large parts of
 //! deeper trees, and llvmpipe ends an invocation's loops after 65535 iterations (the
 //! intersector then fails, see its module doc). Without an adapter every test prints `SKIP:`
 //! and passes, unless `CRSH_REQUIRE_GPU=1`.
@@ -235,43 +236,33 @@ fn total(counts: &[KdCounts]) -> Stats {
 }
 
 /// Whether a disagreement between the device's and the CPU's Möller-Trumbore on `ray` is an
-/// edge case: re-tested in f64, one of the two hits lies within a relative 1e-5 of its
-/// triangle's edge (or the determinant vanishes), or their `t` agree.
+/// edge case ([`crsh_wgpu::testing::rounding_explains`]).
 fn edge_case(scene: &Scene, ray: &Ray, a: &Hit, b: &Hit) -> bool {
-    if a.is_hit() && b.is_hit() && (a.t - b.t).abs() <= 1e-5 * a.t.abs().max(b.t.abs()) {
-        return true;
-    }
-    [a, b].iter().filter(|h| h.is_hit()).any(|h| {
-        let [p0, p1, p2] = scene.triangle(h.tri as usize).map(|v| v.as_dvec3());
-        let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
-        let (e1, e2) = (p1 - p0, p2 - p0);
-        let p = d.cross(e2);
-        let det = e1.dot(p);
-        let s = o - p0;
-        let u = s.dot(p) / det;
-        let v = d.dot(s.cross(e1)) / det;
-        let margin = u.min(v).min(1.0 - u - v).abs();
-        margin < 1e-5 || !(u.is_finite() && v.is_finite() && det.is_finite())
-    })
+    crsh_wgpu::testing::rounding_explains(scene, ray, a, b)
 }
 
+/// The same hit up to the rounding WGSL allows ([`crsh_wgpu::testing::hits_agree`]).
 fn same(mode: HitMode, a: &Hit, b: &Hit) -> bool {
-    match mode {
-        HitMode::Any => a.is_hit() == b.is_hit(),
-        _ => a == b,
-    }
+    crsh_wgpu::testing::hits_agree(mode, a, b)
+}
+
+/// The device's hit and the CPU twin's: they walk the same tree in the same order, so even an
+/// any-hit ray meets the same first triangle (up to rounding).
+fn same_as_twin(a: &Hit, b: &Hit) -> bool {
+    crsh_wgpu::testing::hits_agree(HitMode::Closest, a, b)
 }
 
 /// The comparison every test makes, for `rays` merged into `start` in `mode` on the device's
 /// `kd` (its tree `tree` on the host):
 ///
 /// 1. on every ray, the device kd-tree's hits are wgpu brute force's (the same triangle code):
-///    bit for bit for closest hits, hit or not for any hit (brute force returns the lowest
+///    the same triangle, `t`, `u` and `v` within rounding ([`same`]) for closest hits, hit or
+///    not for any hit (brute force returns the lowest
 ///    id, the kd-tree the first it meets);
 /// 2. the rays on which the device's and the CPU's Möller-Trumbore round differently (edge
 ///    cases: wgpu and CPU brute force disagree, or the device and the twin meet different
-///    hits) are left out, at most 2 %; the others are traced again, and there the device's
-///    hits are the CPU twin's bit for bit and CPU brute force's, and its inner-node, leaf and
+///    hits) are left out, at most `left_out_limit` of them; the others are traced again, and there the device's
+///    hits are the CPU twin's and CPU brute force's ([`same`]), and its inner-node, leaf and
 ///    test counts the twin's.
 ///
 /// Returns the counts of the rays compared and how many rays were left out.
@@ -285,6 +276,7 @@ fn check(
     rays: &[Ray],
     start: &[Hit],
     mode: HitMode,
+    left_out_limit: f64,
 ) -> (KdCounts, usize) {
     let (got, _) = gpu_query(b, kd, rays, start, mode);
     let (on_gpu, _) = gpu_query(b, gpu_brute, rays, start, mode);
@@ -313,7 +305,9 @@ fn check(
         let sub_start: Vec<Hit> = keep.iter().map(|&i| start[i]).collect();
         let (got, stats) = gpu_query(b, kd, &sub, &sub_start, mode);
         let (twin, counts) = cpu_twin(scene, kd.tree(), &sub, &sub_start, mode);
-        let differ: Vec<usize> = (0..sub.len()).filter(|&j| got[j] != twin[j]).collect();
+        let differ: Vec<usize> = (0..sub.len())
+            .filter(|&j| !same_as_twin(&got[j], &twin[j]))
+            .collect();
         for &j in &differ {
             assert!(
                 edge_case(scene, &sub[j], &got[j], &twin[j]),
@@ -334,8 +328,9 @@ fn check(
             assert_eq!(stats.tests, total(&counts).tests, "{what} {mode:?}: counts");
             let left_out = rays.len() - keep.len();
             assert!(
-                left_out * 50 <= rays.len(),
-                "{what} {mode:?}: {left_out} left out"
+                left_out as f64 <= left_out_limit * rays.len() as f64,
+                "{what} {mode:?}: {left_out} of {} left out",
+                rays.len()
             );
             let sum = counts.iter().fold(KdCounts::default(), |a, c| a.plus(*c));
             return (sum, left_out);
@@ -379,7 +374,7 @@ fn builtin_scenes_match_the_twin_and_brute_force() {
         let rays = mixed_rays(&s, 17 + k as u64, 600);
         for start in [vec![Hit::MISS; rays.len()], start_hits(rays.len())] {
             for mode in [HitMode::Closest, HitMode::Any] {
-                let (t, _) = check(name, &b, &kd, &brute, &s, &rays, &start, mode);
+                let (t, _) = check(name, &b, &kd, &brute, &s, &rays, &start, mode, 0.02);
                 assert!(t.inner > 0 && t.leaves > 0 && t.tests > 0, "{name}: {t:?}");
             }
         }
@@ -416,7 +411,12 @@ fn counts_match_ray_by_ray() {
                 continue;
             }
             let (got, stats) = gpu_query(&b, &kd, &[*r], &[Hit::MISS], mode);
-            assert_eq!(got[0], twin[i], "{mode:?} ray {i}");
+            assert!(
+                same_as_twin(&got[0], &twin[i]),
+                "{mode:?} ray {i}: {:?} vs {:?}",
+                got[0],
+                twin[i]
+            );
             assert_eq!(
                 stats.tests,
                 total(&counts[i..=i]).tests,
@@ -425,7 +425,9 @@ fn counts_match_ray_by_ray() {
             compared += 1;
         }
     }
-    assert!(compared * 100 >= 2 * rays.len() * 99, "{compared} compared");
+    // Rays on which the two Möller-Trumbore tests disagree are skipped (lavapipe: none or one
+    // of 96; an NVIDIA H200, 2026-12-04: 2).
+    assert!(compared * 100 >= 2 * rays.len() * 95, "{compared} compared");
 }
 
 /// Rays that miss the root box moving away from it visit nothing; rays parallel to a slab they
@@ -469,7 +471,7 @@ fn rays_missing_the_root_box() {
     for (what, rays) in [("away", &away), ("parallel", &parallel)] {
         for mode in [HitMode::Closest, HitMode::Any] {
             let start = vec![Hit::MISS; rays.len()];
-            let (t, left_out) = check(what, &b, &kd, &brute, &s, rays, &start, mode);
+            let (t, left_out) = check(what, &b, &kd, &brute, &s, rays, &start, mode, 0.0);
             assert_eq!(left_out, 0, "{what}");
             let (got, _) = gpu_query(&b, &kd, rays, &start, mode);
             assert!(got.iter().all(|h| !h.is_hit()), "{what}: a miss hit");
@@ -534,7 +536,10 @@ fn grazing_rays() {
         }
         for mode in [HitMode::Closest, HitMode::Any] {
             let start = vec![Hit::MISS; rays.len()];
-            check("grazing", &b, &kd, &brute, &s, &rays, &start, mode);
+            // Half of these rays aim at a vertex or an edge's midpoint, where rounding alone
+            // decides the triangle (lavapipe: under 2 % left out; an NVIDIA H200, 2026-12-04,
+            // which fuses `a·b + c`: 70 of 600).
+            check("grazing", &b, &kd, &brute, &s, &rays, &start, mode, 0.25);
         }
     }
 }

@@ -4,8 +4,9 @@
 //! light on the surface), every ray kind × offset policy × shadow origin: same rays in the
 //! same order, equal fields within a stated float tolerance; and with every origin-offset set
 //! (seed 001's hemispheres, `offsets = center | vertex | median | polygon`), both shadow
-//! origins, the same rays (intervals within [`OFFSET_T_REL`]) and the same counts of rays the
-//! offsets ended.
+//! origins, the same rays (intervals within [`OFFSET_T_REL`] but for rare near-tangent and
+//! boundary cases, [`TANGENT_ABS`]) and the same counts of rays the offsets ended (up to those
+//! boundary cases).
 //!
 //! Without an adapter every test prints `SKIP:` and passes, unless `CRSH_REQUIRE_GPU=1`.
 
@@ -44,11 +45,23 @@ fn close(a: f32, b: f32, rel: f32) -> bool {
     a == b || (a - b).abs() <= rel * a.abs().max(b.abs()).max(1e-6)
 }
 
-fn check_rays(what: &str, got: &[Ray], want: &[Ray]) {
-    check_rays_t(what, got, want, 1e-7);
+/// Relative tolerance of a Whitted ray's interval: a shadow segment's length goes through
+/// `sqrt` and a division, which WGSL need not round correctly (lavapipe: equal; an NVIDIA H200,
+/// 2026-12-04: one ULP, 1.1e-7 relative), so a few ULPs.
+const T_REL: f32 = 1e-6;
+
+/// `a` and `b` within `rel` of the largest of their magnitudes and `scale` (an interval end is
+/// computed from points on the scale of the ray's origin, so its rounding is too).
+fn close_at(a: f32, b: f32, rel: f32, scale: f32) -> bool {
+    a == b || (a - b).abs() <= rel * a.abs().max(b.abs()).max(scale).max(1e-6)
 }
 
-/// [`check_rays`] with intervals (`t_min`, `t_max`) within `t_rel`; returns the largest
+fn check_rays(what: &str, got: &[Ray], want: &[Ray]) {
+    check_rays_t(what, got, want, T_REL);
+}
+
+/// [`check_rays`] with intervals (`t_min`, `t_max`) within `t_rel` ([`close_at`], on the scale
+/// of the origin); returns the largest
 /// relative interval difference seen.
 fn check_rays_t(what: &str, got: &[Ray], want: &[Ray], t_rel: f32) -> f32 {
     assert_eq!(got.len(), want.len(), "{what}: ray count");
@@ -64,8 +77,8 @@ fn check_rays_t(what: &str, got: &[Ray], want: &[Ray], t_rel: f32) -> f32 {
             close(g.origin[k], w.origin[k], 1e-6)
                 && close(g.dir[k], w.dir[k], 1e-6)
                 && close(g.throughput[k], w.throughput[k], 1e-6)
-        }) && close(g.t_min, w.t_min, t_rel)
-            && close(g.t_max, w.t_max, t_rel);
+        }) && close_at(g.t_min, w.t_min, t_rel, g.origin.abs().max_element())
+            && close_at(g.t_max, w.t_max, t_rel, g.origin.abs().max_element());
         assert!(ok, "{what}: ray {i}: gpu {g:?} cpu {w:?}");
     }
     worst
@@ -86,6 +99,51 @@ fn rel_diff(a: f32, b: f32) -> f32 {
 /// few ULPs (measured on lavapipe: 0, every Whitted ray bit for bit, and equal ended counts;
 /// `offset_rays_match_the_cpu_on_the_builtin_scenes` prints it).
 const OFFSET_T_REL: f32 = 1e-6;
+
+/// Where a ray's segment cuts a hemisphere's sphere nearly at a tangent, the query's root
+/// `sqrt(b² − c)` turns the rounding of `b² − c` into an error of about `sqrt(ε)` times the
+/// scale: such rays ("tangents") may differ by up to this much times the larger of the
+/// interval end and the origin's coordinates, one in 100 per batch plus one. Where a start or
+/// end lies on a hemisphere's boundary, rounding flips it in or out and the whole interval
+/// changes ("flips"): one in 200 per batch plus one, each changing the count of rays the
+/// offsets ended by at most one. Lavapipe: neither; an NVIDIA H200, 2026-12-04, which fuses
+/// `a·b + c`: 6 tangents of 1,164 Wächter shadow rays from the surface with the `center` set
+/// (`t_min` 0.13622 against 0.13628 on one), and flips (`t_max` 3.857 against 4.160 on an
+/// `office-boxes` shadow ray from the light).
+const TANGENT_ABS: f32 = 1e-3;
+
+/// `got` with the intervals of tangents and flips ([`TANGENT_ABS`]) replaced by `want`'s, and
+/// the count of flips; asserts their bounds.
+fn forgive_tangents_and_flips(what: &str, got: &[Ray], want: &[Ray]) -> (Vec<Ray>, u64) {
+    let mut out = got.to_vec();
+    let (mut tangents, mut flips) = (0, 0);
+    for (g, w) in out.iter_mut().zip(want) {
+        let scale = w.origin.abs().max_element();
+        let off = |a: f32, b: f32, rel: f32| {
+            a != b && (a - b).abs() > rel * a.abs().max(b.abs()).max(scale).max(1e-6)
+        };
+        let beyond = off(g.t_min, w.t_min, OFFSET_T_REL) || off(g.t_max, w.t_max, OFFSET_T_REL);
+        if beyond {
+            if !off(g.t_min, w.t_min, TANGENT_ABS) && !off(g.t_max, w.t_max, TANGENT_ABS) {
+                tangents += 1;
+            } else {
+                flips += 1;
+            }
+            (g.t_min, g.t_max) = (w.t_min, w.t_max);
+        }
+    }
+    assert!(
+        tangents <= got.len() / 100 + 1,
+        "{what}: {tangents} of {} intervals near a tangent",
+        got.len()
+    );
+    assert!(
+        flips <= got.len() / 200 + 1,
+        "{what}: {flips} of {} intervals flipped",
+        got.len()
+    );
+    (out, flips as u64)
+}
 
 fn run_all(b: &crsh_wgpu::Wgpu, scene: &Arc<Scene>, surfaces: &[Surface], what: &str) -> usize {
     let g = GpuScene::new(b, scene).unwrap();
@@ -127,8 +185,8 @@ fn rays_match_the_cpu_on_the_builtin_scenes() {
 }
 
 /// Whitted rays with every hemisphere set, both shadow origins and two offset policies: the
-/// CPU's rays (intervals within [`OFFSET_T_REL`]) and the CPU's counts of rays the offsets
-/// ended, per kind. Returns (rays, ended rays, rays whose interval the offsets changed,
+/// CPU's rays (intervals within [`OFFSET_T_REL`], [`forgive_tangents_and_flips`]) and the CPU's
+/// counts of rays the offsets ended, per kind. Returns (rays, ended rays, rays whose interval the offsets changed,
 /// largest relative interval difference).
 fn run_offsets(
     b: &crsh_wgpu::Wgpu,
@@ -163,10 +221,16 @@ fn run_offsets(
                     let mut gpu_stats = Stats::default();
                     let out = gpu.generate(b, &buf, kind, &mut gpu_stats).unwrap();
                     let got = b.download(&out).unwrap();
+                    let (got, flips) = forgive_tangents_and_flips(&here, &got, &want);
                     worst = worst.max(check_rays_t(&here, &got, &want, OFFSET_T_REL));
                     let count =
                         |s: &Stats| s.per_kind.get(kind.name()).map_or(0, |k| k.offset_ended);
-                    assert_eq!(count(&gpu_stats), count(&cpu_stats), "{here}: rays ended");
+                    assert!(
+                        count(&gpu_stats).abs_diff(count(&cpu_stats)) <= flips,
+                        "{here}: rays ended: gpu {} cpu {} ({flips} flips)",
+                        count(&gpu_stats),
+                        count(&cpu_stats)
+                    );
                     ended += count(&cpu_stats);
                     let before = plain.rays(surfaces, kind).unwrap();
                     moved += before

@@ -481,6 +481,7 @@ impl Intersector<Wgpu> for UniformGrid {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::{hits_agree, rounding_explains};
     use crsh_core::glam::Vec3;
     use crsh_core::{Aabb, Backend, RayKind};
     use crsh_cpu::intersect::grid::{GridData, UniformGrid as CpuGrid};
@@ -628,7 +629,8 @@ mod tests {
         }
     }
 
-    /// Hits and counters equal the CPU `grid`'s (and so brute force's) on the built-in scenes.
+    /// Hits equal the CPU `grid`'s and brute force's on the built-in scenes up to rounding
+    /// ([`hits_agree`], [`rounding_explains`]), and the counters the CPU grid's.
     #[test]
     fn hits_and_counters_match_the_cpu() {
         let Some(b) = crate::testing::shared_backend("grid hits_and_counters_match_the_cpu") else {
@@ -663,19 +665,31 @@ mod tests {
                 gpu.intersect(&b, &buf, Query::Scene, mode, &mut hits, &mut stats)
                     .unwrap();
                 let got = b.download(&hits).unwrap();
+                // The same hits up to the rounding WGSL allows, and a different one only where
+                // rounding decides (an edge, a tie, a grazing ray); the counters where every
+                // hit agrees.
+                let mut differ = 0;
                 for (i, ((g, w), r)) in got.iter().zip(&want).zip(&reference).enumerate() {
-                    match mode {
-                        HitMode::Closest => {
-                            assert_eq!(g, w, "{name} ray {i}: gpu vs cpu grid");
-                            assert_eq!(g, r, "{name} ray {i}: gpu vs brute");
-                        }
-                        HitMode::Any | HitMode::EdgeWidth(_) => {
-                            assert_eq!(g.is_hit(), r.is_hit(), "{name} any ray {i}")
+                    for (other, what) in [(w, "cpu grid"), (r, "brute")] {
+                        if !hits_agree(mode, g, other) {
+                            differ += 1;
+                            assert!(
+                                rounding_explains(&scene, &rays[i], g, other),
+                                "{name} {mode:?} ray {i}: gpu {g:?} vs {what} {other:?}"
+                            );
                         }
                     }
                 }
+                // Of the 2 × 3000 comparisons, lavapipe: none differ; an NVIDIA H200
+                // (2026-12-04), which fuses `a·b + c`: 16 on office-boxes, every one explained.
+                assert!(
+                    differ * 50 <= rays.len(),
+                    "{name} {mode:?}: {differ} differ"
+                );
                 assert!(want.iter().filter(|h| h.is_hit()).count() > rays.len() / 4);
-                assert_eq!(stats.tests, cpu_stats.tests, "{name} {mode:?}: counters");
+                if differ == 0 {
+                    assert_eq!(stats.tests, cpu_stats.tests, "{name} {mode:?}: counters");
+                }
             }
         }
     }
