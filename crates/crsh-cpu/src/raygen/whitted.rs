@@ -118,7 +118,7 @@ use rayon::prelude::*;
 
 use crate::backend::Cpu;
 use crate::raygen::offsets::{self, Offsets};
-use crate::trim::trim;
+use crate::trim::{concat_in_order, trim};
 
 /// Surfaces per parallel work item.
 const CHUNK: usize = 4096;
@@ -837,6 +837,69 @@ impl Whitted {
         surfaces: &[Surface],
         kind: RayKind,
     ) -> Result<(Vec<Ray>, Vec<u32>, u64)> {
+        let batch = self.batch(surfaces, kind)?;
+        let mut slots = vec![<Ray as bytemuck::Zeroable>::zeroed(); batch.slots];
+        let mut flags = vec![0u32; batch.slots];
+        let ended = slots
+            .par_chunks_mut(CHUNK)
+            .zip(flags.par_chunks_mut(CHUNK))
+            .enumerate()
+            .map(|(c, (rays, heads))| {
+                let mut ended = 0u64;
+                for (j, (ray, head)) in rays.iter_mut().zip(heads.iter_mut()).enumerate() {
+                    if let Some(r) = self.slot_ray(surfaces, kind, &batch, c * CHUNK + j) {
+                        ended += u64::from(r.t_min >= r.t_max && self.offsets.is_some());
+                        *ray = r;
+                        *head = 1;
+                    }
+                }
+                ended
+            })
+            .sum();
+        Ok((slots, flags, ended))
+    }
+
+    /// The rays of [`Whitted::slots`] compacted within each run of [`CHUNK`] slots as they are
+    /// made (one vector per run, in slot order), and the count of rays the offsets emptied.
+    /// Concatenated ([`crate::trim::concat_in_order`]), they are [`Whitted::rays`]; the full slot and flag
+    /// arrays are never written, and a kind no surface spawns writes nothing.
+    pub fn chunk_rays(&self, surfaces: &[Surface], kind: RayKind) -> Result<(Vec<Vec<Ray>>, u64)> {
+        let batch = self.batch(surfaces, kind)?;
+        if !self.may_spawn(kind) {
+            return Ok((Vec::new(), 0));
+        }
+        let chunks: Vec<(Vec<Ray>, u64)> = (0..batch.slots.div_ceil(CHUNK))
+            .into_par_iter()
+            .map(|c| {
+                let range = c * CHUNK..((c + 1) * CHUNK).min(batch.slots);
+                let mut rays = Vec::with_capacity(range.len());
+                let mut ended = 0u64;
+                for slot in range {
+                    if let Some(r) = self.slot_ray(surfaces, kind, &batch, slot) {
+                        ended += u64::from(r.t_min >= r.t_max && self.offsets.is_some());
+                        rays.push(r);
+                    }
+                }
+                (rays, ended)
+            })
+            .collect();
+        let ended = chunks.iter().map(|(_, e)| e).sum();
+        Ok((chunks.into_iter().map(|(r, _)| r).collect(), ended))
+    }
+
+    /// Whether any surface could spawn a ray of `kind`: a light for shadow rays, a
+    /// reflective or transparent material for reflection or refraction rays.
+    fn may_spawn(&self, kind: RayKind) -> bool {
+        match kind {
+            RayKind::Shadow => !self.lights.is_empty(),
+            RayKind::Reflection => self.materials.iter().any(|m| m.reflectivity > 0.0),
+            RayKind::Refraction => self.materials.iter().any(|m| m.transparency > 0.0),
+            _ => true,
+        }
+    }
+
+    /// Checks a batch (see [`Whitted::slots`]'s errors) and sizes its slots.
+    fn batch(&self, surfaces: &[Surface], kind: RayKind) -> Result<Batch> {
         if matches!(kind, RayKind::Primary | RayKind::Ao | RayKind::Diffuse) {
             return Err(CoreError::Unsupported {
                 stage: "raygen",
@@ -871,40 +934,36 @@ impl Whitted {
                 self.materials.len()
             )));
         }
-        let n = surfaces.len();
-        let mut slots = vec![<Ray as bytemuck::Zeroable>::zeroed(); n * per_surface];
-        let mut flags = vec![0u32; n * per_surface];
-        let ended = slots
-            .par_chunks_mut(CHUNK)
-            .zip(flags.par_chunks_mut(CHUNK))
-            .enumerate()
-            .map(|(c, (rays, heads))| {
-                let mut ended = 0u64;
-                for (j, (ray, head)) in rays.iter_mut().zip(heads.iter_mut()).enumerate() {
-                    let slot = c * CHUNK + j;
-                    let (source, light_sample) = (slot % n, slot / n);
-                    let (light, sample) = (light_sample / samples, light_sample % samples);
-                    let s = &surfaces[source];
-                    if !s.is_hit() {
-                        continue;
-                    }
-                    let m = &self.materials[s.material as usize];
-                    let made = if kind == RayKind::Shadow {
-                        self.shadow_ray(source as u32, s, m, light as u32, sample as u32)
-                    } else {
-                        self.bounce_ray(source as u32, s, m, kind)
-                    };
-                    if let Some(r) = made {
-                        ended += u64::from(r.t_min >= r.t_max && self.offsets.is_some());
-                        *ray = r;
-                        *head = 1;
-                    }
-                }
-                ended
-            })
-            .sum();
-        Ok((slots, flags, ended))
+        Ok(Batch {
+            surfaces: surfaces.len(),
+            samples,
+            slots: surfaces.len() * per_surface,
+        })
     }
+
+    /// The ray of slot `slot` of a checked batch, if its surface spawns one.
+    #[inline]
+    fn slot_ray(&self, surfaces: &[Surface], kind: RayKind, b: &Batch, slot: usize) -> Option<Ray> {
+        let (source, light_sample) = (slot % b.surfaces, slot / b.surfaces);
+        let (light, sample) = (light_sample / b.samples, light_sample % b.samples);
+        let s = &surfaces[source];
+        if !s.is_hit() {
+            return None;
+        }
+        let m = &self.materials[s.material as usize];
+        if kind == RayKind::Shadow {
+            self.shadow_ray(source as u32, s, m, light as u32, sample as u32)
+        } else {
+            self.bounce_ray(source as u32, s, m, kind)
+        }
+    }
+}
+
+/// A checked batch of ray creation: its surfaces, shadow samples per light and slots.
+struct Batch {
+    surfaces: usize,
+    samples: usize,
+    slots: usize,
 }
 
 impl RayGen<Cpu> for Whitted {
@@ -930,10 +989,10 @@ impl RayGen<Cpu> for Whitted {
         kind: RayKind,
         stats: &mut Stats,
     ) -> Result<Vec<Ray>> {
-        let (slots, flags, ended) = self.slots_counted(surfaces, kind)?;
+        let (chunks, ended) = self.chunk_rays(surfaces, kind)?;
         stats.add_offset_ended(kind, ended);
         let t = Instant::now();
-        let rays = trim(&slots, &flags)?;
+        let rays = concat_in_order(chunks);
         stats.add_time("trimming", t.elapsed());
         Ok(rays)
     }
@@ -1021,6 +1080,77 @@ pub(crate) mod tests {
             ior: 1.5,
             ..Material::default()
         }
+    }
+
+    /// The creation path `generate` takes (runs compacted as they are made, then concatenated)
+    /// gives the slots-and-trim path's rays bit for bit and its ended counts, on the G-buffers
+    /// and first bounces of the built-in scenes, for every kind, shadow mode and offset set,
+    /// with 1 and 3 threads; a kind no material spawns writes nothing.
+    #[test]
+    fn chunked_creation_equals_slots_and_trim() {
+        use crate::primary::raster::Raster;
+        use crsh_core::PrimaryVisibility;
+        for name in crsh_scene::builtin::NAMES {
+            let scene = Arc::new(crsh_scene::builtin::build(name).unwrap());
+            let raster = Raster::new(&scene, &StageSpec::new("raster")).unwrap();
+            let primary = raster
+                .gbuffer(&Cpu, 131, 97, &mut Stats::default())
+                .unwrap();
+            for params in [
+                vec![],
+                vec![("shadow", ParamValue::Str("samples".into()))],
+                vec![
+                    ("offset", ParamValue::Str("wachter".into())),
+                    ("offsets", ParamValue::Str("center".into())),
+                    ("shadow_origin", ParamValue::Str("surface".into())),
+                ],
+            ] {
+                let g = Whitted::new(&scene, &spec(&params)).unwrap();
+                let mut surfaces = primary.clone();
+                for _depth in 0..3 {
+                    let mut next = Vec::new();
+                    for kind in [RayKind::Shadow, RayKind::Reflection, RayKind::Refraction] {
+                        let (slots, flags, want_ended) = g.slots_counted(&surfaces, kind).unwrap();
+                        let want = trim(&slots, &flags).unwrap();
+                        for threads in [1, 3] {
+                            let (chunks, ended) = crate::with_threads(threads, || {
+                                g.chunk_rays(&surfaces, kind).unwrap()
+                            })
+                            .unwrap();
+                            let got = concat_in_order(chunks);
+                            assert_eq!(ended, want_ended, "{name} {params:?} {kind:?}");
+                            assert_eq!(
+                                bytemuck::cast_slice::<Ray, u8>(&got),
+                                bytemuck::cast_slice::<Ray, u8>(&want),
+                                "{name} {params:?} {kind:?} ({threads} threads)"
+                            );
+                        }
+                        if kind != RayKind::Shadow {
+                            // Bounce rays continue as surfaces a few units along.
+                            next.extend(want.iter().map(|r| Surface {
+                                position: r.at(r.t_min.max(1e-3) + 0.5),
+                                depth: r.depth,
+                                pixel: r.pixel,
+                                ..surfaces[r.source as usize]
+                            }));
+                        }
+                    }
+                    if next.is_empty() {
+                        break;
+                    }
+                    surfaces = next;
+                }
+            }
+        }
+        // No reflective or transparent material: nothing is made, nothing written.
+        let scene = quad_scene(vec![Material::default()], vec![light(Vec3::Z)]);
+        let g = Whitted::new(&scene, &spec(&[])).unwrap();
+        let surfaces = [surface(Vec3::ZERO, 0, 0)];
+        for kind in [RayKind::Reflection, RayKind::Refraction] {
+            let (chunks, ended) = g.chunk_rays(&surfaces, kind).unwrap();
+            assert!(chunks.is_empty() && ended == 0);
+        }
+        assert!(g.chunk_rays(&surfaces, RayKind::Primary).is_err());
     }
 
     #[test]
