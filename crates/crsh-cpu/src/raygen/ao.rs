@@ -34,10 +34,10 @@ use crsh_core::{
 use crsh_scene::Scene;
 
 use crate::backend::Cpu;
-use crate::raygen::cosine::{fill_slots, CosineRays};
+use crate::raygen::cosine::{fill_runs, fill_slots, CosineRays};
 use crate::raygen::offsets::{self, Offsets};
 use crate::raygen::whitted::{min_throughput_param, offset_params, policy_from_spec};
-use crate::trim::trim;
+use crate::trim::concat_in_order;
 
 /// The most rays per surface `samples` allows.
 pub const MAX_SAMPLES: u32 = 4096;
@@ -160,6 +160,18 @@ impl Ao {
             |source, sample, s| self.ray(source, s, sample),
         )
     }
+
+    /// [`Ao::slots`]' rays compacted per run as they are made ([`fill_runs`]), and the count
+    /// the offsets ended: what [`RayGen::generate`] concatenates.
+    pub fn runs(&self, surfaces: &[Surface]) -> Result<(Vec<Vec<Ray>>, u64)> {
+        fill_runs(
+            surfaces,
+            self.samples as usize,
+            "AO rays",
+            &self.offsets,
+            |source, sample, s| self.ray(source, s, sample),
+        )
+    }
 }
 
 impl RayGen<Cpu> for Ao {
@@ -196,10 +208,10 @@ impl RayGen<Cpu> for Ao {
                 ),
             });
         }
-        let (slots, flags, ended) = self.slots(surfaces)?;
+        let (runs, ended) = self.runs(surfaces)?;
         stats.add_offset_ended(kind, ended);
         let t = Instant::now();
-        let rays = trim(&slots, &flags)?;
+        let rays = concat_in_order(runs);
         stats.add_time("trimming", t.elapsed());
         Ok(rays)
     }

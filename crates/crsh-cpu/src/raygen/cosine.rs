@@ -82,14 +82,7 @@ pub fn fill_slots(
     offsets: &Offsets,
     make: impl Fn(u32, u32, &Surface) -> Option<Ray> + Sync,
 ) -> Result<(Vec<Ray>, Vec<u32>, u64)> {
-    let total = surfaces.len().checked_mul(per);
-    if surfaces.len() > u32::MAX as usize || total.is_none_or(|t| t > u32::MAX as usize) {
-        return Err(CoreError::InvalidInput(format!(
-            "{} surfaces × {per} {what} do not fit 32-bit ray indices",
-            surfaces.len()
-        )));
-    }
-    let n = surfaces.len() * per;
+    let n = check_batch(surfaces, per, what)?;
     let mut slots = vec![<Ray as bytemuck::Zeroable>::zeroed(); n];
     let mut flags = vec![0u32; n];
     let ended = slots
@@ -100,22 +93,155 @@ pub fn fill_slots(
             let mut ended = 0u64;
             for (j, (ray, head)) in rays.iter_mut().zip(heads.iter_mut()).enumerate() {
                 let slot = c * CHUNK * per + j;
-                let (source, k) = (slot / per, (slot % per) as u32);
-                let s = &surfaces[source];
-                if !s.is_hit() {
-                    continue;
+                if let Some((r, kept)) = slot_ray(surfaces, per, offsets, &make, slot) {
+                    ended += u64::from(!kept);
+                    *ray = r;
+                    *head = 1;
                 }
-                let Some(mut r) = make(source as u32, k, s) else {
-                    continue;
-                };
-                if !offsets.apply(s.tri, &mut r) {
-                    ended += 1;
-                }
-                *ray = r;
-                *head = 1;
             }
             ended
         })
         .sum();
     Ok((slots, flags, ended))
+}
+
+/// [`fill_slots`]' rays compacted within each run of [`CHUNK`] surfaces as they are made (one
+/// vector per run, in slot order), and the count the offsets ended; concatenated
+/// ([`crate::trim::concat_in_order`]) they are the trimmed slots, without the slot and flag
+/// arrays ever being written.
+pub fn fill_runs(
+    surfaces: &[Surface],
+    per: usize,
+    what: &str,
+    offsets: &Offsets,
+    make: impl Fn(u32, u32, &Surface) -> Option<Ray> + Sync,
+) -> Result<(Vec<Vec<Ray>>, u64)> {
+    let n = check_batch(surfaces, per, what)?;
+    let runs: Vec<(Vec<Ray>, u64)> = (0..surfaces.len().div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let slots = c * CHUNK * per..((c + 1) * CHUNK * per).min(n);
+            let mut rays = Vec::with_capacity(slots.len());
+            let mut ended = 0u64;
+            for slot in slots {
+                if let Some((r, kept)) = slot_ray(surfaces, per, offsets, &make, slot) {
+                    ended += u64::from(!kept);
+                    rays.push(r);
+                }
+            }
+            (rays, ended)
+        })
+        .collect();
+    let ended = runs.iter().map(|(_, e)| e).sum();
+    Ok((runs.into_iter().map(|(r, _)| r).collect(), ended))
+}
+
+/// The slot count of `per` rays per surface, or the error when it does not fit 32-bit ray
+/// indices.
+fn check_batch(surfaces: &[Surface], per: usize, what: &str) -> Result<usize> {
+    let total = surfaces.len().checked_mul(per);
+    match total {
+        Some(t) if surfaces.len() <= u32::MAX as usize && t <= u32::MAX as usize => Ok(t),
+        _ => Err(CoreError::InvalidInput(format!(
+            "{} surfaces × {per} {what} do not fit 32-bit ray indices",
+            surfaces.len()
+        ))),
+    }
+}
+
+/// The ray of `slot` with the offsets applied and whether its interval survived them, if its
+/// surface is a hit and `make` makes one.
+#[inline]
+fn slot_ray(
+    surfaces: &[Surface],
+    per: usize,
+    offsets: &Offsets,
+    make: &(impl Fn(u32, u32, &Surface) -> Option<Ray> + Sync),
+    slot: usize,
+) -> Option<(Ray, bool)> {
+    let (source, k) = (slot / per, (slot % per) as u32);
+    let s = &surfaces[source];
+    if !s.is_hit() {
+        return None;
+    }
+    let mut r = make(source as u32, k, s)?;
+    let kept = offsets.apply(s.tri, &mut r);
+    Some((r, kept))
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use crsh_core::{ParamValue, PrimaryVisibility, StageSpec, Stats};
+
+    use crate::primary::raster::Raster;
+    use crate::raygen::{ao, diffuse};
+    use crate::trim::{concat_in_order, trim};
+    use crate::Cpu;
+
+    use super::*;
+
+    fn spec(info: crsh_core::StageVariantInfo, params: &[(&str, ParamValue)]) -> StageSpec {
+        let mut s = info.defaults();
+        for (k, v) in params {
+            s.params.insert(k.to_string(), v.clone());
+        }
+        s
+    }
+
+    /// The creation path `generate` takes ([`fill_runs`], then the runs concatenated) gives
+    /// [`fill_slots`] + trim's rays bit for bit and its ended counts, for AO and diffuse rays
+    /// with and without origin offsets, from primary and deeper vertices, with 1 and 3 threads.
+    #[test]
+    fn runs_equal_slots_and_trim() {
+        let same = |what: &str, runs: (Vec<Vec<Ray>>, u64), slots: (Vec<Ray>, Vec<u32>, u64)| {
+            let want = trim(&slots.0, &slots.1).unwrap();
+            assert_eq!(runs.1, slots.2, "{what}: ended");
+            let got = concat_in_order(runs.0);
+            assert_eq!(
+                bytemuck::cast_slice::<Ray, u8>(&got),
+                bytemuck::cast_slice::<Ray, u8>(&want),
+                "{what}"
+            );
+            assert!(!want.is_empty(), "{what}: no rays");
+        };
+        for name in crsh_scene::builtin::NAMES {
+            let scene = Arc::new(crsh_scene::builtin::build(name).unwrap());
+            let raster = Raster::new(&scene, &StageSpec::new("raster")).unwrap();
+            let primary = raster.gbuffer(&Cpu, 97, 61, &mut Stats::default()).unwrap();
+            // Deeper vertices: the same records one bounce on.
+            let deeper: Vec<Surface> = primary.iter().map(|s| Surface { depth: 1, ..*s }).collect();
+            for offsets in [
+                vec![],
+                vec![
+                    ("offset", ParamValue::Str("wachter".into())),
+                    ("offsets", ParamValue::Str("center".into())),
+                ],
+            ] {
+                let mut params = offsets.clone();
+                params.push(("samples", ParamValue::Int(3)));
+                let a = ao::Ao::new(&scene, &spec(ao::info(), &params)).unwrap();
+                let d = diffuse::Diffuse::new(&scene, &spec(diffuse::info(), &params)).unwrap();
+                for (batch, surfaces) in [("primary", &primary), ("deeper", &deeper)] {
+                    for threads in [1, 3] {
+                        let what = format!("{name} {offsets:?} {batch} {threads} threads");
+                        let runs = crate::with_threads(threads, || a.runs(surfaces).unwrap());
+                        same(
+                            &format!("ao {what}"),
+                            runs.unwrap(),
+                            a.slots(surfaces).unwrap(),
+                        );
+                        let runs =
+                            crate::with_threads(threads, || d.diffuse_runs(surfaces).unwrap());
+                        same(
+                            &format!("diffuse {what}"),
+                            runs.unwrap(),
+                            d.diffuse_slots(surfaces).unwrap(),
+                        );
+                    }
+                }
+            }
+        }
+    }
 }

@@ -37,10 +37,10 @@ use rayon::prelude::*;
 
 use crate::backend::Cpu;
 use crate::raygen::ao::MAX_SAMPLES;
-use crate::raygen::cosine::{fill_slots, CosineRays};
+use crate::raygen::cosine::{fill_runs, fill_slots, CosineRays};
 use crate::raygen::offsets::{self, Offsets};
 use crate::raygen::whitted::{min_throughput_param, policy_from_spec, surface_ray_params, Whitted};
-use crate::trim::trim;
+use crate::trim::concat_in_order;
 
 /// The diffuse path-tracing generator (variant `diffuse`). See the module docs.
 #[derive(Clone, Debug)]
@@ -151,6 +151,31 @@ impl Diffuse {
     /// applied; plus the number of rays the offsets ended. Every surface of one batch has the
     /// same depth in the frame driver; a mixed batch is made with the largest slot count.
     pub fn diffuse_slots(&self, surfaces: &[Surface]) -> Result<(Vec<Ray>, Vec<u32>, u64)> {
+        let per = self.diffuse_batch(surfaces)?;
+        fill_slots(
+            surfaces,
+            per,
+            "diffuse rays",
+            self.shadows.offsets(),
+            |source, k, s| self.diffuse_ray(source, k, s),
+        )
+    }
+
+    /// [`Diffuse::diffuse_slots`]' rays compacted per run as they are made ([`fill_runs`]), and
+    /// the count the offsets ended: what [`RayGen::generate`] concatenates.
+    pub fn diffuse_runs(&self, surfaces: &[Surface]) -> Result<(Vec<Vec<Ray>>, u64)> {
+        let per = self.diffuse_batch(surfaces)?;
+        fill_runs(
+            surfaces,
+            per,
+            "diffuse rays",
+            self.shadows.offsets(),
+            |source, k, s| self.diffuse_ray(source, k, s),
+        )
+    }
+
+    /// Checks a batch's materials and gives its slots per surface.
+    fn diffuse_batch(&self, surfaces: &[Surface]) -> Result<usize> {
         if let Some(s) = surfaces
             .par_iter()
             .find_first(|s| s.is_hit() && s.material as usize >= self.albedo.len())
@@ -162,28 +187,24 @@ impl Diffuse {
                 self.albedo.len()
             )));
         }
-        let per = if surfaces.iter().any(|s| s.depth == 0) {
+        Ok(if surfaces.iter().any(|s| s.depth == 0) {
             self.samples as usize
         } else {
             1
+        })
+    }
+
+    /// Diffuse slot `k` of surface `s` (index `source`): a primary vertex starts `samples`
+    /// paths; a deeper one continues its own.
+    fn diffuse_ray(&self, source: u32, k: u32, s: &Surface) -> Option<Ray> {
+        let (sample, paths) = if s.depth == 0 {
+            (k, self.samples)
+        } else if k == 0 {
+            (s.sample(), 1)
+        } else {
+            return None;
         };
-        fill_slots(
-            surfaces,
-            per,
-            "diffuse rays",
-            self.shadows.offsets(),
-            |source, k, s| {
-                // A primary vertex starts `samples` paths; a deeper one continues its own.
-                let (sample, paths) = if s.depth == 0 {
-                    (k, self.samples)
-                } else if k == 0 {
-                    (s.sample(), 1)
-                } else {
-                    return None;
-                };
-                self.ray(source, s, sample, paths)
-            },
-        )
+        self.ray(source, s, sample, paths)
     }
 }
 
@@ -207,12 +228,12 @@ impl RayGen<Cpu> for Diffuse {
         kind: RayKind,
         stats: &mut Stats,
     ) -> Result<Vec<Ray>> {
-        let (slots, flags) = match kind {
+        let runs = match kind {
             RayKind::Shadow => return self.shadows.generate(backend, surfaces, kind, stats),
             RayKind::Diffuse => {
-                let (slots, flags, ended) = self.diffuse_slots(surfaces)?;
+                let (runs, ended) = self.diffuse_runs(surfaces)?;
                 stats.add_offset_ended(kind, ended);
-                (slots, flags)
+                runs
             }
             other => {
                 return Err(CoreError::Unsupported {
@@ -223,7 +244,7 @@ impl RayGen<Cpu> for Diffuse {
             }
         };
         let t = Instant::now();
-        let rays = trim(&slots, &flags)?;
+        let rays = concat_in_order(runs);
         stats.add_time("trimming", t.elapsed());
         Ok(rays)
     }
