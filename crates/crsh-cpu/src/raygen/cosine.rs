@@ -105,7 +105,7 @@ pub fn fill_slots(
     Ok((slots, flags, ended))
 }
 
-/// [`fill_slots`]' rays compacted within each run of [`CHUNK`] surfaces as they are made (one
+/// [`fill_slots`]' rays compacted within each run of 1,024 surfaces as they are made (one
 /// vector per run, in slot order), and the count the offsets ended; concatenated
 /// ([`crate::trim::concat_in_order`]) they are the trimmed slots, without the slot and flag
 /// arrays ever being written.

@@ -859,7 +859,7 @@ impl Whitted {
         Ok((slots, flags, ended))
     }
 
-    /// The rays of [`Whitted::slots`] compacted within each run of [`CHUNK`] slots as they are
+    /// The rays of [`Whitted::slots`] compacted within each run of 4,096 slots as they are
     /// made (one vector per run, in slot order), and the count of rays the offsets emptied.
     /// Concatenated ([`crate::trim::concat_in_order`]), they are [`Whitted::rays`]; the full slot and flag
     /// arrays are never written, and a kind no surface spawns writes nothing.
