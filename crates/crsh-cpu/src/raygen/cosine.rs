@@ -6,10 +6,10 @@
 use crsh_core::glam::Vec3;
 use crsh_core::rng::{front_cosine_direction, RngKey};
 use crsh_core::{CoreError, Ray, RayKind, Result, Surface};
-use rayon::prelude::*;
 
 use crate::raygen::offsets::Offsets;
 use crate::raygen::whitted::{offset_segment, Leg, OffsetPolicy};
+use crate::trim;
 
 /// Surfaces per parallel work item.
 const CHUNK: usize = 1024;
@@ -83,26 +83,9 @@ pub fn fill_slots(
     make: impl Fn(u32, u32, &Surface) -> Option<Ray> + Sync,
 ) -> Result<(Vec<Ray>, Vec<u32>, u64)> {
     let n = check_batch(surfaces, per, what)?;
-    let mut slots = vec![<Ray as bytemuck::Zeroable>::zeroed(); n];
-    let mut flags = vec![0u32; n];
-    let ended = slots
-        .par_chunks_mut(CHUNK * per)
-        .zip(flags.par_chunks_mut(CHUNK * per))
-        .enumerate()
-        .map(|(c, (rays, heads))| {
-            let mut ended = 0u64;
-            for (j, (ray, head)) in rays.iter_mut().zip(heads.iter_mut()).enumerate() {
-                let slot = c * CHUNK * per + j;
-                if let Some((r, kept)) = slot_ray(surfaces, per, offsets, &make, slot) {
-                    ended += u64::from(!kept);
-                    *ray = r;
-                    *head = 1;
-                }
-            }
-            ended
-        })
-        .sum();
-    Ok((slots, flags, ended))
+    Ok(trim::fill_slot_arrays(n, CHUNK * per, |slot| {
+        slot_ray(surfaces, per, offsets, &make, slot)
+    }))
 }
 
 /// [`fill_slots`]' rays compacted within each run of 1,024 surfaces as they are made (one
@@ -117,23 +100,9 @@ pub fn fill_runs(
     make: impl Fn(u32, u32, &Surface) -> Option<Ray> + Sync,
 ) -> Result<(Vec<Vec<Ray>>, u64)> {
     let n = check_batch(surfaces, per, what)?;
-    let runs: Vec<(Vec<Ray>, u64)> = (0..surfaces.len().div_ceil(CHUNK))
-        .into_par_iter()
-        .map(|c| {
-            let slots = c * CHUNK * per..((c + 1) * CHUNK * per).min(n);
-            let mut rays = Vec::with_capacity(slots.len());
-            let mut ended = 0u64;
-            for slot in slots {
-                if let Some((r, kept)) = slot_ray(surfaces, per, offsets, &make, slot) {
-                    ended += u64::from(!kept);
-                    rays.push(r);
-                }
-            }
-            (rays, ended)
-        })
-        .collect();
-    let ended = runs.iter().map(|(_, e)| e).sum();
-    Ok((runs.into_iter().map(|(r, _)| r).collect(), ended))
+    Ok(trim::fill_runs(n, CHUNK * per, |slot| {
+        slot_ray(surfaces, per, offsets, &make, slot)
+    }))
 }
 
 /// The slot count of `per` rays per surface, or the error when it does not fit 32-bit ray
@@ -149,8 +118,8 @@ fn check_batch(surfaces: &[Surface], per: usize, what: &str) -> Result<usize> {
     }
 }
 
-/// The ray of `slot` with the offsets applied and whether its interval survived them, if its
-/// surface is a hit and `make` makes one.
+/// The ray of `slot` with the offsets applied and whether they ended it (emptied its
+/// interval), if its surface is a hit and `make` makes one.
 #[inline]
 fn slot_ray(
     surfaces: &[Surface],
@@ -166,7 +135,7 @@ fn slot_ray(
     }
     let mut r = make(source as u32, k, s)?;
     let kept = offsets.apply(s.tri, &mut r);
-    Some((r, kept))
+    Some((r, !kept))
 }
 
 #[cfg(test)]

@@ -118,7 +118,7 @@ use rayon::prelude::*;
 
 use crate::backend::Cpu;
 use crate::raygen::offsets::{self, Offsets};
-use crate::trim::{concat_in_order, trim};
+use crate::trim::{self, concat_in_order, trim};
 
 /// Surfaces per parallel work item.
 const CHUNK: usize = 4096;
@@ -838,53 +838,23 @@ impl Whitted {
         kind: RayKind,
     ) -> Result<(Vec<Ray>, Vec<u32>, u64)> {
         let batch = self.batch(surfaces, kind)?;
-        let mut slots = vec![<Ray as bytemuck::Zeroable>::zeroed(); batch.slots];
-        let mut flags = vec![0u32; batch.slots];
-        let ended = slots
-            .par_chunks_mut(CHUNK)
-            .zip(flags.par_chunks_mut(CHUNK))
-            .enumerate()
-            .map(|(c, (rays, heads))| {
-                let mut ended = 0u64;
-                for (j, (ray, head)) in rays.iter_mut().zip(heads.iter_mut()).enumerate() {
-                    if let Some(r) = self.slot_ray(surfaces, kind, &batch, c * CHUNK + j) {
-                        ended += u64::from(r.t_min >= r.t_max && self.offsets.is_some());
-                        *ray = r;
-                        *head = 1;
-                    }
-                }
-                ended
-            })
-            .sum();
-        Ok((slots, flags, ended))
+        Ok(trim::fill_slot_arrays(batch.slots, CHUNK, |slot| {
+            self.slot_ray(surfaces, kind, &batch, slot)
+        }))
     }
 
     /// The rays of [`Whitted::slots`] compacted within each run of 4,096 slots as they are
     /// made (one vector per run, in slot order), and the count of rays the offsets emptied.
-    /// Concatenated ([`crate::trim::concat_in_order`]), they are [`Whitted::rays`]; the full slot and flag
-    /// arrays are never written, and a kind no surface spawns writes nothing.
-    pub fn chunk_rays(&self, surfaces: &[Surface], kind: RayKind) -> Result<(Vec<Vec<Ray>>, u64)> {
+    /// Concatenated ([`crate::trim::concat_in_order`]), they are [`Whitted::rays`]; the full
+    /// slot and flag arrays are never written, and a kind no surface spawns writes nothing.
+    pub fn runs(&self, surfaces: &[Surface], kind: RayKind) -> Result<(Vec<Vec<Ray>>, u64)> {
         let batch = self.batch(surfaces, kind)?;
         if !self.may_spawn(kind) {
             return Ok((Vec::new(), 0));
         }
-        let chunks: Vec<(Vec<Ray>, u64)> = (0..batch.slots.div_ceil(CHUNK))
-            .into_par_iter()
-            .map(|c| {
-                let range = c * CHUNK..((c + 1) * CHUNK).min(batch.slots);
-                let mut rays = Vec::with_capacity(range.len());
-                let mut ended = 0u64;
-                for slot in range {
-                    if let Some(r) = self.slot_ray(surfaces, kind, &batch, slot) {
-                        ended += u64::from(r.t_min >= r.t_max && self.offsets.is_some());
-                        rays.push(r);
-                    }
-                }
-                (rays, ended)
-            })
-            .collect();
-        let ended = chunks.iter().map(|(_, e)| e).sum();
-        Ok((chunks.into_iter().map(|(r, _)| r).collect(), ended))
+        Ok(trim::fill_runs(batch.slots, CHUNK, |slot| {
+            self.slot_ray(surfaces, kind, &batch, slot)
+        }))
     }
 
     /// Whether any surface could spawn a ray of `kind`: a light for shadow rays, a
@@ -941,9 +911,16 @@ impl Whitted {
         })
     }
 
-    /// The ray of slot `slot` of a checked batch, if its surface spawns one.
+    /// The ray of slot `slot` of a checked batch and whether the origin offsets ended it
+    /// (emptied its interval), if its surface spawns one.
     #[inline]
-    fn slot_ray(&self, surfaces: &[Surface], kind: RayKind, b: &Batch, slot: usize) -> Option<Ray> {
+    fn slot_ray(
+        &self,
+        surfaces: &[Surface],
+        kind: RayKind,
+        b: &Batch,
+        slot: usize,
+    ) -> Option<(Ray, bool)> {
         let (source, light_sample) = (slot % b.surfaces, slot / b.surfaces);
         let (light, sample) = (light_sample / b.samples, light_sample % b.samples);
         let s = &surfaces[source];
@@ -951,11 +928,12 @@ impl Whitted {
             return None;
         }
         let m = &self.materials[s.material as usize];
-        if kind == RayKind::Shadow {
+        let r = if kind == RayKind::Shadow {
             self.shadow_ray(source as u32, s, m, light as u32, sample as u32)
         } else {
             self.bounce_ray(source as u32, s, m, kind)
-        }
+        }?;
+        Some((r, r.t_min >= r.t_max && self.offsets.is_some()))
     }
 }
 
@@ -989,10 +967,10 @@ impl RayGen<Cpu> for Whitted {
         kind: RayKind,
         stats: &mut Stats,
     ) -> Result<Vec<Ray>> {
-        let (chunks, ended) = self.chunk_rays(surfaces, kind)?;
+        let (runs, ended) = self.runs(surfaces, kind)?;
         stats.add_offset_ended(kind, ended);
         let t = Instant::now();
-        let rays = concat_in_order(chunks);
+        let rays = concat_in_order(runs);
         stats.add_time("trimming", t.elapsed());
         Ok(rays)
     }
@@ -1113,10 +1091,9 @@ pub(crate) mod tests {
                         let (slots, flags, want_ended) = g.slots_counted(&surfaces, kind).unwrap();
                         let want = trim(&slots, &flags).unwrap();
                         for threads in [1, 3] {
-                            let (chunks, ended) = crate::with_threads(threads, || {
-                                g.chunk_rays(&surfaces, kind).unwrap()
-                            })
-                            .unwrap();
+                            let (chunks, ended) =
+                                crate::with_threads(threads, || g.runs(&surfaces, kind).unwrap())
+                                    .unwrap();
                             let got = concat_in_order(chunks);
                             assert_eq!(ended, want_ended, "{name} {params:?} {kind:?}");
                             assert_eq!(
@@ -1147,10 +1124,10 @@ pub(crate) mod tests {
         let g = Whitted::new(&scene, &spec(&[])).unwrap();
         let surfaces = [surface(Vec3::ZERO, 0, 0)];
         for kind in [RayKind::Reflection, RayKind::Refraction] {
-            let (chunks, ended) = g.chunk_rays(&surfaces, kind).unwrap();
+            let (chunks, ended) = g.runs(&surfaces, kind).unwrap();
             assert!(chunks.is_empty() && ended == 0);
         }
-        assert!(g.chunk_rays(&surfaces, RayKind::Primary).is_err());
+        assert!(g.runs(&surfaces, RayKind::Primary).is_err());
     }
 
     #[test]
