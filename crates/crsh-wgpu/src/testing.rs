@@ -111,12 +111,13 @@ pub fn hits_agree(mode: HitMode, a: &Hit, b: &Hit) -> bool {
     }
 }
 
-/// The barycentrics of `ray` on triangle `tri` of `scene` in f64, and the test's condition
+/// The barycentrics `u`, `v` of `ray` on triangle `tri` of `scene` in f64 (`None` for a
+/// triangle the scene lacks), and the Möller-Trumbore test's condition
 /// number `|d|·(|s| + |e1| + |e2|)·(|e1| + |e2|) / |det|` (`s` from the first vertex to the
 /// origin): the rounding errors of `u = s·(d×e2)/det` and `v = d·(s×e1)/det` are about that
 /// many times the unit roundoff. It grows as one over the sine of the angle between the ray
 /// and the plane, and with the origin's distance over the triangle's size.
-fn conditioned_barycentrics(scene: &Scene, ray: &Ray, tri: u32) -> Option<(f64, f64, f64)> {
+pub fn barycentrics_f64(scene: &Scene, ray: &Ray, tri: u32) -> Option<(f64, f64, f64)> {
     let tri = tri as usize;
     if tri >= scene.triangle_count() {
         return None;
@@ -142,8 +143,8 @@ fn conditioned_barycentrics(scene: &Scene, ray: &Ray, tri: u32) -> Option<(f64, 
 /// - one of the hit triangles, re-tested in f64, is met within 1e-5 times the condition number
 ///   of an edge.
 ///
-/// The condition number (`|d|·(|s| + |e1| + |e2|)·(|e1| + |e2|) / |det|`) grows as one over the sine of the angle
-/// between the ray and the triangle's plane, so a ray grazing a triangle (or lying in its
+/// The condition number ([`barycentrics_f64`]) grows as one over the sine of the angle between
+/// the ray and the triangle's plane, so a ray grazing a triangle (or lying in its
 /// plane) explains any disagreement on it, and a ray meeting a nearby triangle head-on only
 /// one within about 1e-4 of an edge.
 pub fn rounding_explains(scene: &Scene, ray: &Ray, a: &Hit, b: &Hit) -> bool {
@@ -155,7 +156,7 @@ pub fn rounding_explains(scene: &Scene, ray: &Ray, a: &Hit, b: &Hit) -> bool {
         return true;
     }
     if a.is_hit() && b.is_hit() && a.tri == b.tri {
-        if let Some((_, _, condition)) = conditioned_barycentrics(scene, ray, a.tri) {
+        if let Some((_, _, condition)) = barycentrics_f64(scene, ray, a.tri) {
             let tol = 1e-5 * condition.max(1.0);
             let (da, db) = (a.t as f64, b.t as f64);
             if !tol.is_finite()
@@ -168,7 +169,7 @@ pub fn rounding_explains(scene: &Scene, ray: &Ray, a: &Hit, b: &Hit) -> bool {
         }
     }
     [a, b].iter().filter(|h| h.is_hit()).any(|h| {
-        let Some((u, v, condition)) = conditioned_barycentrics(scene, ray, h.tri) else {
+        let Some((u, v, condition)) = barycentrics_f64(scene, ray, h.tri) else {
             return false;
         };
         let margin = u.min(v).min(1.0 - u - v).abs();

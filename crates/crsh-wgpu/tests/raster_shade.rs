@@ -61,18 +61,20 @@ fn near_edge(scene: &Scene, tri: u32, w: u32, h: u32, pixel: u32) -> bool {
     }
     let d = scene
         .camera
-        .direction((pixel % w) as f32 + 0.5, (pixel / w) as f32 + 0.5, w, h)
-        .as_dvec3();
-    let o = scene.camera.eye.as_dvec3();
-    let [a, b, c] = scene.triangle(tri as usize).map(|v| v.as_dvec3());
-    let (e1, e2) = (b - a, c - a);
-    let p = d.cross(e2);
-    let det = e1.dot(p);
-    let s = o - a;
-    let u = s.dot(p) / det;
-    let v = d.dot(s.cross(e1)) / det;
+        .direction((pixel % w) as f32 + 0.5, (pixel / w) as f32 + 0.5, w, h);
+    let ray = crsh_wgpu::testing::ray(
+        scene.camera.eye,
+        d,
+        0.0,
+        f32::INFINITY,
+        RayKind::Primary,
+        pixel,
+    );
+    let Some((u, v, condition)) = crsh_wgpu::testing::barycentrics_f64(scene, &ray, tri) else {
+        return false;
+    };
     let m = u.min(v).min(1.0 - u - v);
-    m.abs() < 2e-3 || !DVec3::new(u, v, det).is_finite()
+    m.abs() < 2e-3 || !DVec3::new(u, v, condition).is_finite()
 }
 
 /// Both triangles cover the pixel centre at the same depth (within rounding): a depth tie.
