@@ -65,6 +65,27 @@ pub mod trim;
 pub use backend::Cpu;
 pub use registry::with_threads;
 
+/// Items per chunk of [`position_first`]'s parallel scan (and of other parallel scans).
+pub(crate) const SCAN_CHUNK: usize = 1 << 14;
+
+/// The position of the first item of `items` for which `pred` holds, scanned in parallel by
+/// chunks of [`SCAN_CHUNK`] items (each chunk's first match, then the least of them). For the
+/// input checks that run on every batch and almost never match: rayon's per-item
+/// `position_first` pays a shared-minimum check per item (10.7 ms for Sponza's 1.24M
+/// shadow-ray order on two threads), a chunk's plain loop does not (the same scan in
+/// 0.23-0.32 ms). The same answer as a serial `position`, whatever the thread count.
+pub(crate) fn position_first<T: Sync>(
+    items: &[T],
+    pred: impl Fn(&T) -> bool + Sync,
+) -> Option<usize> {
+    use rayon::prelude::*;
+    items
+        .par_chunks(SCAN_CHUNK)
+        .enumerate()
+        .filter_map(|(k, chunk)| chunk.iter().position(&pred).map(|i| k * SCAN_CHUNK + i))
+        .min()
+}
+
 /// Asks the processor to start loading the cache line of `x` (a hint: it changes no result;
 /// nothing on targets without a prefetch instruction, or for `None`). For gathers through a
 /// permutation, where each load would otherwise wait for memory in turn.
@@ -81,4 +102,40 @@ pub(crate) fn prefetch<T>(x: Option<&T>) {
     }
     #[cfg(not(target_arch = "x86_64"))]
     let _ = x;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn position_first_is_the_serial_first_match_at_any_thread_count() {
+        let n = 3 * SCAN_CHUNK + 17;
+        let items: Vec<u32> = (0..n as u32)
+            .map(|i| i.wrapping_mul(2_654_435_761))
+            .collect();
+        // Matches in no chunk, in the first item, at both sides of chunk boundaries, in the
+        // last (short) chunk and in several chunks at once (the earliest wins).
+        let marks: [&[usize]; 6] = [
+            &[],
+            &[0],
+            &[SCAN_CHUNK - 1, 2 * SCAN_CHUNK],
+            &[SCAN_CHUNK, 3 * SCAN_CHUNK + 5],
+            &[n - 1],
+            &[2 * SCAN_CHUNK + 3, SCAN_CHUNK + 9, 3 * SCAN_CHUNK],
+        ];
+        for threads in [1, 3] {
+            for m in marks {
+                let mut v = items.clone();
+                for &i in m {
+                    v[i] = u32::MAX;
+                }
+                let serial = v.iter().position(|&x| x == u32::MAX);
+                let got = with_threads(threads, || position_first(&v, |&x| x == u32::MAX)).unwrap();
+                assert_eq!(got, serial, "marks {m:?}, {threads} threads");
+                assert_eq!(got, m.iter().min().copied());
+            }
+        }
+        assert_eq!(position_first::<u32>(&[], |_| true), None);
+    }
 }

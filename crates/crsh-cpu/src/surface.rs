@@ -127,9 +127,8 @@ pub fn area_ratio_weights(a: Vec3, b: Vec3, c: Vec3, p: Vec3) -> Option<[f64; 3]
 pub fn next_surfaces(scene: &Scene, rays: &[Ray], hits: &[Hit]) -> Result<Vec<Surface>> {
     crsh_core::ray::check_hits_per_ray("rays", rays.len(), hits.len())?;
     let ntri = scene.triangle_count();
-    if let Some(h) = hits
-        .par_iter()
-        .find_first(|h| h.is_hit() && h.tri as usize >= ntri)
+    if let Some(h) =
+        crate::position_first(hits, |h| h.is_hit() && h.tri as usize >= ntri).map(|i| &hits[i])
     {
         return Err(CoreError::InvalidInput(format!(
             "hit on triangle {} but the scene has {ntri}",

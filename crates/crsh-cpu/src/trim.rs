@@ -33,7 +33,7 @@ pub fn trim<T: Copy + Send + Sync>(slots: &[T], flags: &[u32]) -> Result<Vec<T>>
             slots.len()
         )));
     }
-    if let Some(i) = flags.par_iter().position_any(|&f| f > 1) {
+    if let Some(i) = crate::position_first(flags, |&f| f > 1) {
         return Err(CoreError::InvalidInput(format!(
             "trim: head flag {i} is {} (must be 0 or 1)",
             flags[i]

@@ -236,7 +236,7 @@ impl Hasher<Cpu> for TileHasher {
         _kind: RayKind,
         _stats: &mut Stats,
     ) -> Result<Vec<u64>> {
-        if let Some(i) = rays.par_iter().position_first(|r| self.key(r).is_none()) {
+        if let Some(i) = crate::position_first(rays, |r| self.key(r).is_none()) {
             let r = &rays[i];
             let f = self.grid.frame;
             return Err(CoreError::InvalidInput(format!(

@@ -486,10 +486,7 @@ pub fn leaf_range(
 /// `variant` (`order` must be a permutation of the batch; every ray needs a finite origin and
 /// a finite non-zero direction). Shared by the hierarchy builders.
 pub(crate) fn validate_leaves(variant: &str, rays: &[Ray], order: &[u32]) -> Result<()> {
-    if let Some(leaf) = order
-        .par_iter()
-        .position_first(|&i| i as usize >= rays.len())
-    {
+    if let Some(leaf) = crate::position_first(order, |&i| i as usize >= rays.len()) {
         return Err(CoreError::InvalidInput(format!(
             "{variant}: leaf {leaf} refers to ray {} of a batch of {} rays",
             order[leaf],
@@ -517,10 +514,10 @@ pub(crate) fn validate_leaves(variant: &str, rays: &[Ray], order: &[u32]) -> Res
     };
     // The rays in memory order first (a permutation holds every ray once); the first bad
     // leaf in `order` is looked for only when some ray is bad.
-    if !rays.par_iter().any(bad) {
+    if crate::position_first(rays, bad).is_none() {
         return Ok(());
     }
-    if let Some(leaf) = order.par_iter().position_first(|&i| bad(&rays[i as usize])) {
+    if let Some(leaf) = crate::position_first(order, |&i| bad(&rays[i as usize])) {
         let r = &rays[order[leaf] as usize];
         return Err(CoreError::InvalidInput(format!(
             "{variant}: ray {} (leaf {leaf}) has origin {} and direction {}: needs a finite \

@@ -642,21 +642,18 @@ pub(crate) fn merge_repeats(v: &mut Vec<(Candidate, u32)>) {
     });
 }
 
-/// Pairs per chunk of the parallel scans.
-const SCAN_CHUNK: usize = 1 << 14;
-
 /// Whether every pair is in range, and whether the pairs are strictly increasing.
 fn scan_pairs(pairs: &[Candidate], n_nodes: usize, n_tris: usize) -> (bool, bool) {
     pairs
-        .par_chunks(SCAN_CHUNK)
+        .par_chunks(crate::SCAN_CHUNK)
         .enumerate()
         .map(|(k, chunk)| {
             let in_range = chunk
                 .iter()
                 .all(|c| (c.node as usize) < n_nodes && (c.tri as usize) < n_tris);
             // Include the boundary with the previous chunk.
-            let from = (k * SCAN_CHUNK).saturating_sub(1);
-            let window = &pairs[from..k * SCAN_CHUNK + chunk.len()];
+            let from = (k * crate::SCAN_CHUNK).saturating_sub(1);
+            let window = &pairs[from..k * crate::SCAN_CHUNK + chunk.len()];
             let increasing = window.windows(2).all(|w| w[0] < w[1]);
             (in_range, increasing)
         })
@@ -671,15 +668,7 @@ pub(crate) fn check_batch(rays: &[Ray], hits: &[Hit]) -> Result<()> {
 
 /// Checks that every ray is valid ([`Ray::is_valid`]).
 fn check_rays(rays: &[Ray]) -> Result<()> {
-    // A cheap parallel check first; the position is searched only when a ray is bad.
-    if !rays
-        .par_chunks(SCAN_CHUNK)
-        .all(|c| c.iter().all(Ray::is_valid))
-    {
-        let i = rays
-            .iter()
-            .position(|r| !r.is_valid())
-            .expect("the scan found one");
+    if let Some(i) = crate::position_first(rays, |r| !r.is_valid()) {
         return Err(CoreError::InvalidInput(format!(
             "ray {i} is not valid (non-finite or zero direction, or NaN interval): {:?}",
             rays[i]

@@ -33,7 +33,6 @@ use crsh_core::{
     StageVariantInfo, Stats, Surface,
 };
 use crsh_scene::Scene;
-use rayon::prelude::*;
 
 use crate::backend::Cpu;
 use crate::raygen::ao::MAX_SAMPLES;
@@ -176,9 +175,10 @@ impl Diffuse {
 
     /// Checks a batch's materials and gives its slots per surface.
     fn diffuse_batch(&self, surfaces: &[Surface]) -> Result<usize> {
-        if let Some(s) = surfaces
-            .par_iter()
-            .find_first(|s| s.is_hit() && s.material as usize >= self.albedo.len())
+        if let Some(s) = crate::position_first(surfaces, |s| {
+            s.is_hit() && s.material as usize >= self.albedo.len()
+        })
+        .map(|i| &surfaces[i])
         {
             return Err(CoreError::InvalidInput(format!(
                 "surface of pixel {} has material {} but the scene has {}",

@@ -114,7 +114,6 @@ use crsh_core::{
     StageVariantInfo, Stats, Surface,
 };
 use crsh_scene::Scene;
-use rayon::prelude::*;
 
 use crate::backend::Cpu;
 use crate::raygen::offsets::{self, Offsets};
@@ -893,9 +892,10 @@ impl Whitted {
                 surfaces.len()
             )));
         }
-        if let Some(s) = surfaces
-            .par_iter()
-            .find_first(|s| s.is_hit() && s.material as usize >= self.materials.len())
+        if let Some(s) = crate::position_first(surfaces, |s| {
+            s.is_hit() && s.material as usize >= self.materials.len()
+        })
+        .map(|i| &surfaces[i])
         {
             return Err(CoreError::InvalidInput(format!(
                 "surface of pixel {} has material {} but the scene has {}",

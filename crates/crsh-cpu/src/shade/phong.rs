@@ -359,10 +359,12 @@ impl Phong {
             });
         }
         crsh_core::ray::check_hits_per_ray("shadow rays", shadow_rays.len(), shadow_hits.len())?;
-        if let Some(s) = surfaces.par_iter().find_first(|s| {
+        if let Some(s) = crate::position_first(surfaces, |s| {
             s.pixel as usize >= image.len()
                 || (s.is_hit() && s.material as usize >= self.materials.len())
-        }) {
+        })
+        .map(|i| &surfaces[i])
+        {
             return Err(CoreError::InvalidInput(format!(
                 "surface record for pixel {} (material {}) does not fit an image of {} pixels \
                  and {} materials",

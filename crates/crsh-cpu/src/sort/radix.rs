@@ -234,7 +234,7 @@ pub fn check_keys(keys: &[u64], key_bits: u32) -> Result<()> {
     }
     if key_bits < 64 {
         let mask = !((1u64 << key_bits) - 1);
-        if let Some(k) = keys.par_iter().find_first(|&&k| k & mask != 0) {
+        if let Some(k) = crate::position_first(keys, |&k| k & mask != 0).map(|i| keys[i]) {
             return Err(CoreError::InvalidInput(format!(
                 "key {k:#x} has bits set above key_bits = {key_bits}"
             )));
@@ -317,7 +317,7 @@ pub fn stable_sort_pairs_u32(
         )));
     }
     if key_bits < 32 {
-        if let Some(k) = keys.par_iter().find_first(|&&k| k >> key_bits != 0) {
+        if let Some(k) = crate::position_first(keys, |&k| k >> key_bits != 0).map(|i| keys[i]) {
             return Err(CoreError::InvalidInput(format!(
                 "key {k:#x} has bits set above key_bits = {key_bits}"
             )));

@@ -2351,7 +2351,7 @@ fn trace_tasks<'a, T: TriangleTest>(
     let mut counts = Counters::new(ctx.nodes.len(), ctx.tree.max_depth + 1);
     let (mut tests, mut found) = (0u64, 0u64);
     let miss = bytemuck::bytes_of(&Hit::MISS);
-    let fresh = hits.par_iter().all(|h| bytemuck::bytes_of(h) == miss);
+    let fresh = crate::position_first(hits, |h| bytemuck::bytes_of(h) != miss).is_none();
     for first in (0..n_top).step_by(ROUND_TASKS) {
         // After a round some rays have hits, but the next round's rays are others: a fresh
         // batch stays one for them.
