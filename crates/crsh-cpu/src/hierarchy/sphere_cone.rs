@@ -306,7 +306,16 @@ impl SphereConeBuilder {
         }
         let (lowest, lowest_reach): (Vec<SphereCone>, Vec<f32>) = order
             .par_chunks(s)
-            .map(|leaves| leaf_node(rays, leaves, self.leaf_cone))
+            .enumerate()
+            .map(|(n, leaves)| {
+                // The next node's rays start loading while this one is built: the gather
+                // through the sorted order would otherwise wait for memory at every ray.
+                let next = order.get((n + 1) * s..).unwrap_or(&[]);
+                for &i in &next[..s.min(next.len())] {
+                    crate::prefetch(rays.get(i as usize));
+                }
+                leaf_node(rays, leaves, self.leaf_cone)
+            })
             .unzip();
         levels.push(lowest);
         while levels.len() < self.depth as usize {
@@ -500,13 +509,12 @@ pub(crate) fn validate_leaves(variant: &str, rays: &[Ray], order: &[u32]) -> Res
             rays.len()
         )));
     }
-    let mut seen = vec![false; rays.len()];
-    for (leaf, &i) in order.iter().enumerate() {
-        if std::mem::replace(&mut seen[i as usize], true) {
-            return Err(CoreError::InvalidInput(format!(
-                "{variant}: ray {i} appears twice in the order (again at leaf {leaf})"
-            )));
-        }
+    // Every entry is in range: the first one `first_repeat` names is a repeat.
+    if let Some(leaf) = crate::first_repeat(order, rays.len()) {
+        return Err(CoreError::InvalidInput(format!(
+            "{variant}: ray {} appears twice in the order (again at leaf {leaf})",
+            order[leaf]
+        )));
     }
     let bad = |r: &Ray| {
         let d = r.dir.as_dvec3();

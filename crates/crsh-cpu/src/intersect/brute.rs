@@ -685,21 +685,13 @@ pub(crate) fn check_permutation(order: &[u32], n: usize) -> Result<()> {
             order.len()
         )));
     }
-    // One bit per ray.
-    let mut seen = vec![0u64; n.div_ceil(64)];
-    for &r in order {
-        let r = r as usize;
-        let bit = 1u64 << (r % 64);
-        match seen.get_mut(r / 64) {
-            Some(word) if r < n && *word & bit == 0 => *word |= bit,
-            _ => {
-                return Err(CoreError::InvalidInput(format!(
-                    "hierarchy order is not a permutation of the rays (entry {r})"
-                )))
-            }
-        }
+    match crate::first_repeat(order, n) {
+        Some(at) => Err(CoreError::InvalidInput(format!(
+            "hierarchy order is not a permutation of the rays (entry {})",
+            order[at]
+        ))),
+        None => Ok(()),
     }
-    Ok(())
 }
 
 impl Intersector<Cpu> for BruteForce {
