@@ -1047,7 +1047,7 @@ pub(crate) mod tests {
     /// A test-only hierarchy with variable-size lowest nodes: node `k` of `levels[0]` bounds
     /// the leaves `offsets[k] .. offsets[k + 1]`, node `n` of level `i > 0` the leaves of its
     /// `sub^i` lowest descendants; every node is the [`bound`] of its rays.
-    fn build_with_offsets(
+    pub(crate) fn build_with_offsets(
         rays: &[Ray],
         order: Vec<u32>,
         offsets: Vec<u32>,
@@ -1080,12 +1080,12 @@ pub(crate) mod tests {
         }
     }
 
-    /// Cut points over `n` leaves: nodes of 1 to 40 leaves.
-    fn random_offsets(rng: &mut TestRng, n: usize) -> Vec<u32> {
+    /// Cut points over `n` leaves: nodes of 1 to `widest` leaves.
+    pub(crate) fn random_offsets(rng: &mut TestRng, n: usize, widest: usize) -> Vec<u32> {
         let mut offsets = vec![0u32];
         let mut at = 0usize;
         while at < n {
-            at = (at + 1 + (rng.next_u64() % 40) as usize).min(n);
+            at = (at + 1 + (rng.next_u64() % widest as u64) as usize).min(n);
             offsets.push(at as u32);
         }
         offsets
@@ -1098,7 +1098,7 @@ pub(crate) mod tests {
         let rays = test_rays(&scene, 62, 300);
         let refs = [HitMode::Closest, HitMode::Any].map(|m| reference(&brute, &rays, m));
         let mut rng = TestRng(63);
-        let offsets = random_offsets(&mut rng, rays.len());
+        let offsets = random_offsets(&mut rng, rays.len(), 40);
         for (sub, levels) in [(4u32, 1usize), (4, 2), (3, 3)] {
             let h = build_with_offsets(
                 &rays,
