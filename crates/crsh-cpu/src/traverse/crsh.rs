@@ -256,9 +256,26 @@ impl NodeBound {
     /// for the derivation from eq. 3.16).
     #[inline]
     pub fn may_hit(&self, sphere: &Sphere) -> bool {
-        let p = sphere.center.as_dvec3();
-        let v = p - self.center;
+        let v = sphere.center.as_dvec3() - self.center;
+        self.may_hit_at(sphere, v, v.length_squared())
+    }
+
+    /// [`NodeBound::may_hit`] and, when it holds, [`NodeBound::spreads_wider_than`] for the same
+    /// sphere: `None` when no ray of the node may hit `sphere`, else whether the node's rays
+    /// spread wider than it. The two share the distance to the sphere's centre ([`super::dual`]
+    /// asks both of every pair that passes); the answers are the two methods' own.
+    #[inline]
+    pub fn hit_and_spread(&self, sphere: &Sphere) -> Option<bool> {
+        let v = sphere.center.as_dvec3() - self.center;
         let d2 = v.length_squared();
+        self.may_hit_at(sphere, v, d2)
+            .then(|| self.spreads_at(sphere, d2))
+    }
+
+    /// [`NodeBound::may_hit`] with `v = centre(sphere) − centre` and `d2 = |v|²` given.
+    #[inline]
+    fn may_hit_at(&self, sphere: &Sphere, v: DVec3, d2: f64) -> bool {
+        let p = sphere.center.as_dvec3();
         let scale = self.scale.max(p.abs().max_element());
         let rho = (sphere.radius as f64 + self.radius) * (1.0 + REL_MARGIN) + ABS_MARGIN * scale;
         if self.reach.is_finite() {
@@ -300,11 +317,20 @@ impl NodeBound {
     /// side of a (ray node, object node) pair to descend.
     #[inline]
     pub fn spreads_wider_than(&self, sphere: &Sphere) -> bool {
+        self.spreads_at(
+            sphere,
+            (sphere.center.as_dvec3() - self.center).length_squared(),
+        )
+    }
+
+    /// [`NodeBound::spreads_wider_than`] with `d2`, the squared distance between the centres,
+    /// given.
+    #[inline]
+    fn spreads_at(&self, sphere: &Sphere, d2: f64) -> bool {
         let room = sphere.radius as f64 - self.radius;
         if room < 0.0 {
             return true;
         }
-        let d2 = (sphere.center.as_dvec3() - self.center).length_squared();
         let sin2 = if self.all || self.cos_a <= 0.0 {
             1.0
         } else {
@@ -1118,6 +1144,45 @@ pub(crate) mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn hit_and_spread_answers_as_may_hit_and_spreads_wider_than() {
+        let mut rng = TestRng(81);
+        let (mut hit, mut spread, mut culled) = (0, 0, 0);
+        for i in 0..20_000 {
+            // Narrow, wide (beyond π/2) and full cones; point and ball origins; some reaches.
+            let half_angle = match i % 4 {
+                0 => rng.range(0.0, 0.05),
+                1 => rng.range(0.0, 1.5),
+                2 => rng.range(1.6, 3.1),
+                _ => 3.2,
+            };
+            let node = SphereCone {
+                sphere: Sphere::new(rng.vec3(-5.0, 5.0), rng.range(0.0, 2.0) * (i % 3) as f32),
+                cone: Cone {
+                    axis: rng.unit(),
+                    half_angle,
+                },
+            };
+            let mut b = NodeBound::new(&node).unwrap();
+            if i % 5 == 0 {
+                b = b.with_reach(rng.range(0.0, 10.0));
+            }
+            let s = Sphere::new(rng.vec3(-10.0, 10.0), rng.range(0.0, 4.0));
+            let want = b.may_hit(&s).then(|| b.spreads_wider_than(&s));
+            assert_eq!(b.hit_and_spread(&s), want, "{node:?} {s:?}");
+            match want {
+                Some(true) => spread += 1,
+                Some(false) => hit += 1,
+                None => culled += 1,
+            }
+        }
+        // Every outcome occurs.
+        assert!(
+            hit > 100 && spread > 100 && culled > 100,
+            "{hit} {spread} {culled}"
+        );
     }
 
     #[test]

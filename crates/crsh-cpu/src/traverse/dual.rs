@@ -1497,9 +1497,9 @@ impl Task {
             if ctx.box_test && !rn.bx.overlaps(tree.bx(p.obj)) {
                 continue;
             }
-            if !nb.may_hit(sphere) {
+            let Some(spreads) = nb.hit_and_spread(sphere) else {
                 continue;
-            }
+            };
             counts.ray[p.level as usize][1] += 1;
             counts.obj[p.depth as usize][1] += 1;
             let leaf = p.obj & LEAF != 0;
@@ -1519,11 +1519,7 @@ impl Task {
                     .len();
                     // A node with a ray that is not valid has the whole space as its box
                     // and stays whole (the single-ray test assumes valid rays).
-                    if ctx.single_rays
-                        && rays <= 32
-                        && rn.bx.min.is_finite()
-                        && nb.spreads_wider_than(sphere)
-                    {
+                    if ctx.single_rays && rays <= 32 && rn.bx.min.is_finite() && spreads {
                         // The node's rays spread wider than the object node: test them one
                         // by one below it.
                         self.stack.push(Pair {
@@ -1536,7 +1532,7 @@ impl Task {
                     false
                 }
                 (false, true) => true,
-                (false, false) => nb.spreads_wider_than(sphere),
+                (false, false) => spreads,
             };
             if split_rays {
                 let below = &ctx.nodes[p.level as usize - 1];
