@@ -309,6 +309,37 @@ atan2_polynomial!(
     f32
 );
 
+/// [`atan2_guess_f32`] of `n ≤ CELL_PASS` pairs `(y[i], x[i])` into `out`, written without
+/// branches (each `if` picks between two values already computed) so that the loop runs on
+/// vector lanes: the same operations in the same order as one call per pair, hence the same
+/// values.
+#[inline]
+fn atan2_guesses_f32(
+    y: &[f32; CELL_PASS],
+    x: &[f32; CELL_PASS],
+    n: usize,
+    out: &mut [f32; CELL_PASS],
+) {
+    use std::f32::consts::{FRAC_PI_2, PI};
+    for i in 0..n.min(CELL_PASS) {
+        let (ax, ay) = (x[i].abs(), y[i].abs());
+        let (lo, hi) = (ax.min(ay), ax.max(ay));
+        let a = lo / hi;
+        let a2 = a * a;
+        let p: f32 = -0.011_721_2;
+        let p = p * a2 + 0.052_653_32;
+        let p = p * a2 - 0.116_432_87;
+        let p = p * a2 + 0.193_543_46;
+        let p = p * a2 - 0.332_623_47;
+        let p = p * a2 + 0.999_977_26;
+        let r = a * p;
+        let r = if ay > ax { FRAC_PI_2 - r } else { r };
+        let r = if x[i] < 0.0 { PI - r } else { r };
+        let r = if y[i] < 0.0 { -r } else { r };
+        out[i] = if hi == 0.0 { 0.0 } else { r };
+    }
+}
+
 /// The boundary table of a field of `bits` (from `table`, [`theta_table`] or [`phi_table`]),
 /// `None` for a field wider than the tables or of no bits (whose cell is 0 without a search).
 fn table_for(bits: u32, table: fn(u32) -> &'static [f32]) -> Option<&'static [f32]> {
@@ -586,11 +617,43 @@ impl SphericalCells {
         );
         let mut inputs = [(ThetaInput::default(), PhiInput::default()); CELL_PASS];
         let mut guesses = [(0.0f64, 0.0f64); CELL_PASS];
+        // Both fields tabulated (at most `MAX_TABLE_BITS` bits, the usual case): the guesses
+        // of a pass on vector lanes ([`atan2_guesses_f32`]), the values `guesses` gives.
+        let lanes = self.theta_bits > 0
+            && self.phi_bits > 0
+            && self.theta_tab.is_some()
+            && self.phi_tab.is_some();
+        let theta_scale = pow2(self.theta_bits) * std::f32::consts::FRAC_1_PI;
+        let phi_half = pow2(self.phi_bits.max(1) - 1);
+        let phi_scale = phi_half * std::f32::consts::FRAC_1_PI;
+        let (mut ty, mut tx, mut py, mut px) = (
+            [0.0f32; CELL_PASS],
+            [0.0; CELL_PASS],
+            [0.0; CELL_PASS],
+            [0.0; CELL_PASS],
+        );
+        let (mut ta, mut pa) = ([0.0f32; CELL_PASS], [0.0f32; CELL_PASS]);
         for (dirs, out) in dirs.chunks(CELL_PASS).zip(out.chunks_mut(CELL_PASS)) {
             let n = dirs.len();
-            for ((d, i), g) in dirs.iter().zip(&mut inputs).zip(&mut guesses) {
-                *i = Self::inputs(*d);
-                *g = self.guesses(i);
+            if lanes {
+                for (k, (d, i)) in dirs.iter().zip(&mut inputs).enumerate() {
+                    *i = Self::inputs(*d);
+                    (ty[k], tx[k]) = (i.0.rho2.sqrt(), i.0.z);
+                    (py[k], px[k]) = (i.1.y, i.1.x);
+                }
+                atan2_guesses_f32(&ty, &tx, n, &mut ta);
+                atan2_guesses_f32(&py, &px, n, &mut pa);
+                for k in 0..n {
+                    guesses[k] = (
+                        (ta[k] * theta_scale) as f64,
+                        (pa[k] * phi_scale + phi_half) as f64,
+                    );
+                }
+            } else {
+                for ((d, i), g) in dirs.iter().zip(&mut inputs).zip(&mut guesses) {
+                    *i = Self::inputs(*d);
+                    *g = self.guesses(i);
+                }
             }
             for ((o, i), g) in out.iter_mut().zip(&inputs[..n]).zip(&guesses[..n]) {
                 *o = self.search(i, *g);
@@ -772,6 +835,62 @@ mod tests {
 
     /// The cells' starting guess is `atan2` to within 2·10⁻⁶ rad in every octant, at any
     /// magnitude, on the axes and at the origin.
+    #[test]
+    fn batched_guesses_are_the_single_guesses_and_give_the_same_cells() {
+        let mut r = rng(91);
+        let mut dirs: Vec<Vec3> = (0..1000).map(|_| Vec3::new(r(), r(), r())).collect();
+        // Poles, axes, diagonals (ties of |x| and |y|), signed zeros, a zero direction.
+        for v in [
+            Vec3::Z,
+            -Vec3::Z,
+            Vec3::X,
+            -Vec3::X,
+            Vec3::Y,
+            -Vec3::Y,
+            Vec3::new(1.0, 1.0, 0.3),
+            Vec3::new(-1.0, 1.0, -0.3),
+            Vec3::new(-1.0, -0.0, 0.5),
+            Vec3::new(0.0, -0.0, -1.0),
+            Vec3::new(-0.0, 0.0, 1.0),
+            Vec3::ZERO,
+        ] {
+            dirs.push(v);
+        }
+        for (y, x) in dirs.chunks(CELL_PASS).flat_map(|c| {
+            c.iter()
+                .map(|d| (d.y, d.x))
+                .chain(c.iter().map(|d| (d.x.hypot(d.y), d.z)))
+        }) {
+            let (mut ys, mut xs, mut out) = ([0.0; CELL_PASS], [0.0; CELL_PASS], [9.0; CELL_PASS]);
+            (ys[3], xs[3]) = (y, x);
+            atan2_guesses_f32(&ys, &xs, 4, &mut out);
+            assert_eq!(
+                out[3].to_bits(),
+                atan2_guess_f32(y, x).to_bits(),
+                "({y}, {x})"
+            );
+            assert_eq!(out[0], 0.0);
+            assert_eq!(out[4], 9.0, "only the first n are written");
+        }
+        // The batched pass (tabulated widths) and the one-direction path agree on every cell.
+        for (tb, pb) in [
+            (16, 15),
+            (15, 15),
+            (1, 1),
+            (20, 20),
+            (0, 7),
+            (7, 0),
+            (24, 24),
+        ] {
+            let c = SphericalCells::new(tb, pb);
+            let mut out = vec![(0, 0); dirs.len()];
+            c.cells_of(&dirs, &mut out);
+            for (d, got) in dirs.iter().zip(&out) {
+                assert_eq!(*got, spherical_cells(*d, tb, pb), "{d} at ({tb}, {pb})");
+            }
+        }
+    }
+
     #[test]
     fn atan2_guess_is_close_to_atan2() {
         let mut worst = 0.0f64;
