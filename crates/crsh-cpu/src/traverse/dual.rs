@@ -654,6 +654,20 @@ fn segment_union_box(rays: impl Iterator<Item = Segment>, bounds: &Aabb) -> Aabb
 /// empty.
 #[inline]
 fn clip(ray: &Segment, b: &Aabb) -> Option<(f64, f64)> {
+    clip_with(ray, inverse(ray.dir), b)
+}
+
+/// `1 / d` per axis in `f64` (infinite where `d` is 0): what [`clip_with`] divides by.
+#[inline]
+fn inverse(d: Vec3) -> DVec3 {
+    DVec3::ONE / d.as_dvec3()
+}
+
+/// [`clip`] with the ray's [`inverse`] direction given (the same arithmetic: the inline
+/// traversal computes each ray's inverse once, not at every object node its single-ray tests
+/// meet).
+#[inline]
+fn clip_with(ray: &Segment, inv: DVec3, b: &Aabb) -> Option<(f64, f64)> {
     let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
     let (lo, hi) = (b.min.as_dvec3(), b.max.as_dvec3());
     let (mut t0, mut t1) = (ray.t_min as f64, ray.t_max as f64);
@@ -664,9 +678,8 @@ fn clip(ray: &Segment, b: &Aabb) -> Option<(f64, f64)> {
             }
             continue;
         }
-        let inv = 1.0 / d[axis];
-        let a = (lo[axis] - o[axis]) * inv;
-        let c = (hi[axis] - o[axis]) * inv;
+        let a = (lo[axis] - o[axis]) * inv[axis];
+        let c = (hi[axis] - o[axis]) * inv[axis];
         let (near, far) = (a.min(c), a.max(c));
         t0 = t0.max(near - 1e-9 * near.abs());
         t1 = t1.min(far + 1e-9 * far.abs());
@@ -1467,7 +1480,7 @@ impl Task {
                 while left != 0 {
                     let i = left.trailing_zeros();
                     left &= left - 1;
-                    if clip(leaves.segment(ctx, first + i as usize), bx).is_some() {
+                    if leaves.meets(ctx, first + i as usize, bx) {
                         live |= 1 << i;
                     }
                 }
@@ -1581,8 +1594,9 @@ trait Leaves {
     fn live(&self, level: u16, node: u32) -> bool;
     /// The rays of lowest node `node` left to trace (bit `i`: its `i`-th leaf).
     fn live_rays(&self, node: u32) -> u32;
-    /// The segment of leaf `leaf` as the single-ray test must see it now.
-    fn segment<'s>(&'s self, ctx: &'s Ctx<'_>, leaf: usize) -> &'s Segment;
+    /// Whether the segment of leaf `leaf`, as the single-ray test must see it now, meets box
+    /// `bx` ([`clip`]).
+    fn meets(&self, ctx: &Ctx<'_>, leaf: usize, bx: &Aabb) -> bool;
     /// The rays `lanes` of lowest node `node` reached triangle `tri`.
     fn reach(&mut self, node: u32, tri: u32, lanes: u32);
 }
@@ -1618,8 +1632,8 @@ impl Leaves for Batched {
     }
 
     #[inline]
-    fn segment<'s>(&'s self, ctx: &'s Ctx<'_>, leaf: usize) -> &'s Segment {
-        &ctx.segments[leaf]
+    fn meets(&self, ctx: &Ctx<'_>, leaf: usize, bx: &Aabb) -> bool {
+        clip(&ctx.segments[leaf], bx).is_some()
     }
 
     #[inline]
@@ -1649,6 +1663,8 @@ struct Inline<'a, T: TriangleTest> {
     hits: Vec<Hit>,
     /// The task's segments (closest-hit only: their `t_max` shrinks with each nearer hit).
     segments: Vec<Segment>,
+    /// Per leaf of the task: its direction's [`inverse`], for the single-ray box tests.
+    inverse: Vec<DVec3>,
     /// Every ray's segment in leaf order ([`Ctx::segments`]).
     all_segments: &'a [Segment],
     /// Packets of [`LANES`] rays per lowest node (`per_node` of them, enough for the batch's
@@ -1759,6 +1775,10 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
             live,
             hits: mine,
             segments,
+            inverse: ctx.segments[first_leaf..last_leaf]
+                .iter()
+                .map(|s| inverse(s.dir))
+                .collect(),
             all_segments: ctx.segments,
             packets: Vec::new(),
             slot: vec![u32::MAX; n],
@@ -1812,8 +1832,8 @@ impl<T: TriangleTest> Leaves for Inline<'_, T> {
     }
 
     #[inline]
-    fn segment<'s>(&'s self, _ctx: &'s Ctx<'_>, leaf: usize) -> &'s Segment {
-        self.seg(leaf)
+    fn meets(&self, _ctx: &Ctx<'_>, leaf: usize, bx: &Aabb) -> bool {
+        clip_with(self.seg(leaf), self.inverse[leaf - self.first_leaf], bx).is_some()
     }
 
     fn reach(&mut self, node: u32, tri: u32, lanes: u32) {
