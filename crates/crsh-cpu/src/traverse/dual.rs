@@ -180,11 +180,14 @@
 //! both modes, hits given beforehand (merged as [`crsh_core::Intersector::intersect`] merges
 //! them: an any-hit ray that has one is not traced), and thread counts.
 //!
-//! Tasks keep their own rays' hits, masks and packets (a task's rays are its top node's, a
-//! contiguous run of leaves), so they need no synchronization; up to 256 of them run in
+//! Tasks keep their own rays' segments, node boxes, hits, masks and packets (a task's rays are
+//! its top node's, a contiguous run of leaves): each task gathers its rays' segments through
+//! `order` itself and boxes its ray nodes from them (the same boxes as the batched mode's), so
+//! no batch-wide array of segments is made (on Sponza's 1.24M shadow rays, 40 MB written and
+//! faulted in before the traversal). They need no synchronization; up to 256 of them run in
 //! parallel, and their hits are written back after each round. No candidate arrays exist,
-//! so `candidate_budget_mb` does not apply; memory is O(rays) for the hits and segments plus
-//! the round's tasks' packets. The pair counters are the batched mode's rows; the final tests
+//! so `candidate_budget_mb` does not apply; memory is O(rays) for the hits plus the round's
+//! tasks' segments, boxes and packets. The pair counters are the batched mode's rows; the final tests
 //! are the level-0 row and [`Stats::add_ray_triangle`], inside the `traversal` stage time (the
 //! pipeline records no `final_tests`).
 //!
@@ -1425,7 +1428,12 @@ const EVERYWHERE: Aabb = Aabb {
 struct Ctx<'a> {
     /// The batch's size.
     n_rays: usize,
-    /// The rays' segments in leaf order (empty unless boxes or single rays are on).
+    /// The batch (the inline tasks gather their own rays' segments from it).
+    rays: &'a [Ray],
+    /// The box of every triangle, which segment boxes are clipped to ([`Lbvh::bounds`]).
+    bounds: Aabb,
+    /// The rays' segments in leaf order (the batched traversal's, with boxes or single rays;
+    /// empty for the inline one, whose tasks gather their own).
     segments: &'a [Segment],
     hierarchy: &'a RayHierarchy<Cpu>,
     /// Whether lowest nodes descend to single rays.
@@ -1507,7 +1515,8 @@ impl Task {
             let sphere = tree.sphere(p.obj);
             counts.ray[p.level as usize][0] += 1;
             counts.obj[p.depth as usize][0] += 1;
-            if ctx.box_test && !rn.bx.overlaps(tree.bx(p.obj)) {
+            let rbx = leaves.node_box(ctx, p.level, p.node);
+            if ctx.box_test && !rbx.overlaps(tree.bx(p.obj)) {
                 continue;
             }
             let Some(spreads) = nb.hit_and_spread(sphere) else {
@@ -1532,7 +1541,7 @@ impl Task {
                     .len();
                     // A node with a ray that is not valid has the whole space as its box
                     // and stays whole (the single-ray test assumes valid rays).
-                    if ctx.single_rays && rays <= 32 && rn.bx.min.is_finite() && spreads {
+                    if ctx.single_rays && rays <= 32 && rbx.min.is_finite() && spreads {
                         // The node's rays spread wider than the object node: test them one
                         // by one below it.
                         self.stack.push(Pair {
@@ -1597,6 +1606,9 @@ trait Leaves {
     /// Whether the segment of leaf `leaf`, as the single-ray test must see it now, meets box
     /// `bx` ([`clip`]).
     fn meets(&self, ctx: &Ctx<'_>, leaf: usize, bx: &Aabb) -> bool;
+    /// The segment box of ray node `node` of ray level `level` ([`segment_box`]'s union over
+    /// its rays; the whole space without boxes).
+    fn node_box<'s>(&'s self, ctx: &'s Ctx<'_>, level: u16, node: u32) -> &'s Aabb;
     /// The rays `lanes` of lowest node `node` reached triangle `tri`.
     fn reach(&mut self, node: u32, tri: u32, lanes: u32);
 }
@@ -1637,6 +1649,11 @@ impl Leaves for Batched {
     }
 
     #[inline]
+    fn node_box<'s>(&'s self, ctx: &'s Ctx<'_>, level: u16, node: u32) -> &'s Aabb {
+        &ctx.nodes[level as usize][node as usize].bx
+    }
+
+    #[inline]
     fn reach(&mut self, node: u32, tri: u32, lanes: u32) {
         push_candidate(&mut self.out, self.cap, Candidate { node, tri }, lanes);
     }
@@ -1661,12 +1678,14 @@ struct Inline<'a, T: TriangleTest> {
     live: Vec<u32>,
     /// Per leaf of the task: its best hit so far.
     hits: Vec<Hit>,
-    /// The task's segments (closest-hit only: their `t_max` shrinks with each nearer hit).
+    /// The task's segments in leaf order, gathered by the task (closest-hit: their `t_max`
+    /// shrinks with each nearer hit).
     segments: Vec<Segment>,
     /// Per leaf of the task: its direction's [`inverse`], for the single-ray box tests.
     inverse: Vec<DVec3>,
-    /// Every ray's segment in leaf order ([`Ctx::segments`]).
-    all_segments: &'a [Segment],
+    /// Per ray level (lowest first): the task's first node there and the segment boxes of its
+    /// nodes there, from the segments as gathered.
+    boxes: Vec<(u32, Vec<Aabb>)>,
     /// Packets of [`LANES`] rays per lowest node (`per_node` of them, enough for the batch's
     /// widest node), built when the node first reaches a triangle: `slot[k]` is where lowest
     /// node `first_low + k`'s start in `packets` (`u32::MAX`: not built).
@@ -1751,17 +1770,52 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
                 (first as u32, count)
             })
             .collect();
-        let segments = if closest {
-            let mut s = ctx.segments[first_leaf..last_leaf].to_vec();
-            for (seg, hit) in s.iter_mut().zip(&mine) {
+        // The task's rays in leaf order (a gather through the permutation, the ray a few
+        // places ahead prefetched), boxed node by node before any interval shrinks.
+        const AHEAD: usize = 16;
+        let mine_order = &order[first_leaf..last_leaf];
+        let mut segments: Vec<Segment> = mine_order
+            .iter()
+            .enumerate()
+            .map(|(i, &r)| {
+                if let Some(&next) = mine_order.get(i + AHEAD) {
+                    crate::prefetch(ctx.rays.get(next as usize));
+                }
+                Segment::of(&ctx.rays[r as usize])
+            })
+            .collect();
+        let mut boxes: Vec<(u32, Vec<Aabb>)> = Vec::with_capacity(top_level + 1);
+        let lowest_boxes = (first_low..last_low)
+            .map(|n| {
+                let leaves = leaves_of(n);
+                let mine = &segments[leaves.start - first_leaf..leaves.end - first_leaf];
+                segment_union_box(mine.iter().copied(), &ctx.bounds)
+            })
+            .collect();
+        boxes.push((first_low as u32, lowest_boxes));
+        for l in 1..=top_level {
+            let len = ctx.nodes[l].len();
+            let first = (top * sub.pow((top_level - l) as u32)).min(len);
+            let last = ((top + 1) * sub.pow((top_level - l) as u32)).min(len);
+            let (below_first, below) = &boxes[l - 1];
+            let below_len = ctx.nodes[l - 1].len();
+            let level = (first..last)
+                .map(|n| {
+                    let a = (n * sub).min(below_len) - *below_first as usize;
+                    let b = ((n + 1) * sub).min(below_len) - *below_first as usize;
+                    below[a..b].iter().fold(Aabb::EMPTY, |x, y| x.union(*y))
+                })
+                .collect();
+            boxes.push((first as u32, level));
+        }
+        let inverse = segments.iter().map(|s| inverse(s.dir)).collect();
+        if closest {
+            for (seg, hit) in segments.iter_mut().zip(&mine) {
                 if hit.is_hit() {
                     seg.t_max = seg.t_max.min(next_above(hit.t));
                 }
             }
-            s
-        } else {
-            Vec::new()
-        };
+        }
         let n = last_low - first_low;
         Inline {
             tris,
@@ -1775,11 +1829,8 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
             live,
             hits: mine,
             segments,
-            inverse: ctx.segments[first_leaf..last_leaf]
-                .iter()
-                .map(|s| inverse(s.dir))
-                .collect(),
-            all_segments: ctx.segments,
+            inverse,
+            boxes,
             packets: Vec::new(),
             slot: vec![u32::MAX; n],
             per_node: widest.div_ceil(LANES),
@@ -1791,15 +1842,11 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
     /// The segment of leaf `leaf` (absolute), its interval ending at its best hit so far.
     #[inline]
     fn seg(&self, leaf: usize) -> &Segment {
-        if self.closest {
-            &self.segments[leaf - self.first_leaf]
-        } else {
-            &self.all_segments[leaf]
-        }
+        &self.segments[leaf - self.first_leaf]
     }
 
     /// The ray of leaf `leaf` as the triangle tests read it: from its segment ([`Inline::seg`],
-    /// gathered in leaf order), not through `order` again.
+    /// gathered by the task in leaf order), not through `order` again.
     fn ray(&self, leaf: usize) -> Ray {
         let s = self.seg(leaf);
         Ray::new(RayKind::Shadow, s.origin, s.dir, s.t_min, s.t_max)
@@ -1834,6 +1881,12 @@ impl<T: TriangleTest> Leaves for Inline<'_, T> {
     #[inline]
     fn meets(&self, _ctx: &Ctx<'_>, leaf: usize, bx: &Aabb) -> bool {
         clip_with(self.seg(leaf), self.inverse[leaf - self.first_leaf], bx).is_some()
+    }
+
+    #[inline]
+    fn node_box<'s>(&'s self, _ctx: &'s Ctx<'_>, level: u16, node: u32) -> &'s Aabb {
+        let (first, boxes) = &self.boxes[level as usize];
+        &boxes[(node - first) as usize]
     }
 
     fn reach(&mut self, node: u32, tri: u32, lanes: u32) {
@@ -2201,6 +2254,8 @@ impl Dual {
         let n_top = nodes[top_level].len();
         let ctx = Ctx {
             n_rays: rays.len(),
+            rays,
+            bounds: tree.bounds(),
             segments: &segments,
             hierarchy,
             single_rays,
@@ -2337,7 +2392,8 @@ impl Dual {
                 tris.len()
             )));
         }
-        let Some((root, nodes, segments)) = ray_side(rays, hierarchy, tree, true)? else {
+        // No boxes here: each task gathers its own rays' segments and boxes its nodes.
+        let Some((root, nodes, segments)) = ray_side(rays, hierarchy, tree, false)? else {
             check_batch(rays, hits)?;
             return Ok(Some(report));
         };
@@ -2345,6 +2401,8 @@ impl Dual {
         check_permutation(&hierarchy.order, rays.len())?;
         let ctx = Ctx {
             n_rays: rays.len(),
+            rays,
+            bounds: tree.bounds(),
             segments: &segments,
             hierarchy,
             single_rays: *single_rays,
