@@ -28,7 +28,10 @@ use crsh_cpu::raygen::offsets::Offsets;
 use crsh_cpu::Cpu;
 use crsh_scene::Scene;
 use crsh_wgpu::kernels::accumulate::{accumulate_cpu, AccumulateKernel, Contribution, ADD, ALPHA};
-use crsh_wgpu::testing::{cpu_intersector, cpu_registry, shared_backend};
+use crsh_wgpu::testing::{
+    assert_boundary_cases, close_at, cpu_intersector, cpu_registry, rel_diff, shared_backend,
+    TANGENT_ABS,
+};
 use crsh_wgpu::{GpuBuffer, GpuScene, HostIntersector, Wgpu};
 
 const SCENES: [&str; 2] = ["cornell-mirrors", "office-boxes"];
@@ -114,31 +117,9 @@ const OFFSET_T_REL: f32 = 1e-4;
 /// 2026-12-04: 6.6e-8 on a `t_min` of 0.033 from an origin at 0.97).
 const TWIN_T_REL: f32 = 1e-6;
 
-/// Where a ray cuts a hemisphere's sphere nearly at a tangent, the query's root
-/// `sqrt(b² − c)` turns the rounding of `b² − c` into an error of about `sqrt(ε)` times the
-/// scale: the twin comparison lets such rays differ by up to this much (relative to the larger
-/// of the interval end and the origin's coordinates), one in 100 per batch (lavapipe: none; an
-/// NVIDIA H200, 2026-12-04, which fuses `a·b + c`: 8 of 1,164 Wächter shadow rays from the
-/// surface with the `center` set, `t_min` 0.13622 against 0.13628 on one).
-const TANGENT_ABS: f32 = 1e-3;
-
 /// Relative tolerance of a shadow ray's interval end to end: its length goes through `sqrt`
 /// and a division (lavapipe: equal; an NVIDIA H200, 2026-12-04: one ULP).
 const SHADOW_T_REL: f32 = 1e-6;
-
-/// `a` and `b` within `rel` of the largest of their magnitudes and `scale`.
-fn close_at(a: f32, b: f32, rel: f32, scale: f32) -> bool {
-    a == b || (a - b).abs() <= rel * a.abs().max(b.abs()).max(scale).max(1e-6)
-}
-
-/// `|a − b|` relative to the larger magnitude (0 when equal, infinities included).
-fn rel_diff(a: f32, b: f32) -> f32 {
-    if a == b {
-        0.0
-    } else {
-        (a - b).abs() / a.abs().max(b.abs()).max(1e-6)
-    }
-}
 
 /// The largest difference of origin and direction components seen, and of intervals
 /// (relative); asserts the rest. `exact` (AO and diffuse rays): throughputs equal to the bit,
@@ -281,16 +262,7 @@ fn compare_generators(
                 twin_flips += 1;
             }
         }
-        assert!(
-            tangents <= got.len() / 100 + 1,
-            "{here}: {tangents} of {} twin intervals near a tangent",
-            got.len()
-        );
-        assert!(
-            twin_flips <= got.len() / 200 + 1,
-            "{here}: {twin_flips} of {} twin intervals flipped",
-            got.len()
-        );
+        assert_boundary_cases(&format!("{here}, twin"), tangents, twin_flips, got.len());
         assert!(
             ended(&stats).abs_diff(twin_ended) <= twin_flips as u64,
             "{here}: rays ended: device {} twin {twin_ended} ({twin_flips} flips)",
@@ -324,16 +296,7 @@ fn compare_generators(
                 flips += 1;
             }
         }
-        assert!(
-            tangents <= got.len() / 100 + 1,
-            "{here}: {tangents} of {} intervals near a tangent",
-            got.len()
-        );
-        assert!(
-            flips <= got.len() / 200 + 1,
-            "{here}: {flips} of {} intervals flipped",
-            got.len()
-        );
+        assert_boundary_cases(&here, tangents, flips, got.len());
         let (e_gpu, e_cpu) = (ended(&stats), ended(&cpu_stats));
         assert!(
             e_gpu.abs_diff(e_cpu) <= flips as u64,
