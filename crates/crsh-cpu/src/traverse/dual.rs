@@ -589,17 +589,28 @@ fn leaf_segments_and_boxes(
         let below = boxes.last().expect("the lowest level");
         let next: Vec<Aabb> = (0..level.len())
             .into_par_iter()
-            .map(|n| {
-                let first = (n * sub).min(below.len());
-                let last = ((n + 1) * sub).min(below.len());
-                below[first..last]
-                    .iter()
-                    .fold(Aabb::EMPTY, |a, b| a.union(*b))
-            })
+            .map(|n| children_box(below, 0, below.len(), n, sub))
             .collect();
         boxes.push(next);
     }
     (segments, boxes)
+}
+
+/// The union of the boxes of node `n`'s children (`n·sub .. (n+1)·sub` of the level below, of
+/// `below_len` nodes), from `below`, the boxes of that level's nodes `below_first ..` (the whole
+/// level, or a task's part of it).
+fn children_box(
+    below: &[Aabb],
+    below_first: usize,
+    below_len: usize,
+    n: usize,
+    sub: usize,
+) -> Aabb {
+    let first = (n * sub).min(below_len) - below_first;
+    let last = ((n + 1) * sub).min(below_len) - below_first;
+    below[first..last]
+        .iter()
+        .fold(Aabb::EMPTY, |a, b| a.union(*b))
 }
 
 /// [`segment_box`]'s extent of `ray` in `f64`, unrounded.
@@ -1800,11 +1811,7 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
             let (below_first, below) = &boxes[l - 1];
             let below_len = ctx.nodes[l - 1].len();
             let level = (first..last)
-                .map(|n| {
-                    let a = (n * sub).min(below_len) - *below_first as usize;
-                    let b = ((n + 1) * sub).min(below_len) - *below_first as usize;
-                    below[a..b].iter().fold(Aabb::EMPTY, |x, y| x.union(*y))
-                })
+                .map(|n| children_box(below, *below_first as usize, below_len, n, sub))
                 .collect();
             boxes.push((first as u32, level));
         }
