@@ -18,7 +18,10 @@
 //! - `final_tests`: the `brute` intersector on the candidate batches of the `crsh` traversal,
 //!   with each ray-triangle test (`intersect.test` = `mt`, `watertight`, `projected`), and on
 //!   those of `dual_lbvh` (lane masks included) with `mt`;
-//! - `bvh`: the whole-scene `bvh` any-hit query of the same rays, the baseline, with each test.
+//! - `bvh`: the whole-scene `bvh` any-hit query of the same rays, the baseline, with each test;
+//! - `reflection`: a second batch, the closest-hit reflection rays of a 1024² G-buffer of the
+//!   shared dining room (else the built-in `cornell-mirrors`), traced by `dual_lbvh_inline`
+//!   (the `dual_inline` preset) and by the whole-scene `bvh`, side by side.
 //!
 //! Run with `cargo bench -p crsh-cpu --bench stages` (add `-- --quick` for a short run, or a
 //! group name to filter).
@@ -38,6 +41,10 @@ use crsh_scene::Scene;
 
 /// G-buffer size of the batch.
 const SIZE: u32 = 256;
+
+/// G-buffer size of the `reflection` group's batch (the dining room's mirrors and glossy
+/// surfaces cover a small part of the frame).
+const REFLECTION_SIZE: u32 = 1024;
 
 /// The fixed batch every group works on.
 struct Batch {
@@ -390,6 +397,135 @@ fn benches(c: &mut Criterion) {
     g.finish();
 }
 
+/// The shared dining-room manifest, if the scenes directory has it.
+fn dining_room() -> Option<PathBuf> {
+    let dir = std::env::var_os("CRSH_SCENES")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes")
+        });
+    let path = dir.join("dining-room/dining-room.toml");
+    path.is_file().then_some(path)
+}
+
+/// The `reflection` group: the first-bounce reflection rays of a [`REFLECTION_SIZE`]² G-buffer
+/// of the shared dining room (else the built-in `cornell-mirrors`), traced to their closest
+/// hits by `dual_lbvh_inline` (the `dual_inline` preset's stages, the hierarchy built once,
+/// outside the timing) and by the whole-scene `bvh` (the CWBVH), side by side. Wide cones:
+/// most of the dining room's lowest nodes descend to single rays.
+fn reflection_benches(c: &mut Criterion) {
+    let (tag, scene) = match dining_room() {
+        Some(path) => {
+            let scene = crsh_scene::load_path(&path)
+                .unwrap_or_else(|e| panic!("loading {}: {e}", path.display()));
+            ("dining-room", scene)
+        }
+        None => {
+            eprintln!(
+                "reflection bench scene: built-in cornell-mirrors (dining-room/dining-room.toml \
+                 not found under CRSH_SCENES or ../shared/scenes)"
+            );
+            (
+                "cornell-mirrors",
+                crsh_scene::load("cornell-mirrors").expect("built-in scene"),
+            )
+        }
+    };
+    let scene = Arc::new(scene);
+    let ctx = StageContext::new(
+        &Cpu,
+        &scene,
+        FrameSize::new(REFLECTION_SIZE, REFLECTION_SIZE).expect("valid size"),
+    );
+    let registry = Registry::<Cpu>::builtin();
+    let cfg = registry
+        .preset("dual_inline")
+        .expect("the dual_inline preset exists");
+    let st = registry
+        .build(&ctx, &cfg)
+        .expect("building dual_inline")
+        .stages;
+    let kind = RayKind::Reflection;
+    let mut stats = Stats::default();
+    let surfaces = st
+        .primary
+        .gbuffer(&Cpu, REFLECTION_SIZE, REFLECTION_SIZE, &mut stats)
+        .expect("G-buffer");
+    let rays = st
+        .raygen
+        .generate(&Cpu, &surfaces, kind, &mut stats)
+        .expect("reflection rays");
+    if rays.is_empty() {
+        eprintln!("reflection bench: {tag} spawns no reflection rays, skipped");
+        return;
+    }
+    let hasher = st.hasher.as_ref().expect("dual_inline hashes");
+    let keys = hasher.hash(&Cpu, &rays, kind, &mut stats).expect("keys");
+    let order = st
+        .sorter
+        .as_ref()
+        .expect("dual_inline sorts")
+        .sort(&Cpu, &keys, hasher.key_bits(), &mut stats)
+        .expect("order");
+    let hierarchy = st
+        .hierarchy
+        .as_ref()
+        .expect("dual_inline builds a hierarchy")
+        .build(&Cpu, &rays, order, &mut stats)
+        .expect("hierarchy");
+    eprintln!(
+        "reflection bench batch: {tag}, {} triangles, {REFLECTION_SIZE}x{REFLECTION_SIZE} \
+         G-buffer, {} reflection rays",
+        scene.triangle_count(),
+        rays.len()
+    );
+    let mut spec = crsh_core::StageSpec::new("bvh");
+    spec.params
+        .insert("test".into(), crsh_core::ParamValue::Str("mt".to_string()));
+    let bvh = registry
+        .build_intersector(&ctx, &spec)
+        .expect("building bvh");
+    let traverser = st.traverser.as_ref().expect("a traverser");
+    let mut g = c.benchmark_group("reflection");
+    g.throughput(Throughput::Elements(rays.len() as u64));
+    g.sample_size(10);
+    g.bench_function(format!("dual_lbvh_inline/{tag}"), |bench| {
+        bench.iter(|| {
+            let mut hits = vec![Hit::MISS; rays.len()];
+            traverser
+                .trace(
+                    &Cpu,
+                    &rays,
+                    kind,
+                    kind.hit_mode(),
+                    &*st.intersector,
+                    &hierarchy,
+                    &mut hits,
+                    &mut Stats::default(),
+                )
+                .expect("inline final tests")
+                .unwrap();
+            hits
+        })
+    });
+    g.bench_function(format!("bvh/{tag}"), |bench| {
+        bench.iter(|| {
+            let mut hits = vec![Hit::MISS; rays.len()];
+            bvh.intersect(
+                &Cpu,
+                &rays,
+                Query::Scene,
+                kind.hit_mode(),
+                &mut hits,
+                &mut Stats::default(),
+            )
+            .unwrap();
+            hits
+        })
+    });
+    g.finish();
+}
+
 /// Short runs: the machine this was written on has 2 shared cores.
 fn config() -> Criterion {
     Criterion::default()
@@ -401,6 +537,6 @@ fn config() -> Criterion {
 criterion_group! {
     name = stages_group;
     config = config();
-    targets = benches
+    targets = benches, reflection_benches
 }
 criterion_main!(stages_group);
