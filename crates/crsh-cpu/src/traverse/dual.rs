@@ -106,8 +106,9 @@
 //! object node `O`) that passes, where `N`'s rays spread wider than `O`
 //! ([`NodeBound::spreads_wider_than`]) and `N` has at most 32 rays, descends to `N`'s rays
 //! instead, as a packet with a mask of live rays: each live ray is tested alone against
-//! `O`'s box (its segment, the ray's interval, by slabs in `f64` widened by a relative
-//! `1e-9`; a ray that is not [`Ray::is_valid`] always passes, the intersector refuses it),
+//! `O`'s box (its segment, the ray's interval, by slabs in `f32` on three lanes at once,
+//! widened by a relative `1e-6` so that they pass whatever the exact `f64` slabs pass: see
+//! `meets_box`; a ray that is not [`Ray::is_valid`] always passes, the intersector refuses it),
 //! the rays that pass go on to `O`'s children, and a triangle that some ray reaches makes
 //! `(N, T)` a candidate, once, for the rays that reached it: the batch carries a lane mask per
 //! pair ([`CandidateBatch::lanes`], [`ALL_LANES`] for the pairs of whole nodes) and the
@@ -270,7 +271,7 @@
 
 use std::sync::Arc;
 
-use crsh_core::glam::{DVec3, Vec3};
+use crsh_core::glam::{DVec3, Vec3, Vec3A};
 use crsh_core::{
     f32_down, f32_up, lowest_node_leaves, Aabb, Candidate, CandidateBatch, CoreError, Hit, HitMode,
     Intersector, ParamInfo, Ray, RayHierarchy, RayKind, Registry, Result, Sphere, StageKind,
@@ -668,21 +669,8 @@ fn segment_union_box(rays: impl Iterator<Item = Segment>, bounds: &Aabb) -> Aabb
 /// empty.
 #[inline]
 fn clip(ray: &Segment, b: &Aabb) -> Option<(f64, f64)> {
-    clip_with(ray, inverse(ray.dir), b)
-}
-
-/// `1 / d` per axis in `f64` (infinite where `d` is 0): what [`clip_with`] divides by.
-#[inline]
-fn inverse(d: Vec3) -> DVec3 {
-    DVec3::ONE / d.as_dvec3()
-}
-
-/// [`clip`] with the ray's [`inverse`] direction given (the same arithmetic: the inline
-/// traversal computes each ray's inverse once, not at every object node its single-ray tests
-/// meet).
-#[inline]
-fn clip_with(ray: &Segment, inv: DVec3, b: &Aabb) -> Option<(f64, f64)> {
     let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
+    let inv = DVec3::ONE / d;
     let (lo, hi) = (b.min.as_dvec3(), b.max.as_dvec3());
     let (mut t0, mut t1) = (ray.t_min as f64, ray.t_max as f64);
     for axis in 0..3 {
@@ -699,6 +687,61 @@ fn clip_with(ray: &Segment, inv: DVec3, b: &Aabb) -> Option<(f64, f64)> {
         t1 = t1.min(far + 1e-9 * far.abs());
     }
     (t0 <= t1).then_some((t0, t1))
+}
+
+/// The relative widening of [`meets_box`]'s slab distances: `fl(fl(lo − o)·fl(1/d))` is off by
+/// at most `3u` relative (`u = 2⁻²⁴`, one rounding each for the subtraction, the reciprocal
+/// and the product, all of exact `f32` inputs), 1.8e-7, and the widening's own rounding adds
+/// `u`; 1e-6 covers both with room, so the interval contains [`clip`]'s (whose widening is
+/// 1e-9). The same widening as the wgpu twin's `clip`.
+const SLAB_WIDEN: f32 = 1e-6;
+
+/// The absolute part of [`meets_box`]'s widening: what an underflowing product can lose
+/// (at most `2⁻¹⁴⁹` a rounding).
+const SLAB_TINY: f32 = 1e-30;
+
+/// A ray's `1 / d` per axis in `f32`, for [`meets_box`]: infinite where `d` is 0 (that axis is
+/// tested apart), NaN everywhere when a non-zero component's reciprocal overflows (a
+/// direction component below `2⁻¹²⁸`: [`meets_box`] then falls back to [`clip`]).
+#[inline]
+fn inverse_f32(d: Vec3) -> Vec3A {
+    let d = Vec3A::from(d);
+    let inv = Vec3A::ONE / d;
+    if (inv.is_finite_mask() | d.cmpeq(Vec3A::ZERO)).all() {
+        inv
+    } else {
+        Vec3A::NAN
+    }
+}
+
+/// Whether some point of the valid `ray`'s interval may lie in box `b`: the slab test in `f32`
+/// on three lanes at once, each slab distance widened by [`SLAB_WIDEN`] of itself plus
+/// [`SLAB_TINY`], so that it passes whenever [`clip`] does (and rarely more: the widening is a
+/// millionth of the distance). An axis along which the ray does not move constrains nothing
+/// when the origin lies within the box's slab and culls otherwise, as in [`clip`]. `inv` is
+/// the ray's [`inverse_f32`] (NaN: the `f64` [`clip`] decides). In place of [`clip`]'s `f64`
+/// axis loop with its branches, where the single-ray descents of wide-cone nodes (the dining
+/// room's reflection rays) spent a third of their time: criterion `reflection/dual_lbvh_inline`
+/// −44 % (README, "Fixed costs before the traversal").
+#[inline]
+fn meets_box(ray: &Segment, inv: Vec3A, b: &Aabb) -> bool {
+    if inv.x.is_nan() {
+        return clip(ray, b).is_some();
+    }
+    let (o, d) = (Vec3A::from(ray.origin), Vec3A::from(ray.dir));
+    let (lo, hi) = (Vec3A::from(b.min), Vec3A::from(b.max));
+    let a = (lo - o) * inv;
+    let c = (hi - o) * inv;
+    let (near, far) = (a.min(c), a.max(c));
+    let near = near - (near.abs() * SLAB_WIDEN + SLAB_TINY);
+    let far = far + (far.abs() * SLAB_WIDEN + SLAB_TINY);
+    // Axes the ray does not move along: everything or nothing, by where the origin lies.
+    let still = d.cmpeq(Vec3A::ZERO);
+    let inside = o.cmpge(lo) & o.cmple(hi);
+    let (all, none) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
+    let near = Vec3A::select(still, Vec3A::select(inside, none, all), near);
+    let far = Vec3A::select(still, Vec3A::select(inside, all, none), far);
+    near.max_element().max(ray.t_min) <= far.min_element().min(ray.t_max)
 }
 
 /// Whether a point of `ray`'s segment (its interval) may lie in box `b`: [`clip`]; true for a
@@ -1656,7 +1699,8 @@ impl Leaves for Batched {
 
     #[inline]
     fn meets(&self, ctx: &Ctx<'_>, leaf: usize, bx: &Aabb) -> bool {
-        clip(&ctx.segments[leaf], bx).is_some()
+        let seg = &ctx.segments[leaf];
+        meets_box(seg, inverse_f32(seg.dir), bx)
     }
 
     #[inline]
@@ -1692,8 +1736,8 @@ struct Inline<'a, T: TriangleTest> {
     /// The task's segments in leaf order, gathered by the task (closest-hit: their `t_max`
     /// shrinks with each nearer hit).
     segments: Vec<Segment>,
-    /// Per leaf of the task: its direction's [`inverse`], for the single-ray box tests.
-    inverse: Vec<DVec3>,
+    /// Per leaf of the task: its direction's [`inverse_f32`], for the single-ray box tests.
+    inverse: Vec<Vec3A>,
     /// Per ray level (lowest first): the task's first node there and the segment boxes of its
     /// nodes there, from the segments as gathered.
     boxes: Vec<(u32, Vec<Aabb>)>,
@@ -1815,7 +1859,7 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
                 .collect();
             boxes.push((first as u32, level));
         }
-        let inverse = segments.iter().map(|s| inverse(s.dir)).collect();
+        let inverse = segments.iter().map(|s| inverse_f32(s.dir)).collect();
         if closest {
             for (seg, hit) in segments.iter_mut().zip(&mine) {
                 if hit.is_hit() {
@@ -1887,7 +1931,7 @@ impl<T: TriangleTest> Leaves for Inline<'_, T> {
 
     #[inline]
     fn meets(&self, _ctx: &Ctx<'_>, leaf: usize, bx: &Aabb) -> bool {
-        clip_with(self.seg(leaf), self.inverse[leaf - self.first_leaf], bx).is_some()
+        meets_box(self.seg(leaf), self.inverse[leaf - self.first_leaf], bx)
     }
 
     #[inline]
@@ -3226,6 +3270,115 @@ pub(crate) mod tests {
             d.bounds * 3 < c.bounds && d.total < c.total,
             "dual {d:?} against crsh {c:?}"
         );
+    }
+
+    #[test]
+    fn f32_single_ray_box_test_passes_whatever_clip_passes() {
+        let seg = |origin: Vec3, dir: Vec3, t_min: f32, t_max: f32| Segment {
+            origin,
+            t_min,
+            dir,
+            t_max,
+        };
+        let f32_says = |s: &Segment, b: &Aabb| meets_box(s, inverse_f32(s.dir), b);
+        let mut rng = TestRng(0x51ab_5eed);
+        // Rays aimed at a point of a box's surface (a face, an edge one time in four), some
+        // along an axis plane, of boxes near and far from the origin, with `t_max` a few
+        // ulps either side of the entry: where a slab test without its widening goes wrong.
+        let (mut tight, mut extra, mut total) = (0u32, 0u32, 0u32);
+        for i in 0..40_000usize {
+            let scale = [1.0f32, 1e3, 1e-3][i % 3];
+            let c = rng.vec3(-1.0, 1.0) * scale * [1.0, 100.0][i / 3 % 2];
+            let h = rng.vec3(0.01, 1.0) * scale;
+            let b = Aabb {
+                min: c - h,
+                max: c + h,
+            };
+            let axis = i % 3;
+            let mut p = c + rng.vec3(-1.0, 1.0) * h;
+            p[axis] = if rng.f32() < 0.5 {
+                b.min[axis]
+            } else {
+                b.max[axis]
+            };
+            if i % 4 == 0 {
+                p[(axis + 1) % 3] = b.max[(axis + 1) % 3];
+            }
+            let mut o = c + rng.unit() * (h.length() * rng.range(1.5, 20.0));
+            if i % 7 == 0 {
+                // A still axis: the origin in the plane of the target point.
+                o[(axis + 2) % 3] = p[(axis + 2) % 3];
+            }
+            let d = p - o;
+            let d = if i % 5 == 0 { d } else { d.normalize() };
+            let Some((entry, _)) = clip(&seg(o, d, 0.0, f32::INFINITY), &b) else {
+                continue;
+            };
+            let entry = entry as f32;
+            for k in -6i32..=6 {
+                let t_max = f32::from_bits((entry.to_bits() as i32 + k) as u32);
+                let s = seg(o, d, 0.0, t_max);
+                let (exact, fast) = (clip(&s, &b).is_some(), f32_says(&s, &b));
+                assert!(!exact || fast, "{s:?} {b:?}: clip passes, f32 culls");
+                total += 1;
+                tight += u32::from(exact);
+                extra += u32::from(fast && !exact);
+            }
+        }
+        // Most intervals ending a few ulps past the entry pass, and the widening (a millionth
+        // of the distance) lets through only intervals that end within it.
+        assert!(tight > total / 3, "{tight} of {total}");
+        assert!(extra < total / 2, "{extra} of {total}");
+        // Random rays and boxes: the same answers but for a handful.
+        let (mut differ, mut passed) = (0u32, 0u32);
+        for _ in 0..40_000 {
+            let b = Aabb::from_points([rng.vec3(-2.0, 2.0), rng.vec3(-2.0, 2.0)]);
+            let s = seg(
+                rng.vec3(-4.0, 4.0),
+                rng.unit(),
+                rng.range(0.0, 0.5),
+                rng.range(0.5, 6.0),
+            );
+            let (exact, fast) = (clip(&s, &b).is_some(), f32_says(&s, &b));
+            assert!(!exact || fast, "{s:?} {b:?}");
+            differ += u32::from(exact != fast);
+            passed += u32::from(exact);
+        }
+        assert!(passed > 500 && differ < 20, "{passed} {differ}");
+        // A still axis: the origin within the slab (on its faces too) passes, outside culls.
+        let unit = Aabb {
+            min: Vec3::ZERO,
+            max: Vec3::ONE,
+        };
+        for (y, want) in [
+            (0.0, true),
+            (1.0, true),
+            (0.5, true),
+            (-1e-7, false),
+            (1.0001, false),
+        ] {
+            let s = seg(Vec3::new(-1.0, y, 0.5), Vec3::X, 0.0, 10.0);
+            assert_eq!(f32_says(&s, &unit), want, "y {y}");
+            assert_eq!(clip(&s, &unit).is_some(), want, "y {y}");
+        }
+        // The empty box culls like clip; a direction component whose reciprocal overflows in
+        // f32 falls back to clip: a ray creeping up by 1e-40 per unit enters the slab at 1e37.
+        let s = seg(
+            Vec3::new(0.0, -1e-3, 0.0),
+            Vec3::new(1.0, 1e-40, 0.0),
+            0.0,
+            f32::INFINITY,
+        );
+        assert!(inverse_f32(s.dir).x.is_nan());
+        assert_eq!(f32_says(&s, &Aabb::EMPTY), clip(&s, &Aabb::EMPTY).is_some());
+        let far = Aabb {
+            min: Vec3::new(-1e38, 0.0, -1.0),
+            max: Vec3::new(1e38, 1.0, 1.0),
+        };
+        assert!(clip(&s, &far).is_some());
+        assert!(f32_says(&s, &far));
+        let short = seg(s.origin, s.dir, 0.0, 1e36);
+        assert!(clip(&short, &far).is_none() && !f32_says(&short, &far));
     }
 
     #[test]

@@ -116,9 +116,11 @@ fn node_leaves(n: u32) -> vec2<u32> {
 }
 
 // crsh_cpu's dual::clip in f32: [t0, t1] of a valid ray's interval within box [lo, hi], with
-// the slab distances widened by a relative 1e-6, so it contains the CPU's: (lo − o)·(1/d) is
-// off by at most 7u relative (u = 2⁻²⁴: the subtraction and the product u each, WGSL's
-// reciprocal 2.5 ulp), 4.2e-7, and the CPU's own widening is 1e-9. t0 > t1 when empty.
+// the slab distances widened by a relative 1e-6, so it contains the CPU's exact f64 one:
+// (lo − o)·(1/d) is off by at most 7u relative (u = 2⁻²⁴: the subtraction and the product u
+// each, WGSL's reciprocal 2.5 ulp), 4.2e-7, and clip's own widening is 1e-9. The CPU's
+// single-ray test (dual::meets_box) is this test with a correctly rounded reciprocal (3u).
+// t0 > t1 when empty.
 fn clip(o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32, lo: vec3<f32>, hi: vec3<f32>) -> vec2<f32> {
     var t0 = t_min;
     var t1 = t_max;
