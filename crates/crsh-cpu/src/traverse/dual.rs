@@ -181,9 +181,14 @@
 //! both modes, hits given beforehand (merged as [`crsh_core::Intersector::intersect`] merges
 //! them: an any-hit ray that has one is not traced), and thread counts.
 //!
-//! Tasks keep their own rays' segments, node boxes, hits, masks and packets (a task's rays are
-//! its top node's, a contiguous run of leaves): each task gathers its rays' segments through
-//! `order` itself and boxes its ray nodes from them (the same boxes as the batched mode's), so
+//! A task is a ray node of the highest level with at least 64 nodes (else of the lowest level),
+//! which meets the object root itself: a small batch (the dining room's first-bounce
+//! reflection rays make 2 top nodes, their later bounces 1) would otherwise run on one or two
+//! threads. The level depends on the hierarchy's shape alone, so the counters do not depend on
+//! the thread count. Tasks keep their own rays' segments, node boxes, hits, masks and packets
+//! (a task's rays are its node's, a contiguous run of leaves): each task gathers its rays'
+//! segments through `order` itself and boxes its ray nodes from them (the same boxes as the
+//! batched mode's), so
 //! no batch-wide array of segments is made (on Sponza's 1.24M shadow rays, 40 MB written and
 //! faulted in before the traversal). They need no synchronization; up to 256 of them run in
 //! parallel, and their hits are written back after each round. No candidate arrays exist,
@@ -1764,20 +1769,20 @@ fn next_above(t: f32) -> f32 {
 }
 
 impl<'a, T: TriangleTest> Inline<'a, T> {
-    /// The state of top node `top` (of level `top_level`), its rays' hits gathered from
-    /// `hits` (any-hit rays already hit are not traced; `None`: every hit is a miss).
+    /// The state of the task of node `top` of ray level `top_level` ([`task_level`]), its
+    /// rays' hits gathered from `hits` (any-hit rays already hit are not traced; `None`: every
+    /// hit is a miss).
     fn new(
         ctx: &Ctx<'a>,
         tris: &'a [T::Tri],
         mode: HitMode,
-        top: usize,
+        (top_level, top): (usize, usize),
         widest: usize,
         hits: Option<&[Hit]>,
     ) -> Inline<'a, T> {
         let h = ctx.hierarchy;
         let order = h.order.as_slice();
         let sub = ctx.sub;
-        let top_level = ctx.nodes.len() - 1;
         let n_low = ctx.nodes[0].len();
         let span = sub.pow(top_level as u32);
         let first_low = (top * span).min(n_low);
@@ -2470,12 +2475,29 @@ impl Dual {
         counts.record(kind, stats);
         stats.add_level(kind, 0, tests, found);
         stats.add_ray_triangle(tests);
-        report.rounds = nodes[nodes.len() - 1].len().div_ceil(ROUND_TASKS);
+        report.rounds = nodes[task_level(&nodes)].len().div_ceil(ROUND_TASKS);
         Ok(Some(report))
     }
 }
 
-/// Every top ray node's traversal with inline final tests of test `T` ([`Inline`]), in rounds
+/// Tasks the inline traversal starts from the highest ray level that has this many nodes.
+const MIN_TASKS: usize = 64;
+
+/// The ray level whose nodes are the inline traversal's tasks: the highest with at least
+/// [`MIN_TASKS`] nodes, else the lowest. A small batch (the dining room's 7,716 first-bounce
+/// reflection rays make 2 top nodes at subdivision 16, depth 3; its later bounces 1) would
+/// otherwise run on one or two threads; its tasks start lower and each meets the object root
+/// itself, which costs the upper ray levels' pair tests (for wide cones those split at once
+/// anyway). The choice depends on the hierarchy's shape alone, never on the thread count, so
+/// the counters do not either.
+fn task_level<N>(levels: &[Vec<N>]) -> usize {
+    (0..levels.len())
+        .rev()
+        .find(|&l| levels[l].len() >= MIN_TASKS)
+        .unwrap_or(0)
+}
+
+/// Every task's traversal ([`task_level`]) with inline final tests of test `T` ([`Inline`]), in rounds
 /// of [`ROUND_TASKS`] tasks run in parallel; each task's hits are merged into `hits` after its
 /// round. Returns the ray-triangle tests, the hits they found and the pair counters.
 fn trace_tasks<'a, T: TriangleTest>(
@@ -2487,7 +2509,7 @@ fn trace_tasks<'a, T: TriangleTest>(
     hits: &mut [Hit],
 ) -> (u64, u64, Counters) {
     let order = ctx.hierarchy.order.as_slice();
-    let top_level = ctx.nodes.len() - 1;
+    let top_level = task_level(ctx.nodes);
     let n_top = ctx.nodes[top_level].len();
     let mut counts = Counters::new(ctx.nodes.len(), ctx.tree.max_depth + 1);
     let (mut tests, mut found) = (0u64, 0u64);
@@ -2501,7 +2523,14 @@ fn trace_tasks<'a, T: TriangleTest>(
             ..(first + ROUND_TASKS).min(n_top))
             .into_par_iter()
             .map(|top| {
-                let mut state = Inline::<T>::new(ctx, set.triangles(), mode, top, widest, current);
+                let mut state = Inline::<T>::new(
+                    ctx,
+                    set.triangles(),
+                    mode,
+                    (top_level, top),
+                    widest,
+                    current,
+                );
                 let mut task = Task {
                     stack: vec![Pair {
                         node: top as u32,
@@ -3826,6 +3855,45 @@ pub(crate) mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn tasks_start_at_the_highest_level_with_enough_nodes_and_give_the_same_hits() {
+        let scene = Arc::new(rooms(31, Vec3::ZERO));
+        let rays = test_rays(&scene, 32, 700);
+        let brute = BruteForce::with_test(&scene, TestKind::MollerTrumbore);
+        let order: Vec<u32> = shuffled(rays.len(), 33);
+        // Tasks at the top (sub 2, 3 levels: 350, 175, 88 nodes), in the middle (sub 2, 4
+        // levels: ..., 44 at the top) and at the lowest level (sub 8, 2 levels: 88, 11).
+        for (sub, levels, want_level) in [(2u32, 3usize, 2usize), (2, 4, 2), (8, 2, 0)] {
+            let h = build(&rays, order.clone(), sub, levels);
+            assert_eq!(h.levels.len(), levels);
+            assert_eq!(
+                task_level(&h.levels),
+                want_level,
+                "sub {sub} levels {levels}"
+            );
+            let trav = inline_dual(&scene, "lbvh");
+            for mode in [HitMode::Closest, HitMode::Any] {
+                let what = format!("sub {sub} levels {levels} {mode:?}");
+                let want = reference(&brute, &rays, mode);
+                let miss = vec![Hit::MISS; rays.len()];
+                let run = || trace_inline(&trav, &rays, &h, mode, brute.triangles(), &miss);
+                let (hits, stats, report) = crate::with_threads(1, run).unwrap();
+                assert_same(&hits, &want, mode, &what);
+                let three = crate::with_threads(3, run).unwrap();
+                assert!(
+                    three.0 == hits && three.1 == stats && three.2 == report,
+                    "{what}"
+                );
+                // No pair is tested above the task level.
+                let top = stats.levels.iter().filter(|l| l.tests > 0).map(|l| l.level);
+                assert_eq!(top.max(), Some(want_level as u32 + 1), "{what}");
+            }
+        }
+        assert_eq!(task_level::<u8>(&[]), 0);
+        assert_eq!(task_level(&[vec![0u8; 10]]), 0);
+        assert_eq!(task_level(&[vec![0u8; 640], vec![0; 64], vec![0; 4]]), 1);
     }
 
     #[test]
