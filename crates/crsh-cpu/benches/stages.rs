@@ -62,14 +62,15 @@ struct Batch {
     candidates: Vec<CandidateBatch<Cpu>>,
 }
 
-/// The shared Sponza manifest, if the scenes directory has it.
-fn sponza() -> Option<PathBuf> {
+/// The shared scene manifest `manifest` (`sponza/sponza.toml`) under `CRSH_SCENES`, else
+/// `../shared/scenes` next to the workspace, if it is there.
+fn shared_scene(manifest: &str) -> Option<PathBuf> {
     let dir = std::env::var_os("CRSH_SCENES")
         .map(PathBuf::from)
         .unwrap_or_else(|| {
             PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes")
         });
-    let path = dir.join("sponza/sponza.toml");
+    let path = dir.join(manifest);
     path.is_file().then_some(path)
 }
 
@@ -91,8 +92,45 @@ fn stages(scene: &Arc<Scene>, sets: &[&str]) -> Stages<Cpu> {
         .stages
 }
 
+/// The rays of `kind` that `st`'s ray generation spawns from its primary stage's `size × size`
+/// G-buffer.
+fn spawn(st: &Stages<Cpu>, size: u32, kind: RayKind, stats: &mut Stats) -> Vec<Ray> {
+    let surfaces = st
+        .primary
+        .gbuffer(&Cpu, size, size, stats)
+        .expect("G-buffer");
+    st.raygen
+        .generate(&Cpu, &surfaces, kind, stats)
+        .unwrap_or_else(|e| panic!("{kind:?} rays: {e}"))
+}
+
+/// `rays` (of `kind`) hashed, sorted and built into a hierarchy by `st`'s stages: the order
+/// and the hierarchy.
+fn hierarchy_of(
+    st: &Stages<Cpu>,
+    rays: &Vec<Ray>,
+    kind: RayKind,
+    stats: &mut Stats,
+) -> (Vec<u32>, RayHierarchy<Cpu>) {
+    let hasher = st.hasher.as_ref().expect("the pipeline hashes");
+    let keys = hasher.hash(&Cpu, rays, kind, stats).expect("keys");
+    let order = st
+        .sorter
+        .as_ref()
+        .expect("the pipeline sorts")
+        .sort(&Cpu, &keys, hasher.key_bits(), stats)
+        .expect("order");
+    let hierarchy = st
+        .hierarchy
+        .as_ref()
+        .expect("the pipeline builds a hierarchy")
+        .build(&Cpu, rays, order.clone(), stats)
+        .expect("hierarchy");
+    (order, hierarchy)
+}
+
 fn prepare() -> Batch {
-    let (tag, scene) = match sponza() {
+    let (tag, scene) = match shared_scene("sponza/sponza.toml") {
         Some(path) => {
             let scene = crsh_scene::load_path(&path)
                 .unwrap_or_else(|e| panic!("loading {}: {e}", path.display()));
@@ -113,29 +151,9 @@ fn prepare() -> Batch {
     let scene = Arc::new(scene);
     let st = stages(&scene, &[]);
     let mut stats = Stats::default();
-    let surfaces = st
-        .primary
-        .gbuffer(&Cpu, SIZE, SIZE, &mut stats)
-        .expect("G-buffer");
-    let rays = st
-        .raygen
-        .generate(&Cpu, &surfaces, RayKind::Shadow, &mut stats)
-        .expect("shadow rays");
+    let rays = spawn(&st, SIZE, RayKind::Shadow, &mut stats);
     assert!(!rays.is_empty(), "the bench scene spawns no shadow rays");
-    let hasher = st.hasher.as_ref().expect("crsh hashes");
-    let keys = hasher
-        .hash(&Cpu, &rays, RayKind::Shadow, &mut stats)
-        .expect("keys");
-    let order = st
-        .sorter
-        .as_ref()
-        .expect("crsh sorts")
-        .sort(&Cpu, &keys, hasher.key_bits(), &mut stats)
-        .expect("order");
-    let builder = st.hierarchy.as_ref().expect("crsh builds a hierarchy");
-    let hierarchy = builder
-        .build(&Cpu, &rays, order.clone(), &mut stats)
-        .expect("hierarchy");
+    let (order, hierarchy) = hierarchy_of(&st, &rays, RayKind::Shadow, &mut stats);
     let mut candidates = Vec::new();
     st.traverser
         .as_ref()
@@ -397,24 +415,13 @@ fn benches(c: &mut Criterion) {
     g.finish();
 }
 
-/// The shared dining-room manifest, if the scenes directory has it.
-fn dining_room() -> Option<PathBuf> {
-    let dir = std::env::var_os("CRSH_SCENES")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes")
-        });
-    let path = dir.join("dining-room/dining-room.toml");
-    path.is_file().then_some(path)
-}
-
 /// The `reflection` group: the first-bounce reflection rays of a [`REFLECTION_SIZE`]² G-buffer
 /// of the shared dining room (else the built-in `cornell-mirrors`), traced to their closest
 /// hits by `dual_lbvh_inline` (the `dual_inline` preset's stages, the hierarchy built once,
 /// outside the timing) and by the whole-scene `bvh` (the CWBVH), side by side. Wide cones:
 /// most of the dining room's lowest nodes descend to single rays.
 fn reflection_benches(c: &mut Criterion) {
-    let (tag, scene) = match dining_room() {
+    let (tag, scene) = match shared_scene("dining-room/dining-room.toml") {
         Some(path) => {
             let scene = crsh_scene::load_path(&path)
                 .unwrap_or_else(|e| panic!("loading {}: {e}", path.display()));
@@ -447,32 +454,12 @@ fn reflection_benches(c: &mut Criterion) {
         .stages;
     let kind = RayKind::Reflection;
     let mut stats = Stats::default();
-    let surfaces = st
-        .primary
-        .gbuffer(&Cpu, REFLECTION_SIZE, REFLECTION_SIZE, &mut stats)
-        .expect("G-buffer");
-    let rays = st
-        .raygen
-        .generate(&Cpu, &surfaces, kind, &mut stats)
-        .expect("reflection rays");
+    let rays = spawn(&st, REFLECTION_SIZE, kind, &mut stats);
     if rays.is_empty() {
         eprintln!("reflection bench: {tag} spawns no reflection rays, skipped");
         return;
     }
-    let hasher = st.hasher.as_ref().expect("dual_inline hashes");
-    let keys = hasher.hash(&Cpu, &rays, kind, &mut stats).expect("keys");
-    let order = st
-        .sorter
-        .as_ref()
-        .expect("dual_inline sorts")
-        .sort(&Cpu, &keys, hasher.key_bits(), &mut stats)
-        .expect("order");
-    let hierarchy = st
-        .hierarchy
-        .as_ref()
-        .expect("dual_inline builds a hierarchy")
-        .build(&Cpu, &rays, order, &mut stats)
-        .expect("hierarchy");
+    let (_, hierarchy) = hierarchy_of(&st, &rays, kind, &mut stats);
     eprintln!(
         "reflection bench batch: {tag}, {} triangles, {REFLECTION_SIZE}x{REFLECTION_SIZE} \
          G-buffer, {} reflection rays",
