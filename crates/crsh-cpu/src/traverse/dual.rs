@@ -69,7 +69,8 @@
 //!
 //! # Traversal
 //!
-//! Work starts from every (top-level ray node, object root) pair. A pair is tested with
+//! Work starts from every (top-level ray node, object root) pair (with inline final tests,
+//! from the nodes of a lower level when the top has few: see below). A pair is tested with
 //! the box test (below, parameter `box_test`, on by default) and then
 //! [`NodeBound::may_hit`] (the ray node against the object node's sphere); a pair that
 //! passes both is
@@ -299,7 +300,7 @@ pub const OBJECTS: [&str; 4] = ["lbvh", "bvh", "grid", "meshes"];
 /// The default `grid_density` of `objects = grid`: about one cell per triangle (the fewest
 /// tests per ray on Sponza and cornell-mirror among 0.25, 1 and 5, module doc).
 pub const GRID_DENSITY: f64 = 1.0;
-/// Most tasks (top-level ray nodes) traversed in one round.
+/// Most tasks (top-level ray nodes; inline, the nodes of [`task_level`]) traversed in one round.
 const ROUND_TASKS: usize = 256;
 /// Fewest candidates a task may hold before it stops, unless the budget is smaller.
 const MIN_PIECE: u64 = 1024;
@@ -1464,7 +1465,8 @@ impl Counters {
     }
 }
 
-/// A top-level ray node's depth-first traversal, resumable.
+/// A ray node's depth-first traversal (a top-level node's; inline, a node of [`task_level`]),
+/// resumable.
 struct Task {
     stack: Vec<Pair>,
 }
@@ -1719,9 +1721,10 @@ impl Leaves for Batched {
     }
 }
 
-/// The rays of one task (a top ray node) traced inline: each (lowest node, triangle) pair is
-/// tested as soon as the traversal reaches it, with test `T`; an any-hit ray leaves the
-/// traversal at its first hit, a closest-hit ray's segment ends at its nearest hit so far.
+/// The rays of one task (a node of [`task_level`]) traced inline: each (lowest node,
+/// triangle) pair is tested as soon as the traversal reaches it, with test `T`; an any-hit ray
+/// leaves the traversal at its first hit, a closest-hit ray's segment ends at its nearest hit
+/// so far.
 struct Inline<'a, T: TriangleTest> {
     tris: &'a [T::Tri],
     n_rays: usize,
@@ -2497,9 +2500,9 @@ fn task_level<N>(levels: &[Vec<N>]) -> usize {
         .unwrap_or(0)
 }
 
-/// Every task's traversal ([`task_level`]) with inline final tests of test `T` ([`Inline`]), in rounds
-/// of [`ROUND_TASKS`] tasks run in parallel; each task's hits are merged into `hits` after its
-/// round. Returns the ray-triangle tests, the hits they found and the pair counters.
+/// Every task's traversal ([`task_level`]) with inline final tests of test `T` ([`Inline`]),
+/// in rounds of [`ROUND_TASKS`] tasks run in parallel; each task's hits are merged into `hits`
+/// after its round. Returns the ray-triangle tests, the hits they found and the pair counters.
 fn trace_tasks<'a, T: TriangleTest>(
     ctx: &Ctx<'a>,
     set: &'a TriangleSet<T>,
