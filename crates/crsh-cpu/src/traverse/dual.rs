@@ -189,14 +189,13 @@
 //! the thread count. Tasks keep their own rays' segments, node boxes, hits, masks and packets
 //! (a task's rays are its node's, a contiguous run of leaves): each task gathers its rays'
 //! segments through `order` itself and boxes its ray nodes from them (the same boxes as the
-//! batched mode's), so
-//! no batch-wide array of segments is made (on Sponza's 1.24M shadow rays, 40 MB written and
-//! faulted in before the traversal). They need no synchronization; up to 256 of them run in
-//! parallel, and their hits are written back after each round. No candidate arrays exist,
-//! so `candidate_budget_mb` does not apply; memory is O(rays) for the hits plus the round's
-//! tasks' segments, boxes and packets. The pair counters are the batched mode's rows; the final tests
-//! are the level-0 row and [`Stats::add_ray_triangle`], inside the `traversal` stage time (the
-//! pipeline records no `final_tests`).
+//! batched mode's), so no batch-wide array of segments is made (on Sponza's 1.24M shadow rays,
+//! 40 MB written and faulted in before the traversal). They need no synchronization; up to 256
+//! of them run in parallel, and their hits are written back after each round. No candidate
+//! arrays exist, so `candidate_budget_mb` does not apply; memory is O(rays) for the hits plus
+//! the round's tasks' segments, boxes and packets. The pair counters are the batched mode's
+//! rows; the final tests are the level-0 row and [`Stats::add_ray_triangle`], inside the
+//! `traversal` stage time (the pipeline records no `final_tests`).
 //!
 //! A hierarchy with a lowest node of more than 32 rays, `objects = meshes`, and edge-width
 //! queries stay batched (`trace` answers `None`, the pipeline then traverses and calls the
@@ -728,7 +727,7 @@ fn inverse_f32(d: Vec3) -> Vec3A {
 /// the ray's [`inverse_f32`] (NaN: the `f64` [`clip`] decides). In place of [`clip`]'s `f64`
 /// axis loop with its branches, where the single-ray descents of wide-cone nodes (the dining
 /// room's reflection rays) spent a third of their time: criterion `reflection/dual_lbvh_inline`
-/// −44 % (README, "Fixed costs before the traversal").
+/// −44 % (README, "Wide cones").
 #[inline]
 fn meets_box(ray: &Segment, inv: Vec3A, b: &Aabb) -> bool {
     if inv.x.is_nan() {
@@ -1786,10 +1785,12 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
         let h = ctx.hierarchy;
         let order = h.order.as_slice();
         let sub = ctx.sub;
-        let n_low = ctx.nodes[0].len();
-        let span = sub.pow(top_level as u32);
-        let first_low = (top * span).min(n_low);
-        let last_low = ((top + 1) * span).min(n_low);
+        // The task's nodes at ray level `l ≤ top_level`: those below node `top`.
+        let nodes_at = |l: usize| {
+            let (span, len) = (sub.pow((top_level - l) as u32), ctx.nodes[l].len());
+            (top * span).min(len)..((top + 1) * span).min(len)
+        };
+        let (first_low, last_low) = (nodes_at(0).start, nodes_at(0).end);
         let leaves_of =
             |n: usize| lowest_node_leaves(n, h.subdivision, h.leaf_offsets.as_deref(), ctx.n_rays);
         let first_leaf = leaves_of(first_low).start;
@@ -1824,8 +1825,7 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
         let alive = (1..=top_level)
             .map(|l| {
                 let span_l = sub.pow(l as u32);
-                let first = (top * sub.pow((top_level - l) as u32)).min(ctx.nodes[l].len());
-                let last = ((top + 1) * sub.pow((top_level - l) as u32)).min(ctx.nodes[l].len());
+                let (first, last) = (nodes_at(l).start, nodes_at(l).end);
                 let mut count = vec![0u32; last - first];
                 for (k, m) in live.iter().enumerate() {
                     count[(first_low + k) / span_l - first] += m.count_ones();
@@ -1857,15 +1857,12 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
             .collect();
         boxes.push((first_low as u32, lowest_boxes));
         for l in 1..=top_level {
-            let len = ctx.nodes[l].len();
-            let first = (top * sub.pow((top_level - l) as u32)).min(len);
-            let last = ((top + 1) * sub.pow((top_level - l) as u32)).min(len);
             let (below_first, below) = &boxes[l - 1];
             let below_len = ctx.nodes[l - 1].len();
-            let level = (first..last)
+            let level = nodes_at(l)
                 .map(|n| children_box(below, *below_first as usize, below_len, n, sub))
                 .collect();
-            boxes.push((first as u32, level));
+            boxes.push((nodes_at(l).start as u32, level));
         }
         let inverse = segments.iter().map(|s| inverse_f32(s.dir)).collect();
         if closest {
@@ -2470,15 +2467,20 @@ impl Dual {
             sub: hierarchy.subdivision as usize,
             tree,
         };
+        let level = task_level(&nodes);
         let (tests, found, counts) = match tris {
-            AnyTriangleSet::MollerTrumbore(s) => trace_tasks(&ctx, s, mode, root, widest, hits),
-            AnyTriangleSet::Watertight(s) => trace_tasks(&ctx, s, mode, root, widest, hits),
-            AnyTriangleSet::Projected(s) => trace_tasks(&ctx, s, mode, root, widest, hits),
+            AnyTriangleSet::MollerTrumbore(s) => {
+                trace_tasks(&ctx, s, mode, (root, level), widest, hits)
+            }
+            AnyTriangleSet::Watertight(s) => {
+                trace_tasks(&ctx, s, mode, (root, level), widest, hits)
+            }
+            AnyTriangleSet::Projected(s) => trace_tasks(&ctx, s, mode, (root, level), widest, hits),
         };
         counts.record(kind, stats);
         stats.add_level(kind, 0, tests, found);
         stats.add_ray_triangle(tests);
-        report.rounds = nodes[task_level(&nodes)].len().div_ceil(ROUND_TASKS);
+        report.rounds = nodes[level].len().div_ceil(ROUND_TASKS);
         Ok(Some(report))
     }
 }
@@ -2500,19 +2502,19 @@ fn task_level<N>(levels: &[Vec<N>]) -> usize {
         .unwrap_or(0)
 }
 
-/// Every task's traversal ([`task_level`]) with inline final tests of test `T` ([`Inline`]),
-/// in rounds of [`ROUND_TASKS`] tasks run in parallel; each task's hits are merged into `hits`
+/// Every task's traversal (from the object root `root` and the nodes of ray level `top_level`,
+/// the [`task_level`]) with inline final tests of test `T` ([`Inline`]), in rounds of
+/// [`ROUND_TASKS`] tasks run in parallel; each task's hits are merged into `hits`
 /// after its round. Returns the ray-triangle tests, the hits they found and the pair counters.
 fn trace_tasks<'a, T: TriangleTest>(
     ctx: &Ctx<'a>,
     set: &'a TriangleSet<T>,
     mode: HitMode,
-    root: u32,
+    (root, top_level): (u32, usize),
     widest: usize,
     hits: &mut [Hit],
 ) -> (u64, u64, Counters) {
     let order = ctx.hierarchy.order.as_slice();
-    let top_level = task_level(ctx.nodes);
     let n_top = ctx.nodes[top_level].len();
     let mut counts = Counters::new(ctx.nodes.len(), ctx.tree.max_depth + 1);
     let (mut tests, mut found) = (0u64, 0u64);
