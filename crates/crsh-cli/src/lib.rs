@@ -29,6 +29,7 @@
 #![warn(missing_docs)]
 
 mod ablate;
+pub mod allocator;
 mod args;
 mod error;
 mod grid_build;
@@ -108,7 +109,8 @@ fn quiet_vulkan_device_select() {
 
 /// The `crsh` program with `registries`: parses the process's arguments, runs the command,
 /// prints an error as one line on stderr and exits with its code (2 for usage errors, as
-/// clap's own, 1 for failures of the work, 0 on success).
+/// clap's own, 1 for failures of the work, 0 on success). First it tells glibc's `malloc` to
+/// keep freed memory ([`allocator::keep_freed_memory`]), unless the environment tunes it.
 pub fn main_with(registries: Registries) -> ! {
     main_with_args(registries, std::env::args_os())
 }
@@ -120,6 +122,7 @@ where
     I: IntoIterator<Item = T>,
     T: Into<OsString> + Clone,
 {
+    allocator::keep_freed_memory();
     quiet_vulkan_device_select();
     // clap prints its own usage errors (`error: ...`) and exits with code 2.
     let cli = Cli::parse_from(args);

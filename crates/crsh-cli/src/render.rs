@@ -90,12 +90,13 @@ pub fn run(args: &RenderArgs, registries: &Registries) -> CliResult<()> {
     render
         .write_png(&args.out)
         .map_err(|e| CliError::runtime(e.to_string()))?;
-    let report = render.report(
+    let mut report = render.report(
         &scene,
         &args.scene,
         &args.out.display().to_string(),
         scene_load_ms,
     );
+    report.allocator = crate::allocator::policy().map(|p| p.describe());
     if let Some(path) = &args.stats {
         output::write_text(path, &(report.to_json() + "\n"))?;
     }
@@ -191,6 +192,7 @@ fn run_frames(
     let bar = progress_bar();
     bar.set_prefix(cfg.name.clone());
     let mut report = FramesReport::new(&anim, &args.scene, cfg);
+    report.allocator = crate::allocator::policy().map(|p| p.describe());
     let mut setup = SetupTimes {
         scene_load_ms,
         ..SetupTimes::default()

@@ -371,6 +371,9 @@ pub struct FramesReport {
     pub frames: Vec<FrameRow>,
     /// Sums.
     pub totals: FrameTotals,
+    /// How the program set up its memory allocator (as [`crate::report::StatsReport`]'s).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub allocator: Option<String>,
 }
 
 impl FramesReport {
@@ -392,6 +395,7 @@ impl FramesReport {
             max_depth: 0,
             frames: Vec::new(),
             totals: FrameTotals::default(),
+            allocator: None,
         }
     }
 

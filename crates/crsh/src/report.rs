@@ -235,6 +235,11 @@ pub struct StatsReport {
     /// Agreement with `--reference` (absent without it).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub accuracy: Option<AccuracyReport>,
+    /// How the program set up its memory allocator (the `crsh` binary: whether glibc's
+    /// `malloc` keeps freed memory, which changes the stage times); absent when the program
+    /// did not say.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub allocator: Option<String>,
 }
 
 /// The adapter of a wgpu run.
@@ -354,6 +359,7 @@ impl StatsReport {
             setup: run.setup,
             mrays_per_s: mrays_per_s(stats),
             accuracy,
+            allocator: None,
         }
     }
 

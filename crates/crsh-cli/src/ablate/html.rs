@@ -122,6 +122,9 @@ pub fn report(results: &Results, charts: &[(String, Vec<ChartFile>)]) -> String 
     fact("crsh version", &m.crsh_version);
     fact("git revision", &m.git_revision);
     fact("started (UTC)", &m.started_utc);
+    if !m.allocator.is_empty() {
+        fact("allocator", &m.allocator);
+    }
     let has_wgpu = results.cells.iter().any(|c| c.backend == "wgpu");
     if has_wgpu {
         fact(

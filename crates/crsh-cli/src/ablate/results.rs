@@ -429,6 +429,10 @@ pub struct Machine {
     pub wgpu_adapters: Vec<String>,
     /// When the run started (UTC, ISO 8601).
     pub started_utc: String,
+    /// The memory allocator's policy ([`crate::allocator`]; empty in results written before
+    /// it was recorded).
+    #[serde(default)]
+    pub allocator: String,
 }
 
 impl Machine {
@@ -471,6 +475,8 @@ impl Machine {
             git_revision,
             wgpu_adapters,
             started_utc: utc_now(),
+            allocator: crate::allocator::policy()
+                .map_or_else(|| "not set by the program".into(), |p| p.describe()),
         }
     }
 }
