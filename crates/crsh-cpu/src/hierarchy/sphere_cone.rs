@@ -685,29 +685,25 @@ fn store_cone(axis: DVec3, full: bool, children: impl Iterator<Item = (DVec3, f6
 }
 
 /// [`store_cone`] for a lowest node, whose children are directions (angle 0): the widest
-/// direction is found by comparing `(sin, cos)` pairs (`θᵢ > θⱼ` exactly when
-/// `sin θᵢ·cos θⱼ − cos θᵢ·sin θⱼ > 0`, both angles in `[0, π]`, or that difference is 0 and
-/// `cos θᵢ < cos θⱼ`: the angles 0 and π), so only its angle is measured
-/// with `atan2`, not every ray's. A near tie that rounding decides the wrong way costs a few
-/// ulps of the angle, far below the [`CONE_ABS_MARGIN`] the stored angle is enlarged by.
+/// direction is the one of smallest cosine with the stored axis, so only its angle is measured
+/// (with `atan2`), not every ray's. A cosine near ±1 resolves an angle only to about 4e-8 rad
+/// (`√(2·3·2⁻⁵³)`, three roundings of the dot product), so a near tie that rounding decides the
+/// wrong way loses at most that, far below the [`CONE_ABS_MARGIN`] (1e-6) the stored angle is
+/// enlarged by.
 fn store_leaf_cone(axis: DVec3, full: bool, dirs: impl Iterator<Item = DVec3>) -> Cone {
     let stored = axis.as_vec3().normalize();
     let a = stored.as_dvec3();
     let measured = if full {
         PI
     } else {
-        let widest = dirs.fold(None, |best: Option<(f64, f64)>, x| {
-            let (s, c) = (a.cross(x).length(), a.dot(x));
+        let widest = dirs.fold(None, |best: Option<(f64, DVec3)>, x| {
+            let c = a.dot(x);
             match best {
-                // sin(θ − θ_best) ≤ 0, except that it is 0 too when the two angles are 0 and
-                // π (a direction opposite to the axis): then the smaller cosine is wider.
-                Some((bs, bc)) if s * bc - c * bs < 0.0 || (s * bc - c * bs == 0.0 && c >= bc) => {
-                    best
-                }
-                _ => Some((s, c)),
+                Some((bc, _)) if c >= bc => best,
+                _ => Some((c, x)),
             }
         });
-        widest.map_or(0.0, |(s, c)| s.atan2(c))
+        widest.map_or(0.0, |(_, x)| angle(a, x))
     };
     let widened = measured * (1.0 + CONE_REL_MARGIN) + CONE_ABS_MARGIN;
     Cone {
@@ -797,8 +793,15 @@ fn leaf_node(rays: &[Ray], leaves: &[u32], how: LeafCone) -> (SphereCone, f32) {
         let ray = &rays[*i as usize];
         let d = ray.dir.as_dvec3();
         origins[k] = ray.origin;
-        dirs[k] = unit(d);
-        lengths[k] = ray.t_max as f64 * d.length();
+        // `unit(d)` and the length from one square root (`unit` is `d · (1 / |d|)`).
+        let length = d.length();
+        let rcp = 1.0 / length;
+        dirs[k] = if rcp.is_finite() && rcp > 0.0 {
+            d * rcp
+        } else {
+            unit(d)
+        };
+        lengths[k] = ray.t_max as f64 * length;
     }
     let (origins, dirs) = (&origins[..n], &dirs[..n]);
     // Eq. 3.8-3.11 one ray at a time; a ray already inside (x·r ≥ cos φ) leaves the cone as
@@ -839,25 +842,31 @@ fn leaf_node(rays: &[Ray], leaves: &[u32], how: LeafCone) -> (SphereCone, f32) {
         }
         None => incremental(),
     };
-    // Rays from one point (shadow rays leaving a light) need no Welzl.
-    let ball = if origins.iter().all(|o| *o == origins[0]) {
-        Sphere::new(origins[0], 0.0)
-    } else {
-        min_sphere(origins)
-    };
+    // Rays from one point (shadow rays leaving a light) need no Welzl, and every distance
+    // from the stored centre (that point, exactly) is 0: the same sphere and reach as the
+    // loops below, without their square roots.
+    let one_point = origins.iter().all(|o| *o == origins[0]);
     // A half-angle of π has sine 0 and cosine −1.
     let full = cone.cos <= -1.0;
-    let sphere = store_sphere(
-        ball.center.as_dvec3(),
-        origins.iter().map(|o| (o.as_dvec3(), 0.0)),
-    );
-    let c = sphere.center.as_dvec3();
-    let far = origins
-        .iter()
-        .zip(&lengths[..n])
-        .fold(0.0f64, |m, (o, len)| {
-            m.max((o.as_dvec3() - c).length() + len)
-        });
+    let (sphere, far) = if one_point {
+        let o = origins[0].as_dvec3();
+        let far = lengths[..n].iter().fold(0.0f64, |m, len| m.max(*len));
+        (store_sphere(o, std::iter::once((o, 0.0))), far)
+    } else {
+        let ball = min_sphere(origins);
+        let sphere = store_sphere(
+            ball.center.as_dvec3(),
+            origins.iter().map(|o| (o.as_dvec3(), 0.0)),
+        );
+        let c = sphere.center.as_dvec3();
+        let far = origins
+            .iter()
+            .zip(&lengths[..n])
+            .fold(0.0f64, |m, (o, len)| {
+                m.max((o.as_dvec3() - c).length() + len)
+            });
+        (sphere, far)
+    };
     let node = SphereCone {
         sphere,
         cone: store_leaf_cone(cone.axis, full, dirs.iter().copied()),
