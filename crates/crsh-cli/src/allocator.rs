@@ -7,7 +7,7 @@
 //! costs one page fault per 4 KiB written, on each batch again: on this project's 2-core
 //! machine a 1024² frame of cornell-mirror took about 80,000 faults against its 270 MB peak
 //! (66,000 pages), and its hashing and sorting stages ran 20-50 % faster with freed memory
-//! kept (README, "Freed memory kept").
+//! kept (README, "Fixed stages and memory").
 //!
 //! [`keep_freed_memory`] sets, with `mallopt`:
 //! - `M_MMAP_MAX = 0`: every block comes from a heap, none from its own mapping;
