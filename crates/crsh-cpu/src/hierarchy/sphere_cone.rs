@@ -686,10 +686,10 @@ fn store_cone(axis: DVec3, full: bool, children: impl Iterator<Item = (DVec3, f6
 
 /// [`store_cone`] for a lowest node, whose children are directions (angle 0): the widest
 /// direction is the one of smallest cosine with the stored axis, so only its angle is measured
-/// (with `atan2`), not every ray's. A cosine near ±1 resolves an angle only to about 4e-8 rad
-/// (`√(2·3·2⁻⁵³)`, three roundings of the dot product), so a near tie that rounding decides the
-/// wrong way loses at most that, far below the [`CONE_ABS_MARGIN`] (1e-6) the stored angle is
-/// enlarged by.
+/// (with `atan2`), not every ray's. Near ±1 two cosines, each off by up to three roundings of
+/// the dot product, tell angles apart only to about 4e-8 rad (`√(2·6·2⁻⁵³)`), so a near tie
+/// that rounding decides the wrong way loses at most that, far below the [`CONE_ABS_MARGIN`]
+/// (1e-6) the stored angle is enlarged by.
 fn store_leaf_cone(axis: DVec3, full: bool, dirs: impl Iterator<Item = DVec3>) -> Cone {
     let stored = axis.as_vec3().normalize();
     let a = stored.as_dvec3();
