@@ -141,6 +141,13 @@ fn quick_plan_end_to_end() {
     assert_eq!(v["plan"]["repeat"], 3);
     assert!(v["machine"]["cpu_model"].is_string());
     assert!(v["machine"]["git_revision"].is_string());
+    // The binary's memory policy (`crsh_cli::allocator`), which changes the stage times.
+    let allocator = v["machine"]["allocator"].as_str().unwrap();
+    if cfg!(all(target_os = "linux", target_env = "gnu")) {
+        assert!(allocator.starts_with("glibc malloc"), "{allocator}");
+    } else {
+        assert!(!allocator.is_empty());
+    }
 
     // CSV: the header and one row per cell, matching the JSON.
     let csv = parse_csv(&std::fs::read_to_string(out.join("results.csv")).unwrap());
@@ -228,6 +235,7 @@ fn quick_plan_end_to_end() {
         );
     }
     assert!(report.contains("id=\"machine-table\"") && report.contains("id=\"plan-text\""));
+    assert!(report.contains("<th class=\"l\">allocator</th>"));
 }
 
 /// A reduced `plans/accuracy.toml`: the offset policies against one robust reference image,
