@@ -123,6 +123,11 @@ impl ShadowLayout {
 /// # Errors
 /// [`CoreError::InvalidInput`] when the ray's segment end is not finite.
 pub fn light_to_point_direction(ray: &Ray, light: Vec3) -> Result<Vec3> {
+    if ray.origin == light && surely_finite_end(ray) {
+        // The thesis's convention (`shadow_origin = light`), with an end point that cannot
+        // overflow: the outcome of the checks below, without their products.
+        return Ok(ray.dir);
+    }
     let end = Vec3::from_array(std::array::from_fn(|i| {
         ray.origin[i] + product(ray.dir[i], ray.t_max)
     }));
@@ -147,6 +152,21 @@ pub fn light_to_point_direction(ray: &Ray, light: Vec3) -> Result<Vec3> {
     } else {
         Ok(-ray.dir)
     }
+}
+
+/// Whether `ray`'s end point `origin + product(dir, t_max)` is finite without computing it:
+/// finite inputs with `|t_max| < 2⁹⁹`, `|dir| < 2²⁰` and `|origin| < 2¹²⁰` per component keep
+/// every product near or below `2¹¹⁹` and every sum below `2¹²¹`, far from `f32`'s overflow
+/// at `2¹²⁸`. `false` says nothing (the end may still be finite).
+#[inline]
+fn surely_finite_end(ray: &Ray) -> bool {
+    const T: f32 = (1u128 << 99) as f32;
+    const D: f32 = (1u32 << 20) as f32;
+    const O: f32 = (1u128 << 120) as f32;
+    // Comparisons with NaN are false, so a NaN fails them too.
+    ray.t_max.abs() < T
+        && ray.dir.abs().cmplt(Vec3::splat(D)).all()
+        && ray.origin.abs().cmplt(Vec3::splat(O)).all()
 }
 
 #[cfg(test)]
@@ -247,6 +267,54 @@ mod tests {
             depth: 1,
             source: 0,
         }
+    }
+
+    /// A ray from the light takes the shortcut unless its end might overflow, and errs exactly
+    /// when its end point, computed as the slow path computes it, is not finite.
+    #[test]
+    fn light_origin_shortcut_decides_as_the_end_point_does() {
+        let big = [
+            0.0,
+            1.0,
+            3.5,
+            1e6,
+            1e20,
+            6e29,
+            1e30,
+            1e37,
+            3e38,
+            f32::MAX,
+            f32::INFINITY,
+            f32::NAN,
+        ];
+        let mut cases = 0;
+        for &o in &big {
+            for &d in &big {
+                for &t in &big {
+                    for sign in [1.0f32, -1.0] {
+                        let light = Vec3::new(o * sign, -0.5, o);
+                        let dir = Vec3::new(0.25, d * sign, -1.0);
+                        let r = shadow(light, dir, t);
+                        let end = Vec3::from_array(std::array::from_fn(|i| {
+                            r.origin[i] + product(r.dir[i], r.t_max)
+                        }));
+                        let got = light_to_point_direction(&r, light);
+                        assert_eq!(got.is_ok(), end.is_finite(), "o {o} d {d} t {t}");
+                        if let Ok(v) = got {
+                            assert_eq!(
+                                v.to_array().map(f32::to_bits),
+                                dir.to_array().map(f32::to_bits)
+                            );
+                        }
+                        if surely_finite_end(&r) {
+                            assert!(end.is_finite(), "shortcut for o {o} d {d} t {t}");
+                            cases += 1;
+                        }
+                    }
+                }
+            }
+        }
+        assert!(cases > 100, "the shortcut is taken ({cases})");
     }
 
     #[test]
