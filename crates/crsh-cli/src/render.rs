@@ -96,7 +96,7 @@ pub fn run(args: &RenderArgs, registries: &Registries) -> CliResult<()> {
         &args.out.display().to_string(),
         scene_load_ms,
     );
-    report.allocator = crate::allocator::policy().map(|p| p.describe());
+    report.allocator = crate::allocator::description();
     if let Some(path) = &args.stats {
         output::write_text(path, &(report.to_json() + "\n"))?;
     }
@@ -192,7 +192,7 @@ fn run_frames(
     let bar = progress_bar();
     bar.set_prefix(cfg.name.clone());
     let mut report = FramesReport::new(&anim, &args.scene, cfg);
-    report.allocator = crate::allocator::policy().map(|p| p.describe());
+    report.allocator = crate::allocator::description();
     let mut setup = SetupTimes {
         scene_load_ms,
         ..SetupTimes::default()

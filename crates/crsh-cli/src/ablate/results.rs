@@ -475,8 +475,8 @@ impl Machine {
             git_revision,
             wgpu_adapters,
             started_utc: utc_now(),
-            allocator: crate::allocator::policy()
-                .map_or_else(|| "not set by the program".into(), |p| p.describe()),
+            allocator: crate::allocator::description()
+                .unwrap_or_else(|| "not set by the program".into()),
         }
     }
 }
