@@ -207,8 +207,8 @@ pub(crate) fn test_kind(spec: &StageSpec, variant: &str) -> Result<TestKind> {
 }
 
 /// Edge-width answers ([`HitMode::EdgeWidth`]) for one packet of rays with test `T`: every
-/// crossing of each segment, sorted and paired by [`crsh_core::edge_width::edge_width_hit`] with the radius of the
-/// ray's light. Returns the tests performed (every triangle, per ray).
+/// crossing of each segment, sorted and paired by [`crsh_core::edge_width::edge_width_hit`]
+/// with the radius of the ray's light. Returns the tests performed (every triangle, per ray).
 fn edge_width_packet<T: TriangleTest>(
     set: &TriangleSet<T>,
     rays: &[Ray],

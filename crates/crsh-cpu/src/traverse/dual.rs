@@ -1790,7 +1790,8 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
             let (span, len) = (sub.pow((top_level - l) as u32), ctx.nodes[l].len());
             (top * span).min(len)..((top + 1) * span).min(len)
         };
-        let (first_low, last_low) = (nodes_at(0).start, nodes_at(0).end);
+        let lowest = nodes_at(0);
+        let (first_low, last_low) = (lowest.start, lowest.end);
         let leaves_of =
             |n: usize| lowest_node_leaves(n, h.subdivision, h.leaf_offsets.as_deref(), ctx.n_rays);
         let first_leaf = leaves_of(first_low).start;
@@ -1859,10 +1860,12 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
         for l in 1..=top_level {
             let (below_first, below) = &boxes[l - 1];
             let below_len = ctx.nodes[l - 1].len();
-            let level = nodes_at(l)
+            let nodes = nodes_at(l);
+            let first = nodes.start as u32;
+            let level = nodes
                 .map(|n| children_box(below, *below_first as usize, below_len, n, sub))
                 .collect();
-            boxes.push((nodes_at(l).start as u32, level));
+            boxes.push((first, level));
         }
         let inverse = segments.iter().map(|s| inverse_f32(s.dir)).collect();
         if closest {
