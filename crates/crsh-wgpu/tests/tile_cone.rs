@@ -3,7 +3,7 @@
 //! (`crsh_cpu::hash::tile`, `crsh_cpu::hierarchy::tile_cone`) and the spec's properties on the
 //! downloaded output:
 //! - `tile` keys equal the CPU `TileHasher`'s exactly (frames divisible or not, tile sizes,
-//!   light counts, kinds), and rays the CPU refuses (pixel outside the frame, shadow ray of a
+//!   light counts, kinds, tiles in rows and in Z-order), and rays the CPU refuses (pixel outside the frame, shadow ray of a
 //!   light the scene lacks) get the all-ones key of `key_bits`;
 //! - `tile_cone` offsets equal the CPU `build_nodes`' exactly, nodes' half-angles agree within
 //!   rounding but for a few (see [`Agreement`]), the reach within the guards; the
@@ -21,7 +21,7 @@ use crsh_core::{
     Backend, FrameOptions, FrameSize, Hasher, HierarchyBuilder, HitMode, Query, Ray, RayHierarchy,
     RayKind, Registry, SphereCone, StageContext, StageSpec, Stats, Surface,
 };
-use crsh_cpu::hash::tile::{TileGrid, TileHasher};
+use crsh_cpu::hash::tile::{TileGrid, TileHasher, TileOrder};
 use crsh_cpu::hierarchy::tile_cone::{build_nodes, check_containment, TileConeParams};
 use crsh_cpu::Cpu;
 use crsh_scene::Scene;
@@ -153,12 +153,16 @@ fn tile_keys_equal_the_cpu_twins() {
     let (mut checked, mut refused) = (0, 0);
     for (w, h) in [(100, 37), (48, 36), (1, 1), (16384, 16384), (7, 300)] {
         let frame = FrameSize::new(w, h).unwrap();
-        for ts in [1, 8, 16, 32, 4096] {
-            let grid = TileGrid::new(frame, ts).unwrap();
+        for (ts, order) in [1, 8, 16, 32, 4096]
+            .into_iter()
+            .flat_map(|ts| [(ts, TileOrder::Rows), (ts, TileOrder::Morton)])
+        {
+            let grid = TileGrid::new(frame, ts).unwrap().with_order(order);
             for lights in [0usize, 1, 3] {
                 let tile = Tile::with_grid(grid, lights).unwrap();
                 let bits = grid.key_bits(lights);
                 assert_eq!(tile.key_bits(), bits, "{w}x{h} tile {ts} lights {lights}");
+                let what = format!("{w}x{h} tile {ts} {order:?} lights {lights}");
                 let none = if bits == 64 {
                     u64::MAX
                 } else {
@@ -197,16 +201,12 @@ fn tile_keys_equal_the_cpu_twins() {
                 let host: Vec<Ray> = valid.iter().map(|&i| rays[i]).collect();
                 let want = cpu_keys(grid, lights, &host, RayKind::Shadow);
                 for (&i, k) in valid.iter().zip(&want) {
-                    assert_eq!(
-                        keys[i], *k,
-                        "{w}x{h} tile {ts} lights {lights}: {:?}",
-                        rays[i]
-                    );
+                    assert_eq!(keys[i], *k, "{what}: {:?}", rays[i]);
                     checked += 1;
                 }
                 for (i, r) in rays.iter().enumerate() {
                     if cpu_key(&grid, lights, r).is_none() {
-                        assert_eq!(keys[i], none, "{w}x{h} tile {ts} lights {lights}: {r:?}");
+                        assert_eq!(keys[i], none, "{what}: {r:?}");
                         refused += 1;
                     }
                 }
@@ -218,10 +218,21 @@ fn tile_keys_equal_the_cpu_twins() {
         let s = builtin(name);
         let gs = GpuScene::new(&b, &s).unwrap();
         let (w, h) = (100, 37);
-        for ts in [1, 8, 16, 32] {
+        for (ts, order) in [
+            (1, "rows"),
+            (8, "rows"),
+            (16, "rows"),
+            (32, "rows"),
+            (1, "morton"),
+        ]
+        .into_iter()
+        .chain([(4, "morton"), (16, "morton")])
+        {
             let mut spec = crsh_cpu::hash::tile::info().defaults();
             spec.params
                 .insert("tile_size".into(), crsh_core::ParamValue::Int(ts as i64));
+            spec.params
+                .insert("order".into(), crsh_core::ParamValue::Str(order.into()));
             let frame = FrameSize::new(w, h).unwrap();
             let tile = Tile::new(&gs, frame, &spec).unwrap();
             let cpu = TileHasher::new(frame, s.lights.len(), &spec).unwrap();
@@ -232,7 +243,7 @@ fn tile_keys_equal_the_cpu_twins() {
                     .unwrap();
                 let keys = b.download(&keys).unwrap();
                 let want = cpu.hash(&Cpu, &rays, kind, &mut Stats::default()).unwrap();
-                assert_eq!(keys, want, "{name} tile {ts} {kind:?}");
+                assert_eq!(keys, want, "{name} tile {ts} {order} {kind:?}");
                 checked += keys.len();
             }
         }

@@ -17,6 +17,20 @@
 //! [`Hasher::key_bits`] is the bit length of `max(1, lights)·tiles − 1` (at least 1), with
 //! `lights` the scene's light count, so a sorter sorts only the bits a key can have.
 //!
+//! # Order of the tiles (`order`)
+//!
+//! `rows` (the default, seed 004) numbers the tiles row by row, as above. `morton` numbers
+//! them in Z-order instead ([`TileOrder::Morton`]): the tile at tile coordinates
+//! `(tx, ty) = (x / ts, y / ts)` is `interleave(tx, ty)`, `tx` in the even bits and `ty` in the
+//! odd ones, and a shadow ray's group is `light·span + tile` with `span = 4^b`, `b` the bit
+//! length of `max(tiles_x, tiles_y) − 1` (the numbers a tile can take; `span` replaces
+//! `tiles` in the key width as well). Sorted rows of tiles put a ray-space hierarchy's nodes
+//! above the tiles over strips one tile high, as wide as the frame; Z-order puts every aligned
+//! run of `4^k` tiles over a square of `2^k × 2^k` tiles. With `tile_size = 4` and 16 rays per
+//! lowest node, a lowest node holds one 4×4 tile and the node above it 16×16 pixels, the
+//! layout Morton-ordered ray buffers give camera-ray packets. The Z-order is not part of seed
+//! 004; issue 17 measured it (README, "Screen-ordered keys").
+//!
 //! # Order within a tile
 //!
 //! All rays of a group get the same key, and [`crsh_core::Sorter::sort`] is stable by
@@ -56,6 +70,14 @@ pub fn info() -> StageVariantInfo {
          so that the stable sort gathers each tile's rays in generation order (seed 004 §3, §7)",
     )
     .param(tile_size_param())
+    .param(ParamInfo::choice(
+        "order",
+        TileOrder::Rows.name(),
+        &TileOrder::NAMES,
+        "how tiles are numbered: row by row (rows, seed 004) or in Z-order (morton: every \
+         aligned run of 4^k tiles is a square, so the hierarchy's nodes above the tiles are \
+         squares of the screen too)",
+    ))
 }
 
 /// The `tile_size` parameter, shared with the tile cone builder (same meaning and range).
@@ -97,6 +119,48 @@ pub fn check_tile_size(key: &str, tile_size: u32) -> Result<()> {
     })
 }
 
+/// How the tiles of a frame are numbered (the `order` parameter; see the module docs).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum TileOrder {
+    /// Row by row, `(y / ts)·tiles_x + x / ts` (seed 004).
+    #[default]
+    Rows,
+    /// Z-order: the tile coordinates' bits interleaved, `x / ts` in the even bits.
+    Morton,
+}
+
+impl TileOrder {
+    /// The parameter's values, in the order of [`TileOrder::parse`].
+    pub const NAMES: [&'static str; 2] = ["rows", "morton"];
+
+    /// The order named `name` (`rows` or `morton`).
+    pub fn parse(name: &str) -> Option<TileOrder> {
+        match name {
+            "rows" => Some(TileOrder::Rows),
+            "morton" => Some(TileOrder::Morton),
+            _ => None,
+        }
+    }
+
+    /// The parameter value naming this order.
+    pub fn name(self) -> &'static str {
+        match self {
+            TileOrder::Rows => "rows",
+            TileOrder::Morton => "morton",
+        }
+    }
+}
+
+/// `v`'s low 16 bits spread to the even bits of the result (bit `i` to bit `2i`).
+#[inline]
+pub fn spread_bits(v: u32) -> u32 {
+    let mut v = v & 0xffff;
+    v = (v | (v << 8)) & 0x00ff_00ff;
+    v = (v | (v << 4)) & 0x0f0f_0f0f;
+    v = (v | (v << 2)) & 0x3333_3333;
+    (v | (v << 1)) & 0x5555_5555
+}
+
 /// The tiles of a frame, and the group of a ray (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct TileGrid {
@@ -104,6 +168,9 @@ pub struct TileGrid {
     tile_size: u32,
     tiles_x: u32,
     tiles_y: u32,
+    order: TileOrder,
+    /// The numbers a tile can take: `tiles` in rows, `4^b` in Z-order.
+    span: u64,
 }
 
 impl TileGrid {
@@ -113,12 +180,47 @@ impl TileGrid {
     /// [`CoreError::InvalidParam`] for a `tile_size` outside [`TILE_SIZE_RANGE`].
     pub fn new(frame: FrameSize, tile_size: u32) -> Result<TileGrid> {
         check_tile_size("tile_size", tile_size)?;
+        let (tiles_x, tiles_y) = (
+            frame.width.div_ceil(tile_size),
+            frame.height.div_ceil(tile_size),
+        );
         Ok(TileGrid {
             frame,
             tile_size,
-            tiles_x: frame.width.div_ceil(tile_size),
-            tiles_y: frame.height.div_ceil(tile_size),
+            tiles_x,
+            tiles_y,
+            order: TileOrder::Rows,
+            span: tiles_x as u64 * tiles_y as u64,
         })
+    }
+
+    /// The same tiles numbered in `order`.
+    pub fn with_order(self, order: TileOrder) -> TileGrid {
+        let span = match order {
+            TileOrder::Rows => self.tiles(),
+            TileOrder::Morton => {
+                // Frames are at most MAX_IMAGE_SIDE (2^14) pixels a side, so b <= 14.
+                let b = 32 - (self.tiles_x.max(self.tiles_y) - 1).leading_zeros();
+                1u64 << (2 * b)
+            }
+        };
+        TileGrid {
+            order,
+            span,
+            ..self
+        }
+    }
+
+    /// How the tiles are numbered.
+    pub fn order(&self) -> TileOrder {
+        self.order
+    }
+
+    /// The numbers a tile can take (tile numbers are below it): [`TileGrid::tiles`] in rows,
+    /// `4^b` in Z-order with `b` the bit length of `max(tiles_x, tiles_y) − 1`. A shadow
+    /// ray's group is `light·span + tile`.
+    pub fn span(&self) -> u64 {
+        self.span
     }
 
     /// The frame.
@@ -146,8 +248,8 @@ impl TileGrid {
         self.tiles_x as u64 * self.tiles_y as u64
     }
 
-    /// The tile of pixel `pixel` (`y·width + x`): `(y / ts)·tiles_x + x / ts`; `None` when the
-    /// pixel lies outside the frame.
+    /// The number of pixel `pixel`'s (`y·width + x`) tile: `(y / ts)·tiles_x + x / ts` in rows,
+    /// `interleave(x / ts, y / ts)` in Z-order; `None` when the pixel lies outside the frame.
     #[inline]
     pub fn tile(&self, pixel: u32) -> Option<u64> {
         let w = self.frame.width;
@@ -155,27 +257,30 @@ impl TileGrid {
         if y >= self.frame.height {
             return None;
         }
-        let ts = self.tile_size;
-        Some((y / ts) as u64 * self.tiles_x as u64 + (x / ts) as u64)
+        let (tx, ty) = (x / self.tile_size, y / self.tile_size);
+        Some(match self.order {
+            TileOrder::Rows => ty as u64 * self.tiles_x as u64 + tx as u64,
+            TileOrder::Morton => (spread_bits(tx) | spread_bits(ty) << 1) as u64,
+        })
     }
 
-    /// The group of `ray`: its pixel's tile, plus `light·tiles` for a shadow ray; `None` when
+    /// The group of `ray`: its pixel's tile, plus `light·span` for a shadow ray; `None` when
     /// the pixel lies outside the frame. The key of the `tile` hasher and the node boundary of
     /// the tile cone builder (one definition for both).
     #[inline]
     pub fn group(&self, ray: &Ray) -> Option<u64> {
         let tile = self.tile(ray.pixel)?;
         Some(if ray.kind == RayKind::Shadow as u32 {
-            ray.light as u64 * self.tiles() + tile
+            ray.light as u64 * self.span + tile
         } else {
             tile
         })
     }
 
     /// The bits a group needs with `lights` lights: the bit length of
-    /// `max(1, lights)·tiles − 1`, at least 1.
+    /// `max(1, lights)·span − 1`, at least 1.
     pub fn key_bits(&self, lights: usize) -> u32 {
-        let top = (lights.max(1) as u64).saturating_mul(self.tiles()) - 1;
+        let top = (lights.max(1) as u64).saturating_mul(self.span) - 1;
         (64 - top.leading_zeros()).max(1)
     }
 }
@@ -195,8 +300,13 @@ impl TileHasher {
     /// [`CoreError::InvalidParam`] for a `tile_size` out of range.
     pub fn new(frame: FrameSize, lights: usize, spec: &StageSpec) -> Result<TileHasher> {
         let tile_size = spec.u32_in("tile_size", TILE_SIZE_RANGE)?;
+        let name = spec.str("order")?;
+        let order = TileOrder::parse(name).ok_or_else(|| CoreError::InvalidParam {
+            key: "hash.order".into(),
+            reason: format!("`{name}` is not a tile order (rows, morton)"),
+        })?;
         Ok(TileHasher::with_grid(
-            TileGrid::new(frame, tile_size)?,
+            TileGrid::new(frame, tile_size)?.with_order(order),
             lights,
         ))
     }
@@ -347,6 +457,95 @@ mod tests {
     }
 
     #[test]
+    fn z_order_keys_of_a_frame_with_partial_tiles() {
+        // 100×37 in tiles of 16: 7 × 3 tiles, coordinates below 8, so span 4^3 = 64.
+        let grid = TileGrid::new(frame(100, 37), 16)
+            .unwrap()
+            .with_order(TileOrder::Morton);
+        assert_eq!((grid.tiles(), grid.span()), (21, 64));
+        let h = TileHasher::with_grid(grid, 2);
+        let at = |x: u32, y: u32| y * 100 + x;
+        let cases = [
+            (at(0, 0), 0),
+            (at(15, 15), 0),
+            (at(16, 0), 1),
+            (at(0, 16), 2),
+            (at(31, 31), 3),
+            (at(32, 0), 4),
+            (at(48, 16), 7),
+            (at(0, 32), 8),
+            (at(64, 0), 16),
+            (at(99, 36), 28), // tile (6, 2): 0b110 and 0b010 interleaved, 0b011100
+        ];
+        let rays: Vec<Ray> = cases
+            .iter()
+            .map(|&(p, _)| ray(RayKind::Reflection, p, u32::MAX))
+            .collect();
+        let want: Vec<u64> = cases.iter().map(|c| c.1).collect();
+        assert_eq!(hash(&h, &rays).unwrap(), want);
+        // Shadow rays: light·span + tile, so light 1 starts at 64.
+        let shadow = vec![
+            ray(RayKind::Shadow, at(0, 0), 1),
+            ray(RayKind::Shadow, at(99, 36), 1),
+        ];
+        assert_eq!(hash(&h, &shadow).unwrap(), [64, 92]);
+        assert_eq!(
+            Hasher::<Cpu>::key_bits(&h),
+            7,
+            "2 lights · 64: keys 0..=127"
+        );
+        // Every tile gets its own number, the same 21 tiles as in rows.
+        let all: Vec<Ray> = (0..100 * 37)
+            .map(|p| ray(RayKind::Refraction, p, u32::MAX))
+            .collect();
+        let rows = TileHasher::with_grid(TileGrid::new(frame(100, 37), 16).unwrap(), 2);
+        let mut pairs: Vec<(u64, u64)> = hash(&h, &all)
+            .unwrap()
+            .into_iter()
+            .zip(hash(&rows, &all).unwrap())
+            .collect();
+        pairs.sort_unstable();
+        pairs.dedup();
+        assert_eq!(pairs.len(), 21);
+        assert!(pairs
+            .windows(2)
+            .all(|w| w[0].0 < w[1].0 && w[0].1 != w[1].1));
+    }
+
+    #[test]
+    fn z_order_runs_of_four_to_the_k_tiles_are_squares() {
+        // 64×48 pixels in tiles of 2: 32 × 24 tiles. Sorted by key, every aligned run of
+        // 4^k tile numbers lies in one 2^k × 2^k square of tiles.
+        let grid = TileGrid::new(frame(64, 48), 2)
+            .unwrap()
+            .with_order(TileOrder::Morton);
+        assert_eq!(grid.span(), 1024);
+        for k in 0..=5u32 {
+            let side = 2u32 << k; // pixels per square side
+            for p in 0..64 * 48u32 {
+                let key = grid.tile(p).unwrap();
+                let (x, y) = (p % 64, p / 64);
+                let run = key >> (2 * k);
+                // The square's corner, from the run's number.
+                let corner = |bits: u64, shift: u32| {
+                    (0..16).fold(0u32, |a, i| {
+                        a | (((bits >> (2 * i + shift)) & 1) as u32) << i
+                    })
+                };
+                let (cx, cy) = (corner(run, 0) * side, corner(run, 1) * side);
+                assert!(
+                    (cx..cx + side).contains(&x) && (cy..cy + side).contains(&y),
+                    "k {k}: pixel ({x}, {y}) key {key} outside the square at ({cx}, {cy})"
+                );
+            }
+        }
+        // spread_bits puts bit i at bit 2i and drops bits above 15.
+        assert_eq!(spread_bits(0b1011), 0b1000101);
+        assert_eq!(spread_bits(0xffff), 0x5555_5555);
+        assert_eq!(spread_bits(0x1_0001), 1);
+    }
+
+    #[test]
     fn key_bits_cover_the_groups() {
         let grid = TileGrid::new(frame(100, 37), 16).unwrap();
         // 21 tiles: keys 0..=20 (5 bits); 2 lights: 0..=41 (6 bits); no light counts as one.
@@ -364,6 +563,20 @@ mod tests {
         let huge = TileGrid::new(frame(16384, 16384), 1).unwrap();
         assert_eq!(huge.key_bits(1), 28);
         assert_eq!(huge.key_bits(1000), 38);
+        // Z-order: span 4^b for tile coordinates of b bits, whatever the other side.
+        let z = |w, h, ts| {
+            TileGrid::new(frame(w, h), ts)
+                .unwrap()
+                .with_order(TileOrder::Morton)
+        };
+        assert_eq!(z(16384, 16384, 1).key_bits(1), 28);
+        assert_eq!(z(16384, 1, 1).span(), 1 << 28);
+        assert_eq!(z(16384, 16384, 1).key_bits(1000), 38);
+        assert_eq!(z(1024, 768, 4).span(), 1 << 16);
+        assert_eq!(z(1024, 768, 4).key_bits(3), 18);
+        assert_eq!((z(1, 1, 1).span(), z(1, 1, 1).key_bits(1)), (1, 1));
+        assert_eq!((z(2, 1, 1).span(), z(2, 1, 1).key_bits(1)), (4, 2));
+        assert_eq!(z(100, 37, 4096).key_bits(5), 3);
     }
 
     #[test]
@@ -384,6 +597,12 @@ mod tests {
         assert!(TileGrid::new(frame(10, 10), 4097).is_err());
         let mut spec = StageSpec::new("tile");
         spec.params.insert("tile_size".into(), ParamValue::Int(8));
+        assert!(matches!(
+            TileHasher::new(frame(100, 37), 2, &spec),
+            Err(CoreError::InvalidParam { .. })
+        ));
+        spec.params
+            .insert("order".into(), ParamValue::Str("rows".into()));
         let h = TileHasher::new(frame(100, 37), 2, &spec).unwrap();
         assert_eq!(h.grid().tile_size(), 8);
         assert_eq!(
@@ -391,6 +610,23 @@ mod tests {
             8,
             "13 × 5 tiles × 2 lights: keys 0..=129"
         );
+        spec.params
+            .insert("order".into(), ParamValue::Str("morton".into()));
+        let h = TileHasher::new(frame(100, 37), 2, &spec).unwrap();
+        assert_eq!(h.grid().order(), TileOrder::Morton);
+        assert_eq!(
+            Hasher::<Cpu>::key_bits(&h),
+            9,
+            "13 × 5 tiles in Z-order: span 16², × 2 lights: keys 0..=511"
+        );
+        spec.params
+            .insert("order".into(), ParamValue::Str("hilbert".into()));
+        assert!(matches!(
+            TileHasher::new(frame(100, 37), 2, &spec),
+            Err(CoreError::InvalidParam { .. })
+        ));
+        spec.params
+            .insert("order".into(), ParamValue::Str("rows".into()));
         spec.params.insert("tile_size".into(), ParamValue::Int(0));
         assert!(matches!(
             TileHasher::new(frame(100, 37), 2, &spec),

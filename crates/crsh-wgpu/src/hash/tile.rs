@@ -11,7 +11,8 @@
 //! their light in the thesis convention). [`Hasher::key_bits`] is the bit length of
 //! `max(1, lights)·tiles − 1` (at least 1), with `lights` the scene's light count. Within a
 //! tile the rays keep their generation order: [`crsh_core::Sorter::sort`] is stable by
-//! contract.
+//! contract. With `order = morton` the tiles are numbered in Z-order and shadow groups are
+//! `light·span + tile` ([`TileGrid::span`]; see [`crsh_cpu::hash::tile`]).
 //!
 //! The twin is [`crsh_cpu::hash::tile::TileHasher`]: this variant registers under its
 //! catalogue entry ([`crsh_cpu::hash::tile::info`]), reads its parameters through it and takes
@@ -28,7 +29,7 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 use crsh_core::{CoreError, FrameSize, Hasher, Ray, RayKind, Registry, Result, StageSpec, Stats};
-use crsh_cpu::hash::tile::{TileGrid, TileHasher as CpuTile};
+use crsh_cpu::hash::tile::{TileGrid, TileHasher as CpuTile, TileOrder};
 
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
@@ -48,20 +49,21 @@ pub(crate) fn tile_group_wgsl() -> String {
     )
 }
 
-/// The grid's tile counts as the kernels' `u32` (`tiles_x`, `tiles`).
+/// The grid's tile counts as the kernels' `u32` (`tiles_x`, and [`TileGrid::span`], which is
+/// the tile count in rows).
 ///
 /// # Errors
-/// [`CoreError::InvalidInput`] when the frame has more than `u32::MAX` tiles.
+/// [`CoreError::InvalidInput`] when the tile numbers do not fit `u32`.
 pub(crate) fn grid_u32(grid: &TileGrid) -> Result<(u32, u32)> {
-    let tiles = u32::try_from(grid.tiles()).map_err(|_| {
+    let span = u32::try_from(grid.span()).map_err(|_| {
         CoreError::InvalidInput(format!(
-            "{} tiles of {} pixels over the {} frame exceed u32",
-            grid.tiles(),
+            "{} tile numbers of {} pixels over the {} frame exceed u32",
+            grid.span(),
             grid.tile_size(),
             grid.frame()
         ))
     })?;
-    Ok((grid.tiles_x(), tiles))
+    Ok((grid.tiles_x(), span))
 }
 
 #[repr(C)]
@@ -72,11 +74,12 @@ struct Params {
     height: u32,
     tile_size: u32,
     tiles_x: u32,
-    tiles: u32,
+    span: u32,
     lights: u32,
     none_lo: u32,
     none_hi: u32,
-    pad: [u32; 3],
+    morton: u32,
+    pad: [u32; 2],
 }
 
 struct TileKernels {
@@ -172,18 +175,19 @@ impl Hasher<Wgpu> for Tile {
             (1u64 << self.key_bits) - 1
         };
         let g = self.grid;
-        let (tiles_x, tiles) = grid_u32(&g)?;
+        let (tiles_x, span) = grid_u32(&g)?;
         super::per_ray_keys(ctx, &k.kernel, "crsh tile hash", rays, |range| Params {
             n: range.len() as u32,
             width: g.frame().width,
             height: g.frame().height,
             tile_size: g.tile_size(),
             tiles_x,
-            tiles,
+            span,
             lights: u32::try_from(self.lights).unwrap_or(u32::MAX),
             none_lo: none as u32,
             none_hi: (none >> 32) as u32,
-            pad: [0; 3],
+            morton: u32::from(g.order() == TileOrder::Morton),
+            pad: [0; 2],
         })
     }
 }

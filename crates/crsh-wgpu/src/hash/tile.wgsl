@@ -8,14 +8,16 @@ struct Params {
     height: u32,
     tile_size: u32,
     tiles_x: u32,
-    tiles: u32,
+    // TileGrid::span: the numbers a tile can take.
+    span: u32,
     // The scene's light count (min(lights, 2^32 - 1)).
     lights: u32,
     // The all-ones key of key_bits (lo, hi): the key of a ray outside the frame or of a shadow
     // ray naming a light the scene lacks (the CPU twin's errors).
     none_lo: u32,
     none_hi: u32,
-    _a: u32,
+    // 1: tiles in Z-order (TileOrder::Morton), 0: in rows.
+    morton: u32,
     _b: u32,
     _c: u32,
 }
@@ -33,7 +35,7 @@ fn hash(@builtin(global_invocation_id) gid: vec3<u32>,
     }
     let r = rays[i];
     let g = tile_group(r.pixel, r.light, r.kind, p.width, p.height, p.tile_size, p.tiles_x,
-                       p.tiles);
+                       p.span, p.morton);
     if (g.z == 0u || (r.kind == RAY_KIND_SHADOW && r.light >= p.lights)) {
         keys[i] = vec2<u32>(p.none_lo, p.none_hi);
     } else {

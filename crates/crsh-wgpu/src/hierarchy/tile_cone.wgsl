@@ -46,7 +46,7 @@ fn group_at(i: u32) -> vec3<u32> {
     }
     let r = rays[ri];
     let g = tile_group(r.pixel, r.light, r.kind, p.width, p.height, p.tile_size, p.tiles_x,
-                       p.tiles);
+                       p.tiles, 0u);
     if (g.z == 0u) {
         atomicMax(&counters[0], 0xffffffffu - i);
         atomicOr(&counters[2], 2u);
@@ -75,9 +75,9 @@ fn starts_run(i: u32) -> bool {
     let a = rays[prev];
     let b = rays[cur];
     let ga = tile_group(a.pixel, a.light, a.kind, p.width, p.height, p.tile_size, p.tiles_x,
-                        p.tiles);
+                        p.tiles, 0u);
     let gb = tile_group(b.pixel, b.light, b.kind, p.width, p.height, p.tile_size, p.tiles_x,
-                        p.tiles);
+                        p.tiles, 0u);
     return any(ga != gb);
 }
 
