@@ -49,8 +49,8 @@ impl BuiltinVariants for Cpu {
     }
 }
 
-/// The presets `brute`, `bvh`, `grid`, `kdtree`, `crsh`, `rah`, `tile_cone`, `dual` and
-/// `dual_inline` (raster primaries, Whitted ray generation and Phong shading; they differ in
+/// The presets `brute`, `bvh`, `grid`, `kdtree`, `crsh`, `rah`, `tile_cone`, `dual`,
+/// `dual_inline` and `dual_screen` (raster primaries, Whitted ray generation and Phong shading; they differ in
 /// how rays are traced), added to `registry`, whose variants they use. The wgpu backend
 /// registers the same ones less [`CPU_ONLY_PRESETS`] ([`add_gpu_presets`]).
 pub fn add_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<()> {
@@ -60,8 +60,9 @@ pub fn add_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<
     Ok(())
 }
 
-/// The presets with a setting the wgpu backend lacks (`dual_inline`: inline final tests).
-pub const CPU_ONLY_PRESETS: [&str; 1] = ["dual_inline"];
+/// The presets with a setting the wgpu backend lacks (`dual_inline`, `dual_screen`: inline
+/// final tests).
+pub const CPU_ONLY_PRESETS: [&str; 2] = ["dual_inline", "dual_screen"];
 
 /// [`add_presets`] less [`CPU_ONLY_PRESETS`]: the wgpu backend's presets.
 pub fn add_gpu_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<()> {
@@ -147,7 +148,30 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
              hit and a closest-hit ray's segment ends at its nearest hit so far (CPU only)",
             dual_inline_pipeline(),
         ),
+        (
+            "dual_screen",
+            "the `dual_inline` preset with screen-ordered keys: rays sorted by 4×4 pixel \
+             tiles in Z-order (the `tile` hash, `order = morton`) instead of the thesis \
+             hashes, so every lowest node of 16 rays is a 4×4 block and the nodes above are \
+             16×16 and 64×64 blocks (CPU only)",
+            dual_screen_pipeline(),
+        ),
     ]
+}
+
+/// The `dual_screen` preset's pipeline: [`dual_inline_pipeline`] with the `tile` hash over
+/// 4×4 tiles in Z-order (README, "Screen-ordered keys"). Its keys cost a division and a bit
+/// interleave per ray where the thesis hash takes a direction, two `atan2` and table
+/// searches, and on the dining room and cornell-mirror its nodes need fewer tests; on Sponza's
+/// shadow rays the thesis hash's direction order needs fewer.
+fn dual_screen_pipeline() -> PipelineConfig {
+    let mut cfg = dual_inline_pipeline();
+    let mut hash = StageSpec::new("tile");
+    hash.params.insert("tile_size".into(), ParamValue::Int(4));
+    hash.params
+        .insert("order".into(), ParamValue::Str("morton".into()));
+    cfg.hash = Some(hash);
+    cfg
 }
 
 /// The `dual_inline` preset's pipeline: [`dual_pipeline`] with `traverse.final_tests = inline`,
@@ -241,7 +265,8 @@ mod tests {
                 "rah",
                 "tile_cone",
                 "dual",
-                "dual_inline"
+                "dual_inline",
+                "dual_screen"
             ]
         );
         for p in registry.presets() {
@@ -254,9 +279,16 @@ mod tests {
                 "brute"
             };
             assert_eq!(cfg.intersect.kind, expect);
-            let hierarchies = ["crsh", "rah", "tile_cone", "dual", "dual_inline"];
+            let hierarchies = [
+                "crsh",
+                "rah",
+                "tile_cone",
+                "dual",
+                "dual_inline",
+                "dual_screen",
+            ];
             assert_eq!(cfg.hierarchy.is_some(), hierarchies.contains(&name));
-            let hashed = ["crsh", "tile_cone", "dual", "dual_inline"];
+            let hashed = ["crsh", "tile_cone", "dual", "dual_inline", "dual_screen"];
             assert_eq!(cfg.hash.is_some(), hashed.contains(&name));
             if let Some(t) = cfg.traverse.as_ref().filter(|t| t.kind == "crsh") {
                 assert_eq!(t.bool("mesh_culling").unwrap(), name == "crsh");
@@ -296,6 +328,21 @@ mod tests {
             .insert("final_tests".into(), ParamValue::Str("batched".into()));
         inline.name = cfg.name.clone();
         assert_eq!(inline, cfg);
+        // `dual_screen` is `dual_inline` with 4×4 tiles in Z-order as keys.
+        let inline = registry.preset("dual_inline").unwrap();
+        let mut screen = registry.preset("dual_screen").unwrap();
+        let h = screen.hash.as_ref().unwrap();
+        assert_eq!(
+            (
+                h.kind.as_str(),
+                h.i64("tile_size").unwrap(),
+                h.str("order").unwrap()
+            ),
+            ("tile", 4, "morton")
+        );
+        screen.hash = inline.hash.clone();
+        screen.name = inline.name.clone();
+        assert_eq!(screen, inline);
     }
 
     #[test]

@@ -64,7 +64,7 @@ fn nothing_panics_and_only_expected_errors() {
 
 #[test]
 fn exact_pipelines_agree_with_brute_force() {
-    // Same intersect.test and offset: bvh, kdtree, crsh, rah, dual and dual_inline find exactly
+    // Same intersect.test and offset: bvh, kdtree, crsh, rah and the dual presets find exactly
     // the hits brute does, so every count column is equal.
     let mut brute = BTreeMap::new();
     for r in table().iter().filter(|r| r.variant.pipeline == "brute") {
@@ -94,9 +94,16 @@ fn exact_pipelines_agree_with_brute_force() {
         // unspecified; the kd-tree visits leaves front to back and stops at the first hit, so
         // a shadow ray from the light can report a real occluder where brute force reports the
         // receiving triangle itself, grazed near `t_max` (stadium/teapot, `fixed`: 0 against 1).
-        // `dual_inline` too: its traversal tests pairs as it finds them, nearer object nodes
-        // first, and a shadow ray stops at the first hit (the same case, 0 against 1).
-        if ["bvh", "kdtree", "dual_inline"].contains(&r.variant.pipeline.as_str())
+        // `dual_inline` and `dual_screen` too: their traversal tests pairs as it finds them,
+        // nearer object nodes first, and a shadow ray stops at the first hit (the same case,
+        // 0 against 1). Which of a shadow ray's hits comes first depends on the order the
+        // traversal meets the triangles in, so these three may also report the receiving
+        // triangle where brute force met a real occluder first (`dual_screen`, projected,
+        // fixed: 2 against 1); a hit stays a hit, so every other count is equal. Only the BVH's
+        // culling is one-sided.
+        let any_hit_order = ["kdtree", "dual_inline", "dual_screen"];
+        let pipeline = r.variant.pipeline.as_str();
+        if (pipeline == "bvh" || any_hit_order.contains(&pipeline))
             && x.self_intersections != y.self_intersections
         {
             eprintln!(
@@ -105,7 +112,9 @@ fn exact_pipelines_agree_with_brute_force() {
                 x.self_intersections,
                 y.self_intersections
             );
-            assert!(x.self_intersections < y.self_intersections, "{}", label(r));
+            if pipeline == "bvh" {
+                assert!(x.self_intersections < y.self_intersections, "{}", label(r));
+            }
             assert_eq!(
                 (
                     x.rays,
