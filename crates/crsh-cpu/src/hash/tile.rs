@@ -346,7 +346,13 @@ impl Hasher<Cpu> for TileHasher {
         _kind: RayKind,
         _stats: &mut Stats,
     ) -> Result<Vec<u64>> {
-        if let Some(i) = crate::position_first(rays, |r| self.key(r).is_none()) {
+        // One pass: a group is below 2^60 (a light below 2^32 times a span of at most 2^28),
+        // so the all-ones word marks the rays without a key.
+        let keys: Vec<u64> = rays
+            .par_iter()
+            .map(|r| self.key(r).unwrap_or(u64::MAX))
+            .collect();
+        if let Some(i) = crate::position_first(&keys, |&k| k == u64::MAX) {
             let r = &rays[i];
             let f = self.grid.frame;
             return Err(CoreError::InvalidInput(format!(
@@ -355,10 +361,7 @@ impl Hasher<Cpu> for TileHasher {
                 r.pixel, r.kind, r.light, self.lights
             )));
         }
-        Ok(rays
-            .par_iter()
-            .map(|r| self.key(r).unwrap_or(u64::MAX))
-            .collect())
+        Ok(keys)
     }
 }
 
