@@ -6,7 +6,8 @@
 //! rays `raygen::whitted` spawns from it. Every group reports throughput in rays of that batch.
 //!
 //! Groups (see the README's "Benchmarks"):
-//! - `hashing`: `thesis` with layout `interleave` and `concat`, and `morton`;
+//! - `hashing`: `thesis` with layout `interleave` and `concat`, `morton`, and `tile` with
+//!   4-pixel tiles in Z-order (`tile_morton`, the `dual_screen` preset's keys);
 //! - `sorting`: `compress` and `radix` on the keys of each hasher;
 //! - `hierarchy`: `sphere_cone` over the thesis-sorted rays at subdivision 8, depth 2, and at
 //!   16/3 with each `leaf_cone` (`incremental`, `extremes`);
@@ -200,6 +201,10 @@ fn benches(c: &mut Criterion) {
         ("thesis_interleave", vec!["hash.layout=interleave"]),
         ("thesis_concat", vec!["hash.layout=concat"]),
         ("morton", vec!["hash.kind=morton"]),
+        (
+            "tile_morton",
+            vec!["hash.kind=tile", "hash.tile_size=4", "hash.order=morton"],
+        ),
     ];
     let mut keysets = Vec::new();
     for (name, sets) in &hashers {

@@ -161,6 +161,37 @@ pub fn spread_bits(v: u32) -> u32 {
     (v | (v << 1)) & 0x5555_5555
 }
 
+/// Division of a `u32` by a fixed divisor `d ≥ 1` with one multiplication (Lemire, Kaser and
+/// Kurz, "Faster remainder by direct computation", 2019, theorem 1: with `c = ⌈2⁶⁴ / d⌉`,
+/// `⌊n·c / 2⁶⁴⌋ = ⌊n / d⌋` for every 32-bit `n`, since 64 ≥ 32 + log₂ d). A hardware division
+/// per pixel coordinate took most of the tile hash's time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct DivU32 {
+    d: u32,
+    /// `⌈2⁶⁴ / d⌉`; unused for `d = 1`, where it does not fit.
+    c: u64,
+}
+
+impl DivU32 {
+    fn new(d: u32) -> DivU32 {
+        debug_assert!(d > 0);
+        DivU32 {
+            d,
+            c: if d > 1 { u64::MAX / d as u64 + 1 } else { 0 },
+        }
+    }
+
+    /// `⌊n / d⌋`.
+    #[inline]
+    fn div(self, n: u32) -> u32 {
+        if self.d == 1 {
+            n
+        } else {
+            ((self.c as u128 * n as u128) >> 64) as u32
+        }
+    }
+}
+
 /// The tiles of a frame, and the group of a ray (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct TileGrid {
@@ -171,6 +202,9 @@ pub struct TileGrid {
     order: TileOrder,
     /// The numbers a tile can take: `tiles` in rows, `4^b` in Z-order.
     span: u64,
+    /// Division by the frame's width and by the tile side.
+    by_width: DivU32,
+    by_tile: DivU32,
 }
 
 impl TileGrid {
@@ -191,6 +225,8 @@ impl TileGrid {
             tiles_y,
             order: TileOrder::Rows,
             span: tiles_x as u64 * tiles_y as u64,
+            by_width: DivU32::new(frame.width),
+            by_tile: DivU32::new(tile_size),
         })
     }
 
@@ -252,12 +288,12 @@ impl TileGrid {
     /// `interleave(x / ts, y / ts)` in Z-order; `None` when the pixel lies outside the frame.
     #[inline]
     pub fn tile(&self, pixel: u32) -> Option<u64> {
-        let w = self.frame.width;
-        let (x, y) = (pixel % w, pixel / w);
+        let y = self.by_width.div(pixel);
         if y >= self.frame.height {
             return None;
         }
-        let (tx, ty) = (x / self.tile_size, y / self.tile_size);
+        let x = pixel - y * self.frame.width;
+        let (tx, ty) = (self.by_tile.div(x), self.by_tile.div(y));
         Some(match self.order {
             TileOrder::Rows => ty as u64 * self.tiles_x as u64 + tx as u64,
             TileOrder::Morton => (spread_bits(tx) | spread_bits(ty) << 1) as u64,
@@ -546,6 +582,50 @@ mod tests {
         assert_eq!(spread_bits(0b1011), 0b1000101);
         assert_eq!(spread_bits(0xffff), 0x5555_5555);
         assert_eq!(spread_bits(0x1_0001), 1);
+    }
+
+    #[test]
+    fn division_by_multiplication_is_exact() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state as u32
+        };
+        let edges = [
+            0,
+            1,
+            2,
+            3,
+            1023,
+            1024,
+            1025,
+            16383,
+            16384,
+            u32::MAX - 1,
+            u32::MAX,
+        ];
+        let mut divisors = vec![
+            1, 2, 3, 4, 5, 7, 16, 100, 1000, 1024, 1920, 4096, 16383, 16384,
+        ];
+        divisors.extend([65535, 1 << 31, u32::MAX - 1, u32::MAX]);
+        divisors.extend((0..200).map(|_| next().max(1)));
+        for d in divisors {
+            let f = DivU32::new(d);
+            for n in edges.into_iter().chain((0..2000).map(|_| next())) {
+                assert_eq!(f.div(n), n / d, "{n} / {d}");
+            }
+            // Around every multiple of small divisors, where a floor changes.
+            if d <= 16384 {
+                for k in [1u32, 2, 3, 1000, u32::MAX / d] {
+                    let m = k * d;
+                    for n in [m - 1, m, m.saturating_add(1)] {
+                        assert_eq!(f.div(n), n / d, "{n} / {d}");
+                    }
+                }
+            }
+        }
     }
 
     #[test]
