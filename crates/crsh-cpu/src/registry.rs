@@ -50,9 +50,10 @@ impl BuiltinVariants for Cpu {
 }
 
 /// The presets `brute`, `bvh`, `grid`, `kdtree`, `crsh`, `rah`, `tile_cone`, `dual`,
-/// `dual_inline` and `dual_screen` (raster primaries, Whitted ray generation and Phong shading; they differ in
-/// how rays are traced), added to `registry`, whose variants they use. The wgpu backend
-/// registers the same ones less [`CPU_ONLY_PRESETS`] ([`add_gpu_presets`]).
+/// `dual_inline` and `dual_screen` (raster primaries, Whitted ray generation and Phong
+/// shading; they differ in how rays are traced), added to `registry`, whose variants they
+/// use. The wgpu backend registers the same ones less [`CPU_ONLY_PRESETS`]
+/// ([`add_gpu_presets`]).
 pub fn add_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<()> {
     for (name, doc, cfg) in presets() {
         registry.add_preset(name, doc, cfg)?;
@@ -160,8 +161,8 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
 }
 
 /// The `dual_screen` preset's pipeline: [`dual_inline_pipeline`] with the `tile` hash over
-/// 4×4 tiles in Z-order (README, "Screen-ordered keys"). Its keys cost a division and a bit
-/// interleave per ray where the thesis hash takes a direction, two `atan2` and table
+/// 4×4 tiles in Z-order (README, "Screen-ordered keys"). Its keys cost a few multiplications
+/// and a bit interleave per ray where the thesis hash takes a direction, two `atan2` and table
 /// searches, and on the dining room and cornell-mirror its nodes need fewer tests; on Sponza's
 /// shadow rays the thesis hash's direction order needs fewer.
 fn dual_screen_pipeline() -> PipelineConfig {

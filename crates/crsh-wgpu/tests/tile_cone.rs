@@ -3,8 +3,9 @@
 //! (`crsh_cpu::hash::tile`, `crsh_cpu::hierarchy::tile_cone`) and the spec's properties on the
 //! downloaded output:
 //! - `tile` keys equal the CPU `TileHasher`'s exactly (frames divisible or not, tile sizes,
-//!   light counts, kinds, tiles in rows and in Z-order), and rays the CPU refuses (pixel outside the frame, shadow ray of a
-//!   light the scene lacks) get the all-ones key of `key_bits`;
+//!   light counts, kinds, tiles in rows and in Z-order), and rays the CPU refuses (pixel
+//!   outside the frame, shadow ray of a light the scene lacks) get the all-ones key of
+//!   `key_bits`;
 //! - `tile_cone` offsets equal the CPU `build_nodes`' exactly, nodes' half-angles agree within
 //!   rounding but for a few (see [`Agreement`]), the reach within the guards; the
 //!   device's nodes contain every ray (the CPU's `check_containment`, in f64), on real Whitted
@@ -218,16 +219,8 @@ fn tile_keys_equal_the_cpu_twins() {
         let s = builtin(name);
         let gs = GpuScene::new(&b, &s).unwrap();
         let (w, h) = (100, 37);
-        for (ts, order) in [
-            (1, "rows"),
-            (8, "rows"),
-            (16, "rows"),
-            (32, "rows"),
-            (1, "morton"),
-        ]
-        .into_iter()
-        .chain([(4, "morton"), (16, "morton")])
-        {
+        let sizes = [1, 8, 16, 32].map(|ts| (ts, "rows"));
+        for (ts, order) in sizes.into_iter().chain([1, 4, 16].map(|ts| (ts, "morton"))) {
             let mut spec = crsh_cpu::hash::tile::info().defaults();
             spec.params
                 .insert("tile_size".into(), crsh_core::ParamValue::Int(ts as i64));

@@ -27,9 +27,8 @@
 //! `tiles` in the key width as well). Sorted rows of tiles put a ray-space hierarchy's nodes
 //! above the tiles over strips one tile high, as wide as the frame; Z-order puts every aligned
 //! run of `4^k` tiles over a square of `2^k × 2^k` tiles. With `tile_size = 4` and 16 rays per
-//! lowest node, a lowest node holds one 4×4 tile and the node above it 16×16 pixels, the
-//! layout Morton-ordered ray buffers give camera-ray packets. The Z-order is not part of seed
-//! 004; issue 17 measured it (README, "Screen-ordered keys").
+//! lowest node, a lowest node holds one 4×4 tile and the node above it 16×16 pixels. The
+//! Z-order is not part of seed 004; issue 17 measured it (README, "Screen-ordered keys").
 //!
 //! # Order within a tile
 //!
@@ -333,7 +332,8 @@ impl TileHasher {
     /// resolved `spec`.
     ///
     /// # Errors
-    /// [`CoreError::InvalidParam`] for a `tile_size` out of range.
+    /// [`CoreError::InvalidParam`] for a `tile_size` out of range or an `order` other than
+    /// `rows` and `morton`.
     pub fn new(frame: FrameSize, lights: usize, spec: &StageSpec) -> Result<TileHasher> {
         let tile_size = spec.u32_in("tile_size", TILE_SIZE_RANGE)?;
         let name = spec.str("order")?;
