@@ -85,11 +85,17 @@ fn cpu_frame(
     (r.image, r.stats)
 }
 
-/// Stage variants checked beyond the presets: (preset, settings).
-const GPU_VARIANTS: [(&str, &[&str]); 3] = [
+/// Stage variants checked beyond the presets: (preset, settings). The last is the CPU-only
+/// `dual_screen` preset's keys (4-pixel tiles in Z-order) under the `dual` preset, which runs
+/// on both backends.
+const GPU_VARIANTS: [(&str, &[&str]); 4] = [
     ("crsh", &["traverse.kind=dual"]),
     ("crsh", &["traverse.kind=dual", "traverse.objects=grid"]),
     ("crsh", &["traverse.kind=dual", "traverse.objects=meshes"]),
+    (
+        "dual",
+        &["hash.kind=tile", "hash.tile_size=4", "hash.order=morton"],
+    ),
 ];
 
 /// Every preset on `scene`, and the variants of [`GPU_VARIANTS`]: GPU vs CPU rays, agreement

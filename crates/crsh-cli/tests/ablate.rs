@@ -1982,7 +1982,7 @@ fn with_scenes(shipped: &str, scenes: &[&str]) -> String {
 #[test]
 fn dual_plans_validate() {
     let dir = scratch("dual-plans");
-    for (plan, cells) in [("plans/dual.toml", 63), ("plans/dual-wgpu.toml", 27)] {
+    for (plan, cells) in [("plans/dual.toml", 63), ("plans/dual-wgpu.toml", 33)] {
         let path = repo_root().join(plan);
         let shipped = std::fs::read_to_string(&path).unwrap();
         assert!(shipped.contains("\"traverse.kind\" = \"dual\""), "{plan}");
