@@ -12,10 +12,12 @@
 //! the same for every key moves nothing and is skipped. Keys of at most 32 bits travel packed
 //! with their index in one `u64` (8 bytes a record), wider keys in 16-byte records.
 //!
-//! From 65,536 records on, the first pass is the most significant digit's instead, and each of
-//! its 256 buckets then sorts its lower digits on its own, in the cache, buckets in parallel
+//! From 65,536 records on, the first pass is by the key's highest 8 bits instead, and each of
+//! its 256 buckets then sorts its lower bits on its own, in the cache, buckets in parallel
 //! (`radix_sort_by`): the same stable order with one pass over the whole array instead of
-//! four. Criterion `sorting/radix/thesis_interleave` and `thesis_concat` (Sponza 256², 77,670
+//! four. (The top digit was first aligned to 8-bit digits: a 17-bit key, 2 lights' worth of
+//! screen tiles on the dining room, then split into two buckets by one bit and paid a second
+//! whole-array pass.) Criterion `sorting/radix/thesis_interleave` and `thesis_concat` (Sponza 256², 77,670
 //! keys; 2 threads) ran 13 % and 15 % faster than the four whole-array passes; in the reverse
 //! order, the four passes ran 10 % and 15 % slower. On whole 1024² frames (1.24M keys) the
 //! sort's time was not distinguishable on a busy machine, nor was the uniform grid's pair sort
@@ -64,8 +66,11 @@ fn radix_sort_by<R: Copy + Send + Sync>(
     if a.len() < HYBRID_MIN || key_bits <= PAIR_DIGIT {
         return lsd_sort_by(a, key_bits, digit);
     }
-    // The top digit's position: the digits above `key_bits` are 0.
-    let top = (key_bits - 1) / PAIR_DIGIT * PAIR_DIGIT;
+    // The top digit: the highest `PAIR_DIGIT` bits of the key, so that the partition always
+    // makes up to 256 buckets. A digit-aligned top digit of a 17-bit key would be a single bit
+    // (two buckets, each still too large for the cache: one more whole-array pass). Digits
+    // below overlap it; within a bucket the overlapping bits are the same for every key.
+    let top = key_bits - PAIR_DIGIT;
     let mut b = a.clone();
     let Some(totals) = scatter_pass(&a, &mut b, top, digit) else {
         // One top digit for every key: the lower bits decide alone.
@@ -538,11 +543,25 @@ pub(crate) mod tests {
             .collect();
         let constant_top: Vec<u64> = (0..n).map(|_| 0x7f << 40 | (rng.next() % 70_000)).collect();
         let wide = runs_with_duplicates(n, 64, 100_000, 11);
+        // Widths off the 8-bit digits, whose top digit overlaps the digits below it: 17 bits
+        // (two lights' screen tiles), one light's keys crowded so that its bucket is past
+        // HYBRID_MIN; 13 and 41 bits uniform.
+        let odd17: Vec<u64> = (0..n)
+            .map(|i| {
+                let light = u64::from(i % 7 == 0);
+                light << 16 | (rng.next() % if i % 3 == 0 { 1 << 16 } else { 40 })
+            })
+            .collect();
+        let odd13 = runs_with_duplicates(n, 13, 5_000, 5);
+        let odd41 = runs_with_duplicates(n, 41, 100_000, 13);
         for (what, keys, bits) in [
             ("uniform", &uniform, 32),
             ("crowded", &crowded, 32),
             ("constant top", &constant_top, 48),
             ("wide", &wide, 64),
+            ("17 bits", &odd17, 17),
+            ("13 bits", &odd13, 13),
+            ("41 bits", &odd41, 41),
         ] {
             let want = oracle(keys);
             for threads in [1, 3] {
