@@ -50,7 +50,7 @@ impl BuiltinVariants for Cpu {
 }
 
 /// The presets `brute`, `bvh`, `grid`, `kdtree`, `crsh`, `rah`, `tile_cone`, `dual`,
-/// `dual_inline` and `dual_screen` (raster primaries, Whitted ray generation and Phong
+/// `dual_inline`, `dual_screen` and `dual_screen_bvh` (raster primaries, Whitted ray generation and Phong
 /// shading; they differ in how rays are traced), added to `registry`, whose variants they
 /// use. The wgpu backend registers the same ones less [`CPU_ONLY_PRESETS`]
 /// ([`add_gpu_presets`]).
@@ -61,9 +61,9 @@ pub fn add_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<
     Ok(())
 }
 
-/// The presets with a setting the wgpu backend lacks (`dual_inline`, `dual_screen`: inline
-/// final tests).
-pub const CPU_ONLY_PRESETS: [&str; 2] = ["dual_inline", "dual_screen"];
+/// The presets with a setting the wgpu backend lacks (`dual_inline`, `dual_screen`,
+/// `dual_screen_bvh`: inline final tests).
+pub const CPU_ONLY_PRESETS: [&str; 3] = ["dual_inline", "dual_screen", "dual_screen_bvh"];
 
 /// [`add_presets`] less [`CPU_ONLY_PRESETS`]: the wgpu backend's presets.
 pub fn add_gpu_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<()> {
@@ -157,7 +157,28 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
              16×16 and 64×64 blocks (CPU only)",
             dual_screen_pipeline(),
         ),
+        (
+            "dual_screen_bvh",
+            "the `dual_screen` preset over obvhs's binary BVH instead of the Morton LBVH \
+             (`traverse.objects = bvh`, PLOC `fast`): about 60 ms more to build on Sponza and \
+             the dining room, fewer tests and a faster traversal there; for static scenes, \
+             where the object hierarchy is built once (CPU only)",
+            dual_screen_bvh_pipeline(),
+        ),
     ]
+}
+
+/// The `dual_screen_bvh` preset's pipeline: [`dual_screen_pipeline`] with `traverse.objects =
+/// bvh` (README, "Object side on obvhs's BVH"). The LBVH is the cheaper rebuild for moving
+/// geometry; over a BVH built once this is the fastest ray-hierarchy pipeline measured for
+/// issue 17 on the CPU.
+fn dual_screen_bvh_pipeline() -> PipelineConfig {
+    let mut cfg = dual_screen_pipeline();
+    if let Some(t) = cfg.traverse.as_mut() {
+        t.params
+            .insert("objects".into(), ParamValue::Str("bvh".into()));
+    }
+    cfg
 }
 
 /// The `dual_screen` preset's pipeline: [`dual_inline_pipeline`] with the `tile` hash over
@@ -267,7 +288,8 @@ mod tests {
                 "tile_cone",
                 "dual",
                 "dual_inline",
-                "dual_screen"
+                "dual_screen",
+                "dual_screen_bvh"
             ]
         );
         for p in registry.presets() {
@@ -287,9 +309,17 @@ mod tests {
                 "dual",
                 "dual_inline",
                 "dual_screen",
+                "dual_screen_bvh",
             ];
             assert_eq!(cfg.hierarchy.is_some(), hierarchies.contains(&name));
-            let hashed = ["crsh", "tile_cone", "dual", "dual_inline", "dual_screen"];
+            let hashed = [
+                "crsh",
+                "tile_cone",
+                "dual",
+                "dual_inline",
+                "dual_screen",
+                "dual_screen_bvh",
+            ];
             assert_eq!(cfg.hash.is_some(), hashed.contains(&name));
             if let Some(t) = cfg.traverse.as_ref().filter(|t| t.kind == "crsh") {
                 assert_eq!(t.bool("mesh_culling").unwrap(), name == "crsh");
@@ -344,6 +374,15 @@ mod tests {
         screen.hash = inline.hash.clone();
         screen.name = inline.name.clone();
         assert_eq!(screen, inline);
+        // `dual_screen_bvh` is `dual_screen` over obvhs's BVH.
+        let screen = registry.preset("dual_screen").unwrap();
+        let mut over_bvh = registry.preset("dual_screen_bvh").unwrap();
+        let t = over_bvh.traverse.as_mut().unwrap();
+        assert_eq!(t.str("objects").unwrap(), "bvh");
+        t.params
+            .insert("objects".into(), ParamValue::Str("lbvh".into()));
+        over_bvh.name = screen.name.clone();
+        assert_eq!(over_bvh, screen);
     }
 
     #[test]

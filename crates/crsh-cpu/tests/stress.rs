@@ -94,14 +94,14 @@ fn exact_pipelines_agree_with_brute_force() {
         // unspecified; the kd-tree visits leaves front to back and stops at the first hit, so
         // a shadow ray from the light can report a real occluder where brute force reports the
         // receiving triangle itself, grazed near `t_max` (stadium/teapot, `fixed`: 0 against 1).
-        // `dual_inline` and `dual_screen` too: their traversal tests pairs as it finds them,
-        // nearer object nodes first, and a shadow ray stops at the first hit (the same case,
-        // 0 against 1). Which of a shadow ray's hits comes first depends on the order the
-        // traversal meets the triangles in, so these three may also report the receiving
+        // `dual_inline`, `dual_screen` and `dual_screen_bvh` too: their traversal tests pairs
+        // as it finds them, nearer object nodes first, and a shadow ray stops at the first hit
+        // (the same case, 0 against 1). Which of a shadow ray's hits comes first depends on the
+        // order the traversal meets the triangles in, so these may also report the receiving
         // triangle where brute force met a real occluder first (`dual_screen`, projected,
         // fixed: 2 against 1); a hit stays a hit, so every other count is equal. Only the BVH's
         // culling is one-sided.
-        let any_hit_order = ["kdtree", "dual_inline", "dual_screen"];
+        let any_hit_order = ["kdtree", "dual_inline", "dual_screen", "dual_screen_bvh"];
         let pipeline = r.variant.pipeline.as_str();
         if (pipeline == "bvh" || any_hit_order.contains(&pipeline))
             && x.self_intersections != y.self_intersections
