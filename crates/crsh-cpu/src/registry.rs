@@ -160,23 +160,29 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
         (
             "dual_screen_bvh",
             "the `dual_screen` preset over obvhs's binary BVH instead of the Morton LBVH \
-             (`traverse.objects = bvh`, PLOC `fast`): about 60 ms more to build on Sponza and \
-             the dining room, fewer tests and a faster traversal there; for static scenes, \
-             where the object hierarchy is built once (CPU only)",
+             (`traverse.objects = bvh`, PLOC `fast`: about 60 ms more to build on Sponza and \
+             the dining room, fewer tests and a faster traversal there) and with lowest \
+             spheres centred on their origins' box (`hierarchy.leaf_sphere = box`, no Welzl \
+             iterations); for static scenes, where the object hierarchy is built once (CPU \
+             only)",
             dual_screen_bvh_pipeline(),
         ),
     ]
 }
 
 /// The `dual_screen_bvh` preset's pipeline: [`dual_screen_pipeline`] with `traverse.objects =
-/// bvh` (README, "Object side on obvhs's BVH"). The LBVH is the cheaper rebuild for moving
-/// geometry; over a BVH built once this is the fastest ray-hierarchy pipeline measured for
-/// issue 17 on the CPU.
+/// bvh` and `hierarchy.leaf_sphere = box` (README, "Object side on obvhs's BVH"). The LBVH is
+/// the cheaper rebuild for moving geometry; over a BVH built once this is the fastest
+/// ray-hierarchy pipeline measured for issue 17 on the CPU.
 fn dual_screen_bvh_pipeline() -> PipelineConfig {
     let mut cfg = dual_screen_pipeline();
     if let Some(t) = cfg.traverse.as_mut() {
         t.params
             .insert("objects".into(), ParamValue::Str("bvh".into()));
+    }
+    if let Some(h) = cfg.hierarchy.as_mut() {
+        h.params
+            .insert("leaf_sphere".into(), ParamValue::Str("box".into()));
     }
     cfg
 }
@@ -374,13 +380,17 @@ mod tests {
         screen.hash = inline.hash.clone();
         screen.name = inline.name.clone();
         assert_eq!(screen, inline);
-        // `dual_screen_bvh` is `dual_screen` over obvhs's BVH.
+        // `dual_screen_bvh` is `dual_screen` over obvhs's BVH, with box-centred lowest spheres.
         let screen = registry.preset("dual_screen").unwrap();
         let mut over_bvh = registry.preset("dual_screen_bvh").unwrap();
         let t = over_bvh.traverse.as_mut().unwrap();
         assert_eq!(t.str("objects").unwrap(), "bvh");
         t.params
             .insert("objects".into(), ParamValue::Str("lbvh".into()));
+        let h = over_bvh.hierarchy.as_mut().unwrap();
+        assert_eq!(h.str("leaf_sphere").unwrap(), "box");
+        h.params
+            .insert("leaf_sphere".into(), ParamValue::Str("welzl".into()));
         over_bvh.name = screen.name.clone();
         assert_eq!(over_bvh, screen);
     }

@@ -258,6 +258,75 @@ fn extreme_ray_leaf_cones_match_the_cpu_and_contain_their_rays() {
     }
 }
 
+/// `leaf_sphere = box`: the GPU's lowest spheres have the CPU's centres exactly (the same `f32`
+/// box centre), radii within the device's wider margins, contain every ray's origin, and
+/// differ from Welzl's where the origins do not share a point.
+#[test]
+fn box_centred_leaf_spheres_match_the_cpu() {
+    let Some(b) = crsh_wgpu::testing::shared_backend("box_centred_leaf_spheres_match_the_cpu")
+    else {
+        return;
+    };
+    use crsh_cpu::hierarchy::sphere_cone::LeafSphere;
+    for RaySet {
+        name,
+        scene: _,
+        gpu: g,
+        kind,
+        rays,
+        order,
+    } in ray_sets(&b)
+    {
+        for (sub, depth) in [(16, 3), (8, 2)] {
+            let cpu = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(
+                sub as u32,
+                depth as u32,
+            )
+            .unwrap()
+            .with_leaf_sphere(LeafSphere::BoxCentre);
+            let want = cpu
+                .build(&Cpu, &rays, order.clone(), &mut Stats::default())
+                .unwrap();
+            let mut sp = spec(sub, depth);
+            sp.params.insert(
+                "leaf_sphere".into(),
+                crsh_core::ParamValue::Str("box".into()),
+            );
+            let got = gpu_build(&b, &g, &rays, &order, &sp);
+            let welzl = gpu_build(&b, &g, &rays, &order, &spec(sub, depth));
+            let what = format!("{name} {kind:?} sub {sub} depth {depth}");
+            assert_eq!(got.levels.len(), want.levels.len(), "{what}");
+            let gl = b.download(&got.levels[0]).unwrap();
+            let wel = b.download(&welzl.levels[0]).unwrap();
+            let wl = &want.levels[0];
+            assert_eq!(gl.len(), wl.len(), "{what}");
+            let mut moved = 0;
+            for (k, (gn, wn)) in gl.iter().zip(wl).enumerate() {
+                assert_eq!(gn.sphere.center, wn.sphere.center, "{what}: node {k}");
+                let r = wn.sphere.radius;
+                let scale = 1.0 + gn.sphere.center.abs().max_element();
+                assert!(
+                    (gn.sphere.radius - r).abs() <= 1e-5 * r + 3e-6 * scale,
+                    "{what}: node {k} radius {} against {r}",
+                    gn.sphere.radius
+                );
+                moved += usize::from(gn.sphere.center != wel[k].sphere.center);
+            }
+            if kind == RayKind::Reflection {
+                assert!(moved > 0, "{what}: no box centre differs from Welzl's");
+            }
+            for (leaf, &r) in order.iter().enumerate() {
+                let node = &gl[leaf / sub as usize];
+                let ray = &rays[r as usize];
+                assert!(
+                    covers(node, ray.origin, ray.dir),
+                    "{what}: leaf {leaf} not covered by {node:?}"
+                );
+            }
+        }
+    }
+}
+
 /// `origins = start` (seed 001's offset rays): the GPU nodes bound the segment starts as the
 /// CPU's do, within the same tolerance, and contain every moved ray; its reach covers every
 /// segment end.

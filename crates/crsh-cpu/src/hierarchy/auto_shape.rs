@@ -86,7 +86,7 @@ use crsh_core::{
 use crsh_scene::Scene;
 
 use super::sphere_cone::{
-    validate_leaves, LeafCone, SphereConeBuilder, DEFAULT_DEPTH, DEFAULT_SUBDIVISION,
+    validate_leaves, LeafCone, LeafSphere, SphereConeBuilder, DEFAULT_DEPTH, DEFAULT_SUBDIVISION,
 };
 use crate::backend::Cpu;
 use crate::traverse::dual::Dual;
@@ -144,6 +144,13 @@ pub fn info() -> StageVariantInfo {
         "incremental",
         &["incremental", "extremes"],
         "how lowest cone axes are found, in the pre-pass's hierarchies and the batch's \
+         (`sphere_cone`'s parameter of the same name)",
+    ))
+    .param(ParamInfo::choice(
+        "leaf_sphere",
+        "welzl",
+        &LeafSphere::NAMES,
+        "how lowest sphere centres are found, in the pre-pass's hierarchies and the batch's \
          (`sphere_cone`'s parameter of the same name)",
     ))
 }
@@ -281,6 +288,7 @@ pub struct AutoShape {
     bound_cost: f64,
     min_batch: usize,
     leaf_cone: LeafCone,
+    leaf_sphere: LeafSphere,
     chosen: Mutex<BTreeMap<u32, ShapeChoice>>,
 }
 
@@ -298,8 +306,18 @@ impl AutoShape {
                         key: "auto_shape.leaf_cone".into(),
                         reason: "not one of incremental, extremes".into(),
                     }
-                })?),
+                })?)
+                .with_leaf_sphere(LeafSphere::of("auto_shape", spec)?),
         )
+    }
+
+    /// The builder finding lowest sphere centres by `leaf_sphere` in every hierarchy it builds
+    /// (parameter `leaf_sphere`; [`AutoShape::with_sample`] starts with Welzl's).
+    pub fn with_leaf_sphere(self, leaf_sphere: LeafSphere) -> AutoShape {
+        AutoShape {
+            leaf_sphere,
+            ..self
+        }
     }
 
     /// The builder finding lowest cone axes by `leaf_cone` in every hierarchy it builds
@@ -308,9 +326,12 @@ impl AutoShape {
         AutoShape { leaf_cone, ..self }
     }
 
-    /// The sphere-cone builder of shape `(sub, depth)` with this builder's `leaf_cone`.
+    /// The sphere-cone builder of shape `(sub, depth)` with this builder's `leaf_cone` and
+    /// `leaf_sphere`.
     fn builder(&self, sub: u32, depth: u32) -> Result<SphereConeBuilder> {
-        Ok(SphereConeBuilder::with_params(sub, depth)?.with_leaf_cone(self.leaf_cone))
+        Ok(SphereConeBuilder::with_params(sub, depth)?
+            .with_leaf_cone(self.leaf_cone)
+            .with_leaf_sphere(self.leaf_sphere))
     }
 
     /// The builder with one block in `sample` (1..=1024) sampled, and the default `shapes`,
@@ -329,6 +350,7 @@ impl AutoShape {
             bound_cost: DEFAULT_BOUND_COST,
             min_batch: DEFAULT_MIN_BATCH,
             leaf_cone: LeafCone::Incremental,
+            leaf_sphere: LeafSphere::Welzl,
             chosen: Mutex::new(BTreeMap::new()),
         })
     }
@@ -677,6 +699,7 @@ mod tests {
             ("bound_cost", ParamValue::Float(3.0)),
             ("min_batch", ParamValue::Int(0)),
             ("leaf_cone", ParamValue::Str("incremental".into())),
+            ("leaf_sphere", ParamValue::Str("welzl".into())),
         ] {
             spec.params.insert(k.into(), v);
         }
@@ -686,6 +709,10 @@ mod tests {
         let mut bad = spec.clone();
         bad.params
             .insert("leaf_cone".into(), ParamValue::Str("widest".into()));
+        assert!(AutoShape::new(&scene, &bad).is_err());
+        let mut bad = spec.clone();
+        bad.params
+            .insert("leaf_sphere".into(), ParamValue::Str("ritter".into()));
         assert!(AutoShape::new(&scene, &bad).is_err());
         spec.params
             .insert("shapes".into(), ParamValue::Str("16/3,99/2".into()));
@@ -730,6 +757,20 @@ mod tests {
             .unwrap();
         assert_eq!(extremes.levels, want.levels);
         assert_ne!(extremes.levels, plain.levels);
+        // With `leaf_sphere = box`, the sphere-cone builder's box-centred hierarchy.
+        let boxed = AutoShape::with_sample(&scene, 2)
+            .unwrap()
+            .with_min_batch(3001)
+            .with_leaf_sphere(LeafSphere::BoxCentre)
+            .build(&Cpu, &rays, order.clone(), &mut Stats::default())
+            .unwrap();
+        let want = SphereConeBuilder::with_params(DEFAULT_SUBDIVISION, DEFAULT_DEPTH)
+            .unwrap()
+            .with_leaf_sphere(LeafSphere::BoxCentre)
+            .build(&Cpu, &rays, order.clone(), &mut Stats::default())
+            .unwrap();
+        assert_eq!(boxed.levels, want.levels);
+        assert_ne!(boxed.levels, plain.levels);
         // At the threshold the pre-pass runs, and its choice is kept.
         let auto = auto.with_min_batch(3000);
         let mut stats = Stats::default();

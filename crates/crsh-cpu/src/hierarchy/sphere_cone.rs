@@ -25,7 +25,12 @@
 //!     With parameter `leaf_cone = extremes` the axis is chosen without that sequence instead
 //!     (see *Leaf cones from extreme rays* below).
 //!   - *Sphere*: the exact minimal sphere of the origins ([`crsh_scene::bounding::min_sphere`],
-//!     Welzl); rays that share an origin (shadow rays from a light) get radius 0.
+//!     Welzl); rays that share an origin (shadow rays from a light) get radius 0. With
+//!     parameter `leaf_sphere = box` the centre is the origins' bounding-box centre instead
+//!     (`(min + max)·0.5` in `f32`), the radius measured from it the same way: no Welzl
+//!     iterations. Its radius is at most half the box's diagonal, so at most √3 times the
+//!     minimal one (which spans the box's longest side); over a node's origins on one patch
+//!     of surface it is close to minimal (README, "Box-centred lowest spheres").
 //! - **Upper levels** group `subdivision` consecutive nodes of the level below.
 //!   - *Cone*: the union of the children's cones, folded left to right with the *tight*
 //!     pairwise union [`cone_union`] (the smallest cone containing two cones). For two cones it
@@ -162,6 +167,46 @@ pub fn info() -> StageVariantInfo {
          thesis), or the better of the mean direction and the bisector of two extreme rays \
          (no sequential chain; the half-angle is measured either way)",
     ))
+    .param(ParamInfo::choice(
+        "leaf_sphere",
+        "welzl",
+        &LeafSphere::NAMES,
+        "how a lowest node's sphere centre is found: the exact minimal sphere of the \
+         origins (Welzl, the thesis), or the centre of their bounding box (no iterations; \
+         the radius is measured either way)",
+    ))
+}
+
+/// How a lowest node's sphere centre is found (parameter `leaf_sphere`, see the module doc).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LeafSphere {
+    /// The exact minimal sphere of the origins (Welzl's algorithm, the thesis).
+    #[default]
+    Welzl,
+    /// The centre of the origins' bounding box, computed in `f32` as `(min + max) · 0.5`.
+    BoxCentre,
+}
+
+impl LeafSphere {
+    /// The parameter values, in the order of the variants.
+    pub const NAMES: [&'static str; 2] = ["welzl", "box"];
+
+    /// Parses the parameter value (`welzl`, `box`).
+    pub fn parse(s: &str) -> Option<LeafSphere> {
+        match s {
+            "welzl" => Some(LeafSphere::Welzl),
+            "box" => Some(LeafSphere::BoxCentre),
+            _ => None,
+        }
+    }
+
+    /// Parses `spec`'s `leaf_sphere` for the variant `variant`.
+    pub(crate) fn of(variant: &str, spec: &StageSpec) -> Result<LeafSphere> {
+        LeafSphere::parse(spec.str("leaf_sphere")?).ok_or_else(|| CoreError::InvalidParam {
+            key: format!("{variant}.leaf_sphere"),
+            reason: format!("not one of {}", LeafSphere::NAMES.join(", ")),
+        })
+    }
 }
 
 /// How a lowest node's cone axis is found (parameter `leaf_cone`, see the module doc).
@@ -200,6 +245,7 @@ pub struct SphereConeBuilder {
     depth: u32,
     starts: bool,
     leaf_cone: LeafCone,
+    leaf_sphere: LeafSphere,
 }
 
 impl SphereConeBuilder {
@@ -226,7 +272,20 @@ impl SphereConeBuilder {
             spec.u32_in("depth", DEPTH_RANGE)?,
         )?
         .bounding_starts(starts)
-        .with_leaf_cone(leaf_cone))
+        .with_leaf_cone(leaf_cone)
+        .with_leaf_sphere(LeafSphere::of("sphere_cone", spec)?))
+    }
+
+    /// The same builder finding lowest nodes' sphere centres by `leaf_sphere` (parameter
+    /// `leaf_sphere`; [`SphereConeBuilder::with_params`] starts with Welzl's minimal sphere).
+    pub fn with_leaf_sphere(mut self, leaf_sphere: LeafSphere) -> SphereConeBuilder {
+        self.leaf_sphere = leaf_sphere;
+        self
+    }
+
+    /// How lowest nodes' sphere centres are found.
+    pub fn leaf_sphere(&self) -> LeafSphere {
+        self.leaf_sphere
     }
 
     /// The same builder finding lowest nodes' cone axes by `leaf_cone` (parameter
@@ -272,6 +331,7 @@ impl SphereConeBuilder {
             depth,
             starts: false,
             leaf_cone: LeafCone::Incremental,
+            leaf_sphere: LeafSphere::Welzl,
         })
     }
 
@@ -319,10 +379,12 @@ impl SphereConeBuilder {
                 for &i in &next[..s.min(next.len())] {
                     crate::prefetch(rays.get(i as usize));
                 }
-                leaf_node(rays, leaves, self.leaf_cone, scratch).unwrap_or_else(|| {
-                    unusable.store(true, Ordering::Relaxed);
-                    (bytemuck::Zeroable::zeroed(), 0.0)
-                })
+                leaf_node(rays, leaves, self.leaf_cone, self.leaf_sphere, scratch).unwrap_or_else(
+                    || {
+                        unusable.store(true, Ordering::Relaxed);
+                        (bytemuck::Zeroable::zeroed(), 0.0)
+                    },
+                )
             })
             .unzip();
         if unusable.into_inner() {
@@ -882,6 +944,7 @@ fn leaf_node(
     rays: &[Ray],
     leaves: &[u32],
     how: LeafCone,
+    centre: LeafSphere,
     scratch: &mut LeafScratch,
 ) -> Option<(SphereCone, f32)> {
     let LeafScratch {
@@ -960,11 +1023,11 @@ fn leaf_node(
         let far = lengths[..n].iter().fold(0.0f64, |m, len| m.max(*len));
         (store_sphere(o, std::iter::once((o, 0.0))), far)
     } else {
-        let ball = min_sphere(origins);
-        let sphere = store_sphere(
-            ball.center.as_dvec3(),
-            origins.iter().map(|o| (o.as_dvec3(), 0.0)),
-        );
+        let c = match centre {
+            LeafSphere::Welzl => min_sphere(origins).center,
+            LeafSphere::BoxCentre => crsh_core::Aabb::from_points(origins.iter().copied()).center(),
+        };
+        let sphere = store_sphere(c.as_dvec3(), origins.iter().map(|o| (o.as_dvec3(), 0.0)));
         let c = sphere.center.as_dvec3();
         let far = origins
             .iter()
@@ -1490,6 +1553,62 @@ mod tests {
     }
 
     #[test]
+    fn box_centred_spheres_contain_every_origin() {
+        let mut rng = Rng(0xb0c5);
+        let sets = ray_sets(&mut rng);
+        for (name, rays) in &sets {
+            let order = shuffled(&mut rng, rays.len());
+            for (s, depth) in [(2, 6), (16, 3), (64, 2)] {
+                let build = |how| {
+                    SphereConeBuilder::with_params(s, depth)
+                        .unwrap()
+                        .with_leaf_sphere(how)
+                        .build_levels(rays, &order)
+                        .unwrap()
+                };
+                let (welzl, boxed) = (build(LeafSphere::Welzl), build(LeafSphere::BoxCentre));
+                for (k, (w, b)) in welzl[0].iter().zip(&boxed[0]).enumerate() {
+                    let leaves = leaf_range(0, k, s, order.len());
+                    let origins: Vec<Vec3> = leaves
+                        .map(|leaf| rays[order[leaf] as usize].origin)
+                        .collect();
+                    // The centre is the box's, the radius reaches every origin, and the
+                    // minimal sphere is never larger (up to its own rounding and margin).
+                    assert_eq!(
+                        b.sphere.center,
+                        crsh_core::Aabb::from_points(origins.iter().copied()).center()
+                    );
+                    for o in &origins {
+                        assert!(
+                            b.sphere.center.as_dvec3().distance(o.as_dvec3())
+                                <= b.sphere.radius as f64
+                        );
+                    }
+                    assert!(
+                        w.sphere.radius <= b.sphere.radius * (1.0 + 1e-5) + 1e-6,
+                        "{name}"
+                    );
+                    // Only the spheres differ.
+                    assert_eq!(w.cone, b.cone);
+                }
+                // Containment of rays and children at every level, as with Welzl's spheres.
+                let b = SphereConeBuilder::with_params(s, depth)
+                    .unwrap()
+                    .with_leaf_sphere(LeafSphere::BoxCentre);
+                for (l, level) in boxed.iter().enumerate() {
+                    for (k, node) in level.iter().enumerate() {
+                        for leaf in leaf_range(l, k, s, order.len()) {
+                            let r = &rays[order[leaf] as usize];
+                            assert!(covers(node, r.origin, r.dir), "{name} {l}/{k}");
+                        }
+                    }
+                }
+                assert_eq!(b.build_levels(rays, &order).unwrap(), boxed);
+            }
+        }
+    }
+
+    #[test]
     fn coherent_bundles_give_narrow_nodes() {
         // Bundles of 16 rays (direction jitter ≤ 0.05, origins within a 1-unit cube) align
         // with the nodes of 8 leaves in batch order: each lowest node stays narrow and small.
@@ -1937,6 +2056,20 @@ mod tests {
         spec.params
             .insert("leaf_cone".into(), ParamValue::Str("widest".into()));
         assert!(SphereConeBuilder::new(&scene, &spec).is_err());
+        spec.params
+            .insert("leaf_cone".into(), ParamValue::Str("incremental".into()));
+        assert_eq!(b.leaf_sphere(), LeafSphere::Welzl);
+        spec.params
+            .insert("leaf_sphere".into(), ParamValue::Str("box".into()));
+        assert_eq!(
+            SphereConeBuilder::new(&scene, &spec).unwrap().leaf_sphere(),
+            LeafSphere::BoxCentre
+        );
+        spec.params
+            .insert("leaf_sphere".into(), ParamValue::Str("ritter".into()));
+        assert!(SphereConeBuilder::new(&scene, &spec).is_err());
+        spec.params
+            .insert("leaf_sphere".into(), ParamValue::Str("welzl".into()));
         spec.params
             .insert("leaf_cone".into(), ParamValue::Str("incremental".into()));
         spec.params.insert("depth".into(), ParamValue::Int(9));

@@ -2,14 +2,15 @@
 //! eq. 3.8-3.15), built level by level, one invocation per node.
 //!
 //! The twin is [`crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder`] (same parameters
-//! `subdivision`, `depth`, `origins` and `leaf_cone`, same level sizes, the same
+//! `subdivision`, `depth`, `origins`, `leaf_cone` and `leaf_sphere`, same level sizes, the same
 //! constructions): leaf cones by the incremental eq. 3.8-3.11 in angle form (the CPU sums and
 //! halves the same angles on `(cos, sin)` pairs: the same cone up to rounding), or with
 //! `leaf_cone = extremes` from the same two heuristic axes and the same rule for wide nodes
 //! (decided in `f32` here, so a node whose candidate axes nearly tie may keep another one than
 //! the CPU: either gives a correct cone of nearly the same width), leaf spheres as the exact
 //! minimal ball of the origins (Welzl's algorithm, here in its nested non-recursive form; rays from one point get radius
-//! 0), upper levels folding the tight cone and sphere unions, then every stored bound
+//! 0) or, with `leaf_sphere = box`, centred on the origins' bounding box (the same `f32`
+//! centre as the CPU's), upper levels folding the tight cone and sphere unions, then every stored bound
 //! re-measured against the stored axis and centre, and `reach` per node (the farthest point a
 //! ray of the node reaches, infinite for unbounded rays).
 //!
@@ -26,7 +27,7 @@ use bytemuck::{Pod, Zeroable};
 use crsh_core::{
     HierarchyBuilder, Ray, RayHierarchy, Registry, Result, SphereCone, StageSpec, Stats,
 };
-use crsh_cpu::hierarchy::sphere_cone::{level_sizes, LeafCone};
+use crsh_cpu::hierarchy::sphere_cone::{level_sizes, LeafCone, LeafSphere};
 
 use crate::adapter::GpuContext;
 use crate::backend::{GpuBuffer, Wgpu};
@@ -46,7 +47,9 @@ struct Params {
     starts: u32,
     /// 1: lowest cones by `leaf_cone = extremes`.
     leaf_cone: u32,
-    pad: [u32; 3],
+    /// 1: lowest sphere centres by `leaf_sphere = box`.
+    leaf_sphere: u32,
+    pad: [u32; 2],
 }
 
 struct SphereConeKernels {
@@ -81,6 +84,7 @@ pub struct SphereConeBuilder {
     depth: u32,
     starts: bool,
     leaf_cone: LeafCone,
+    leaf_sphere: LeafSphere,
 }
 
 /// Registers the wgpu `sphere_cone` under its CPU twin's catalogue entry (same name, parameters,
@@ -103,6 +107,7 @@ impl SphereConeBuilder {
             depth: cpu.depth(),
             starts: cpu.bounds_starts(),
             leaf_cone: cpu.leaf_cone(),
+            leaf_sphere: cpu.leaf_sphere(),
         })
     }
 }
@@ -147,7 +152,8 @@ impl HierarchyBuilder<Wgpu> for SphereConeBuilder {
                 below: below as u32,
                 starts: u32::from(self.starts),
                 leaf_cone: u32::from(self.leaf_cone == LeafCone::Extremes),
-                pad: [0; 3],
+                leaf_sphere: u32::from(self.leaf_sphere == LeafSphere::BoxCentre),
+                pad: [0; 2],
             };
             let u = uniform(ctx, "crsh sphere-cone params", &params);
             let (children, child_reach) = if li == 0 {

@@ -22,7 +22,9 @@ struct Params {
     starts: u32,
     // 1: lowest cones by `leaf_cone = extremes` (crsh_cpu's extremes_axis), else eq. 3.8-3.11.
     leaf_cone: u32,
-    pad0: u32,
+    // 1: lowest sphere centres at the origins' bounding-box centre (`leaf_sphere = box`),
+    // else Welzl's minimal ball.
+    leaf_sphere: u32,
     pad1: u32,
     pad2: u32,
 }
@@ -289,7 +291,18 @@ fn leaves(@builtin(global_invocation_id) gid: vec3<u32>,
     // Sphere: minimal ball, re-measured, widened.
     var ball = vec4<f32>(o0, 0.0);
     if (!same) {
-        ball = min_ball(n);
+        if (p.leaf_sphere == 1u) {
+            // crsh_cpu's Aabb::from_points(..).center(): the same f32 operations.
+            var lo = pts[0];
+            var hi = pts[0];
+            for (var k = 1u; k < n; k++) {
+                lo = min(lo, pts[k]);
+                hi = max(hi, pts[k]);
+            }
+            ball = vec4<f32>((lo + hi) * 0.5, 0.0);
+        } else {
+            ball = min_ball(n);
+        }
     }
     let c = ball.xyz;
     var far = 0.0;
