@@ -7,7 +7,9 @@
 
 use std::sync::Arc;
 
-use crsh_core::{Backend, HierarchyBuilder, Ray, RayHierarchy, RayKind, StageSpec, Stats, Surface};
+use crsh_core::{
+    Backend, HierarchyBuilder, Ray, RayHierarchy, RayKind, SphereCone, StageSpec, Stats, Surface,
+};
 use crsh_cpu::hierarchy::sphere_cone::covers;
 use crsh_cpu::Cpu;
 use crsh_scene::Scene;
@@ -195,6 +197,42 @@ fn hierarchy_nodes_match_the_cpu_and_contain_their_rays() {
     }
 }
 
+/// The lowest levels of the GPU's and the CPU's hierarchies over `set` at `sub`/`depth` with
+/// the sphere-cone parameter `param` set to `value` (the same spec for both twins), after
+/// checking that both have the same level and node counts and that every ray is covered by its
+/// GPU node; with the description of the case for messages.
+fn lowest_levels_with(
+    b: &Wgpu,
+    set: &RaySet,
+    (sub, depth): (i64, i64),
+    (param, value): (&str, &str),
+) -> (Vec<SphereCone>, Vec<SphereCone>, String) {
+    let mut sp = spec(sub, depth);
+    sp.params
+        .insert(param.into(), crsh_core::ParamValue::Str(value.into()));
+    let cpu = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::new(&set.scene, &sp).unwrap();
+    let want = cpu
+        .build(&Cpu, &set.rays, set.order.clone(), &mut Stats::default())
+        .unwrap();
+    let got = gpu_build(b, &set.gpu, &set.rays, &set.order, &sp);
+    let what = format!(
+        "{} {:?} sub {sub} depth {depth} {param} {value}",
+        set.name, set.kind
+    );
+    assert_eq!(got.levels.len(), want.levels.len(), "{what}");
+    let gl = b.download(&got.levels[0]).unwrap();
+    assert_eq!(gl.len(), want.levels[0].len(), "{what}");
+    for (leaf, &r) in set.order.iter().enumerate() {
+        let node = &gl[leaf / sub as usize];
+        let ray = &set.rays[r as usize];
+        assert!(
+            covers(node, ray.origin, ray.dir),
+            "{what}: leaf {leaf} not covered by {node:?}"
+        );
+    }
+    (gl, want.levels[0].clone(), what)
+}
+
 /// `leaf_cone = extremes`: the GPU's lowest cones contain their rays and match the CPU's widths
 /// on (nearly) every node; a node whose candidate axes nearly tie may be decided the other way
 /// in `f32`, so up to 1 % of the nodes may differ, never by losing a ray.
@@ -205,40 +243,12 @@ fn extreme_ray_leaf_cones_match_the_cpu_and_contain_their_rays() {
     ) else {
         return;
     };
-    use crsh_cpu::hierarchy::sphere_cone::LeafCone;
-    for RaySet {
-        name,
-        scene: _,
-        gpu: g,
-        kind,
-        rays,
-        order,
-    } in ray_sets(&b)
-    {
-        for (sub, depth) in [(16, 3), (8, 2), (4, 3)] {
-            let cpu = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(
-                sub as u32,
-                depth as u32,
-            )
-            .unwrap()
-            .with_leaf_cone(LeafCone::Extremes);
-            let want = cpu
-                .build(&Cpu, &rays, order.clone(), &mut Stats::default())
-                .unwrap();
-            let mut sp = spec(sub, depth);
-            sp.params.insert(
-                "leaf_cone".into(),
-                crsh_core::ParamValue::Str("extremes".into()),
-            );
-            let got = gpu_build(&b, &g, &rays, &order, &sp);
-            let what = format!("{name} {kind:?} sub {sub} depth {depth}");
-            assert_eq!(got.levels.len(), want.levels.len(), "{what}");
-            let gl = b.download(&got.levels[0]).unwrap();
-            let wl = &want.levels[0];
-            assert_eq!(gl.len(), wl.len(), "{what}");
+    for set in ray_sets(&b) {
+        for shape in [(16, 3), (8, 2), (4, 3)] {
+            let (gl, wl, what) = lowest_levels_with(&b, &set, shape, ("leaf_cone", "extremes"));
             let differ = gl
                 .iter()
-                .zip(wl)
+                .zip(&wl)
                 .filter(|(gn, wn)| (gn.cone.half_angle - wn.cone.half_angle).abs() > 1e-3)
                 .count();
             assert!(
@@ -246,14 +256,6 @@ fn extreme_ray_leaf_cones_match_the_cpu_and_contain_their_rays() {
                 "{what}: {differ} of {} lowest cones differ",
                 gl.len()
             );
-            for (leaf, &r) in order.iter().enumerate() {
-                let node = &gl[leaf / sub as usize];
-                let ray = &rays[r as usize];
-                assert!(
-                    covers(node, ray.origin, ray.dir),
-                    "{what}: leaf {leaf} not covered by {node:?}"
-                );
-            }
         }
     }
 }
@@ -267,41 +269,12 @@ fn box_centred_leaf_spheres_match_the_cpu() {
     else {
         return;
     };
-    use crsh_cpu::hierarchy::sphere_cone::LeafSphere;
-    for RaySet {
-        name,
-        scene: _,
-        gpu: g,
-        kind,
-        rays,
-        order,
-    } in ray_sets(&b)
-    {
-        for (sub, depth) in [(16, 3), (8, 2)] {
-            let cpu = crsh_cpu::hierarchy::sphere_cone::SphereConeBuilder::with_params(
-                sub as u32,
-                depth as u32,
-            )
-            .unwrap()
-            .with_leaf_sphere(LeafSphere::BoxCentre);
-            let want = cpu
-                .build(&Cpu, &rays, order.clone(), &mut Stats::default())
-                .unwrap();
-            let mut sp = spec(sub, depth);
-            sp.params.insert(
-                "leaf_sphere".into(),
-                crsh_core::ParamValue::Str("box".into()),
-            );
-            let got = gpu_build(&b, &g, &rays, &order, &sp);
-            let welzl = gpu_build(&b, &g, &rays, &order, &spec(sub, depth));
-            let what = format!("{name} {kind:?} sub {sub} depth {depth}");
-            assert_eq!(got.levels.len(), want.levels.len(), "{what}");
-            let gl = b.download(&got.levels[0]).unwrap();
-            let wel = b.download(&welzl.levels[0]).unwrap();
-            let wl = &want.levels[0];
-            assert_eq!(gl.len(), wl.len(), "{what}");
+    for set in ray_sets(&b) {
+        for shape in [(16, 3), (8, 2)] {
+            let (gl, wl, what) = lowest_levels_with(&b, &set, shape, ("leaf_sphere", "box"));
+            let (welzl, _, _) = lowest_levels_with(&b, &set, shape, ("leaf_sphere", "welzl"));
             let mut moved = 0;
-            for (k, (gn, wn)) in gl.iter().zip(wl).enumerate() {
+            for (k, (gn, wn)) in gl.iter().zip(&wl).enumerate() {
                 assert_eq!(gn.sphere.center, wn.sphere.center, "{what}: node {k}");
                 let r = wn.sphere.radius;
                 let scale = 1.0 + gn.sphere.center.abs().max_element();
@@ -310,18 +283,10 @@ fn box_centred_leaf_spheres_match_the_cpu() {
                     "{what}: node {k} radius {} against {r}",
                     gn.sphere.radius
                 );
-                moved += usize::from(gn.sphere.center != wel[k].sphere.center);
+                moved += usize::from(gn.sphere.center != welzl[k].sphere.center);
             }
-            if kind == RayKind::Reflection {
+            if set.kind == RayKind::Reflection {
                 assert!(moved > 0, "{what}: no box centre differs from Welzl's");
-            }
-            for (leaf, &r) in order.iter().enumerate() {
-                let node = &gl[leaf / sub as usize];
-                let ray = &rays[r as usize];
-                assert!(
-                    covers(node, ray.origin, ray.dir),
-                    "{what}: leaf {leaf} not covered by {node:?}"
-                );
             }
         }
     }

@@ -30,7 +30,7 @@
 //!     (`(min + max)·0.5` in `f32`), the radius measured from it the same way: no Welzl
 //!     iterations. Its radius is at most half the box's diagonal, so at most √3 times the
 //!     minimal one (which spans the box's longest side); over a node's origins on one patch
-//!     of surface it is close to minimal (README, "Box-centred lowest spheres").
+//!     of surface it is close to minimal (README, "Object side on obvhs's BVH").
 //! - **Upper levels** group `subdivision` consecutive nodes of the level below.
 //!   - *Cone*: the union of the children's cones, folded left to right with the *tight*
 //!     pairwise union [`cone_union`] (the smallest cone containing two cones). For two cones it
@@ -360,8 +360,7 @@ impl SphereConeBuilder {
         order: &[u32],
     ) -> Result<(Vec<Vec<SphereCone>>, Vec<Vec<f32>>)> {
         // The order is checked here; the rays themselves where the lowest level reads them
-        // (a separate pass over every ray read the whole batch once more, 2.5-4 ms of
-        // cornell-mirror's 945k shadow rays).
+        // (a separate pass over every ray read the whole batch once more).
         validate_order("sphere_cone", rays, order)?;
         let s = self.subdivision as usize;
         let mut levels: Vec<Vec<SphereCone>> = Vec::new();
