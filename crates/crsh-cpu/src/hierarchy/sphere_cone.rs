@@ -1261,20 +1261,22 @@ mod tests {
     /// Every node at every level covers every ray below it (origin and direction), every node
     /// contains its children's spheres and cones, and sampled ray points lie in the swept volume.
     fn check_containment(rays: &[Ray], order: &[u32], s: u32, depth: u32) -> Vec<usize> {
-        check_containment_with(rays, order, s, depth, LeafCone::Incremental).0
+        check_containment_with(
+            rays,
+            order,
+            SphereConeBuilder::with_params(s, depth).unwrap(),
+        )
+        .0
     }
 
-    /// [`check_containment`] with lowest-node cones by `how`; also returns the levels.
+    /// [`check_containment`] with the builder `b` (its shape, lowest cones and spheres); also
+    /// returns the levels.
     fn check_containment_with(
         rays: &[Ray],
         order: &[u32],
-        s: u32,
-        depth: u32,
-        how: LeafCone,
+        b: SphereConeBuilder,
     ) -> (Vec<usize>, Vec<Vec<SphereCone>>) {
-        let b = SphereConeBuilder::with_params(s, depth)
-            .unwrap()
-            .with_leaf_cone(how);
+        let (s, depth) = (b.subdivision(), b.depth());
         let levels = b.build_levels(rays, order).unwrap();
         let sizes: Vec<usize> = levels.iter().map(Vec::len).collect();
         assert_eq!(sizes, level_sizes(order.len(), s, depth));
@@ -1506,9 +1508,10 @@ mod tests {
                 } else {
                     shuffled(&mut rng, rays.len())
                 };
-                let (_, ext) = check_containment_with(rays, &order, s, depth, LeafCone::Extremes);
-                let (_, inc) =
-                    check_containment_with(rays, &order, s, depth, LeafCone::Incremental);
+                let shape = SphereConeBuilder::with_params(s, depth).unwrap();
+                let (_, ext) =
+                    check_containment_with(rays, &order, shape.with_leaf_cone(LeafCone::Extremes));
+                let (_, inc) = check_containment_with(rays, &order, shape);
                 let mean = |v: &[SphereCone]| {
                     v.iter().map(|n| n.cone.half_angle as f64).sum::<f64>() / v.len() as f64
                 };
@@ -1558,14 +1561,14 @@ mod tests {
         for (name, rays) in &sets {
             let order = shuffled(&mut rng, rays.len());
             for (s, depth) in [(2, 6), (16, 3), (64, 2)] {
-                let build = |how| {
-                    SphereConeBuilder::with_params(s, depth)
-                        .unwrap()
-                        .with_leaf_sphere(how)
-                        .build_levels(rays, &order)
-                        .unwrap()
-                };
-                let (welzl, boxed) = (build(LeafSphere::Welzl), build(LeafSphere::BoxCentre));
+                // Containment of rays and children at every level, as with Welzl's spheres.
+                let shape = SphereConeBuilder::with_params(s, depth).unwrap();
+                let (_, welzl) = check_containment_with(rays, &order, shape);
+                let (_, boxed) = check_containment_with(
+                    rays,
+                    &order,
+                    shape.with_leaf_sphere(LeafSphere::BoxCentre),
+                );
                 for (k, (w, b)) in welzl[0].iter().zip(&boxed[0]).enumerate() {
                     let leaves = leaf_range(0, k, s, order.len());
                     let origins: Vec<Vec3> = leaves
@@ -1590,19 +1593,6 @@ mod tests {
                     // Only the spheres differ.
                     assert_eq!(w.cone, b.cone);
                 }
-                // Containment of rays and children at every level, as with Welzl's spheres.
-                let b = SphereConeBuilder::with_params(s, depth)
-                    .unwrap()
-                    .with_leaf_sphere(LeafSphere::BoxCentre);
-                for (l, level) in boxed.iter().enumerate() {
-                    for (k, node) in level.iter().enumerate() {
-                        for leaf in leaf_range(l, k, s, order.len()) {
-                            let r = &rays[order[leaf] as usize];
-                            assert!(covers(node, r.origin, r.dir), "{name} {l}/{k}");
-                        }
-                    }
-                }
-                assert_eq!(b.build_levels(rays, &order).unwrap(), boxed);
             }
         }
     }
