@@ -113,24 +113,11 @@ fn sort_in_cache<R: Copy>(v: &mut [R], bits: u32, digit: &impl Fn(&R, u32) -> us
     if bits > PAIR_DIGIT && bits <= WIDE_DIGIT_MAX {
         // One pass over a digit of all `bits` bits instead of two over 8-bit digits (a 17-bit
         // key's buckets keep 9 bits): the same stable order, half the passes.
-        let wide = |r: &R| (digit(r, 0) | digit(r, PAIR_DIGIT) << PAIR_DIGIT) & ((1 << bits) - 1);
-        let mut at = vec![0u32; 1 << bits];
-        for r in v.iter() {
-            at[wide(r)] += 1;
-        }
-        if at.iter().any(|&c| c as usize == v.len()) {
-            return;
-        }
-        let mut run = 0;
-        for c in at.iter_mut() {
-            (*c, run) = (run, run + *c);
-        }
+        let mask = (1 << bits) - 1;
         let src = v.to_vec();
-        for r in &src {
-            let d = wide(r);
-            v[at[d] as usize] = *r;
-            at[d] += 1;
-        }
+        counting_pass(&src, v, 1 << bits, |r| {
+            (digit(r, 0) | digit(r, PAIR_DIGIT) << PAIR_DIGIT) & mask
+        });
         return;
     }
     // Passes alternate between `v` and `scratch`; `in_v` says where the records are.
@@ -143,20 +130,7 @@ fn sort_in_cache<R: Copy>(v: &mut [R], bits: u32, digit: &impl Fn(&R, u32) -> us
         } else {
             (&scratch[..], &mut *v)
         };
-        let mut at = [0u32; 1 << PAIR_DIGIT];
-        for r in src {
-            at[digit(r, shift)] += 1;
-        }
-        if !at.iter().any(|&c| c as usize == src.len()) {
-            let mut run = 0;
-            for c in at.iter_mut() {
-                (*c, run) = (run, run + *c);
-            }
-            for &r in src {
-                let d = digit(&r, shift);
-                dst[at[d] as usize] = r;
-                at[d] += 1;
-            }
+        if counting_pass(src, dst, 1 << PAIR_DIGIT, |r| digit(r, shift)) {
             in_v = !in_v;
         }
         shift += PAIR_DIGIT;
@@ -164,6 +138,33 @@ fn sort_in_cache<R: Copy>(v: &mut [R], bits: u32, digit: &impl Fn(&R, u32) -> us
     if !in_v {
         v.copy_from_slice(&scratch);
     }
+}
+
+/// One stable counting-sort pass of `src` into `dst` (same length) by `key` (below `radix`),
+/// one thread; `false` (and `dst` untouched) when every record has the same key.
+fn counting_pass<R: Copy>(
+    src: &[R],
+    dst: &mut [R],
+    radix: usize,
+    key: impl Fn(&R) -> usize,
+) -> bool {
+    let mut at = vec![0u32; radix];
+    for r in src {
+        at[key(r)] += 1;
+    }
+    if at.iter().any(|&c| c as usize == src.len()) {
+        return false;
+    }
+    let mut run = 0;
+    for c in at.iter_mut() {
+        (*c, run) = (run, run + *c);
+    }
+    for r in src {
+        let d = key(r);
+        dst[at[d] as usize] = *r;
+        at[d] += 1;
+    }
+    true
 }
 
 /// One stable pass of the digit at `shift` from `a` into `b` (same length): a histogram per
