@@ -794,8 +794,9 @@ pub fn interleave(fields: &[(u64, u32)]) -> u64 {
     interleave_bits(fields)
 }
 
-/// Bit `i` of `v` (below 2³²) moves to bit `2i`.
-fn spread2(v: u64) -> u64 {
+/// Bit `i` of `v` moves to bit `2i`; bits of `v` from 32 up are dropped. [`interleave`]'s
+/// two-field fast path, and the `tile` hash's Z-order of screen tiles.
+pub fn spread2(v: u64) -> u64 {
     let mut x = v & 0xFFFF_FFFF;
     x = (x | (x << 16)) & 0x0000_FFFF_0000_FFFF;
     x = (x | (x << 8)) & 0x00FF_00FF_00FF_00FF;
@@ -1214,6 +1215,14 @@ mod tests {
             let e = octahedral(d);
             assert!(e.x.abs() <= 1.0 + 1e-6 && e.y.abs() <= 1.0 + 1e-6);
         }
+    }
+
+    #[test]
+    fn spread2_moves_bit_i_to_bit_2i() {
+        assert_eq!(spread2(0b1011), 0b100_0101);
+        assert_eq!(spread2(0xffff), 0x5555_5555);
+        assert_eq!(spread2(0xffff_ffff), 0x5555_5555_5555_5555);
+        assert_eq!(spread2(0x1_0000_0001), 1);
     }
 
     #[test]

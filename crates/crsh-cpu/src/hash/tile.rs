@@ -47,6 +47,7 @@
 //!
 //! Keys depend only on the ray and the frame, so they do not depend on the thread count.
 
+use crsh_core::quantize::spread2;
 use crsh_core::{
     CoreError, FrameSize, Hasher, ParamInfo, Ray, RayKind, Registry, Result, StageKind, StageSpec,
     StageVariantInfo, Stats,
@@ -148,16 +149,6 @@ impl TileOrder {
             TileOrder::Morton => "morton",
         }
     }
-}
-
-/// `v`'s low 16 bits spread to the even bits of the result (bit `i` to bit `2i`).
-#[inline]
-pub fn spread_bits(v: u32) -> u32 {
-    let mut v = v & 0xffff;
-    v = (v | (v << 8)) & 0x00ff_00ff;
-    v = (v | (v << 4)) & 0x0f0f_0f0f;
-    v = (v | (v << 2)) & 0x3333_3333;
-    (v | (v << 1)) & 0x5555_5555
 }
 
 /// Division of a `u32` by a fixed divisor `d ≥ 1` with one multiplication (Lemire, Kaser and
@@ -295,7 +286,7 @@ impl TileGrid {
         let (tx, ty) = (self.by_tile.div(x), self.by_tile.div(y));
         Some(match self.order {
             TileOrder::Rows => ty as u64 * self.tiles_x as u64 + tx as u64,
-            TileOrder::Morton => (spread_bits(tx) | spread_bits(ty) << 1) as u64,
+            TileOrder::Morton => spread2(tx as u64) | spread2(ty as u64) << 1,
         })
     }
 
@@ -578,10 +569,6 @@ mod tests {
                 );
             }
         }
-        // spread_bits puts bit i at bit 2i and drops bits above 15.
-        assert_eq!(spread_bits(0b1011), 0b1000101);
-        assert_eq!(spread_bits(0xffff), 0x5555_5555);
-        assert_eq!(spread_bits(0x1_0001), 1);
     }
 
     #[test]

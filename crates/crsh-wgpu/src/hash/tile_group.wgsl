@@ -7,7 +7,8 @@
 // shadow rays light·span + tile (so that a node never mixes two lights), as a u64 in (lo, hi).
 // span is the numbers a tile can take (TileGrid::span: tiles in rows, 4^b in Z-order).
 
-// v's low 16 bits spread to the even bits (bit i to bit 2i): TileGrid's spread_bits.
+// v's low 16 bits spread to the even bits (bit i to bit 2i): crsh_core::quantize::spread2 for
+// tile coordinates (below 2^14).
 fn spread_bits(x: u32) -> u32 {
     var v = x & 0xffffu;
     v = (v | (v << 8u)) & 0x00ff00ffu;
