@@ -128,13 +128,18 @@
 //!   (`REL_MARGIN` × half its diagonal + `ABS_MARGIN` × `max(1, |v|∞)`), rounded outwards to
 //!   `f32`; an internal node's box is the union of its children's.
 //! - **Ray side**: each ray's *segment box* ([`segment_box`]) holds every point
-//!   `o + t·d` with `t` in the ray's interval, clipped (in `f64`, with a relative `1e-9` of
-//!   slack on the slab distances) to the box of all triangles; a ray whose interval misses it
-//!   has the empty box and one that is not [`Ray::is_valid`] the whole space (the intersector
-//!   refuses it). A lowest node's box is the union of its rays' (their `f64` extents joined
-//!   and rounded once, which contains the union of their rounded boxes), a higher node's the
-//!   union of its children's; they are computed per traversal, O(rays), from the rays'
-//!   segments gathered once in leaf order (which the single-ray tests read too).
+//!   `o + t·d` with `t` in the ray's interval, clipped to the box of all triangles (slabs in
+//!   `f32` widened by a relative `1e-6`, so the interval contains the exact one); a ray whose
+//!   interval misses it has the empty box and one that is not [`Ray::is_valid`] the whole
+//!   space (the intersector refuses it). The end points are computed in `f32` and the box
+//!   padded by `4ε·(|o| + |d|·|t|)` plus `2e-9` of its scale, which covers their rounding;
+//!   the wgpu twin computes the same formula. A lowest node's box is the union of its rays'
+//!   (their end points joined and padded once, which contains the union of their padded
+//!   boxes), a higher node's the union of its children's; they are computed per traversal,
+//!   O(rays), from the rays' segments gathered once in leaf order (which the single-ray tests
+//!   read too). The `f32` boxes replaced `f64` extents rounded outwards, which cost a fifth
+//!   of the inline traversal of cornell-mirror's 113,043 reflection rays (5.5 → 4.3 ms, two
+//!   threads).
 //! - A pair passes when the boxes overlap (touching counts). The pair test (boxes, then
 //!   cone and sphere) counts **once** in the counters below, as one node test of a BVH does.
 //!
@@ -495,24 +500,16 @@ pub fn triangle_box(tri: [Vec3; 3]) -> Aabb {
 /// clipped to `bounds` (the box of every triangle, margins included) when the interval is
 /// unbounded (a bounded one is only boxed: its end points, no divisions), the empty box when
 /// the interval is empty or misses `bounds`, and the whole space for a ray that is not
-/// [`Ray::is_valid`] (it is then the intersector's to refuse).
+/// [`Ray::is_valid`] (it is then the intersector's to refuse). Computed in `f32` and padded
+/// ([`SegmentSpan`]), the same formula as the wgpu twin's `segment_box`.
 pub fn segment_box(ray: &Ray, bounds: &Aabb) -> Aabb {
-    match segment_extent(&Segment::of(ray), bounds) {
-        Extent::Everywhere => EVERYWHERE,
-        Extent::Empty => Aabb::EMPTY,
-        Extent::Span(lo, hi) => round_segment_box(lo, hi),
+    let seg = Segment::of(ray);
+    let mut span = SegmentSpan::EMPTY;
+    if span.add(&seg, inverse_f32(seg.dir), bounds) {
+        span.padded()
+    } else {
+        EVERYWHERE
     }
-}
-
-/// Where a ray can report a hit, before rounding to `f32` ([`segment_box`]).
-#[derive(Clone, Copy, Debug)]
-enum Extent {
-    /// Nowhere (an empty interval, or one that misses the bounds).
-    Empty,
-    /// Anywhere (a ray that is not valid).
-    Everywhere,
-    /// Within the `f64` box of the segment's end points.
-    Span(DVec3, DVec3),
 }
 
 /// What the box tests read of a ray (32 bytes of its 64): the traversal gathers them once in
@@ -582,7 +579,10 @@ fn leaf_segments_and_boxes(
                 slot.write(Segment::of(&rays[r as usize]));
             }
             // The same rays again, now in the cache.
-            let segs = mine.iter().map(|&r| Segment::of(&rays[r as usize]));
+            let segs = mine.iter().map(|&r| {
+                let s = Segment::of(&rays[r as usize]);
+                (s, inverse_f32(s.dir))
+            });
             segment_union_box(segs, bounds)
         })
         .collect();
@@ -619,54 +619,88 @@ fn children_box(
         .fold(Aabb::EMPTY, |a, b| a.union(*b))
 }
 
-/// [`segment_box`]'s extent of `ray` in `f64`, unrounded.
-#[inline]
-fn segment_extent(ray: &Segment, bounds: &Aabb) -> Extent {
-    if !ray.is_valid() {
-        return Extent::Everywhere;
-    }
-    if bounds.is_empty() {
-        return Extent::Empty;
-    }
-    let (t0, t1) = if ray.t_min.is_finite() && ray.t_max.is_finite() {
-        // A bounded segment (shadow rays): its end points, no clipping (no divisions).
-        if ray.t_min > ray.t_max {
-            return Extent::Empty;
-        }
-        (ray.t_min as f64, ray.t_max as f64)
-    } else {
-        let Some(t) = clip(ray, bounds) else {
-            return Extent::Empty;
-        };
-        t
+/// The end points of segments joined in `f32` before their padding ([`segment_box`]): the
+/// running box `[lo, hi]` of the points `o + d·t` at the ends of each segment's interval
+/// (clipped to the bounds when unbounded), and per axis the largest `|o| + |d|·max(|t₀|, |t₁|)`
+/// over them, which bounds the rounding of those points. Empty (`lo > hi`) until a segment
+/// with a non-empty extent joins.
+#[derive(Clone, Copy, Debug)]
+struct SegmentSpan {
+    lo: Vec3A,
+    hi: Vec3A,
+    mag: Vec3A,
+}
+
+impl SegmentSpan {
+    const EMPTY: SegmentSpan = SegmentSpan {
+        lo: Vec3A::INFINITY,
+        hi: Vec3A::NEG_INFINITY,
+        mag: Vec3A::ZERO,
     };
-    let (o, d) = (ray.origin.as_dvec3(), ray.dir.as_dvec3());
-    let (p0, p1) = (o + d * t0, o + d * t1);
-    Extent::Span(p0.min(p1), p0.max(p1))
-}
 
-/// The `f32` box around the `f64` box `[lo, hi]`, padded by `1e-9·max(1, |corner|∞)` and
-/// rounded outwards. The pad grows with the box, so the box of a union of spans is at least the
-/// union of their boxes.
-fn round_segment_box(lo: DVec3, hi: DVec3) -> Aabb {
-    let scale = lo.abs().max(hi.abs()).max_element().max(1.0);
-    round_box(lo, hi, 1e-9 * scale)
-}
+    /// Joins `ray`'s extent (`inv`: its [`inverse_f32`]); `false` when the ray is not
+    /// [`Ray::is_valid`] (its box is the whole space). The interval of an unbounded ray is
+    /// [`slab_interval`]'s within `bounds`, which contains [`clip`]'s exact one.
+    #[inline]
+    fn add(&mut self, ray: &Segment, inv: Vec3A, bounds: &Aabb) -> bool {
+        if !ray.is_valid() {
+            return false;
+        }
+        let (t0, t1) = if ray.t_min.is_finite() && ray.t_max.is_finite() {
+            // A bounded segment (shadow rays): its end points, no clipping (no divisions).
+            (ray.t_min, ray.t_max)
+        } else if bounds.is_empty() {
+            return true;
+        } else {
+            slab_interval(ray, inv, bounds)
+        };
+        // An empty interval (or a NaN end) joins nothing.
+        if t0 <= t1 {
+            let (o, d) = (Vec3A::from(ray.origin), Vec3A::from(ray.dir));
+            let (p0, p1) = (o + d * t0, o + d * t1);
+            self.lo = self.lo.min(p0.min(p1));
+            self.hi = self.hi.max(p0.max(p1));
+            self.mag = self.mag.max(o.abs() + d.abs() * t0.abs().max(t1.abs()));
+        }
+        true
+    }
 
-/// The union of [`segment_box`] over `rays`, rounded once: the whole space if one of them is
-/// not valid, the empty box if every extent is empty.
-fn segment_union_box(rays: impl Iterator<Item = Segment>, bounds: &Aabb) -> Aabb {
-    let mut span: Option<(DVec3, DVec3)> = None;
-    for ray in rays {
-        match segment_extent(&ray, bounds) {
-            Extent::Everywhere => return EVERYWHERE,
-            Extent::Empty => {}
-            Extent::Span(lo, hi) => {
-                span = Some(span.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi))));
-            }
+    /// The box, each side padded by `4ε·mag + 2e-9·max(1, |corner|∞)` (`ε` = `f32::EPSILON`
+    /// = `2u`): a point `o + d·t` computed in `f32` (a product and a sum, one rounding each,
+    /// no fused multiply-add) is within `2u·(|o| + |d·t|)` of the exact one, the subtraction of
+    /// the pad rounds by at most `u·(|lo| + pad)`, and the absolute term covers what
+    /// subnormal products lose; `4ε = 8u` covers all of it with room. The empty box when
+    /// nothing joined; an overflowing side (a coordinate near `f32::MAX`) becomes infinite.
+    /// Padding a union once pads it at least as much as each of its segments alone, so a
+    /// node's box holds its rays' boxes.
+    #[inline]
+    fn padded(&self) -> Aabb {
+        if !self.lo.cmple(self.hi).all() {
+            return Aabb::EMPTY;
+        }
+        let scale = self.lo.abs().max(self.hi.abs()).max_element().max(1.0);
+        let pad = 4.0 * f32::EPSILON * self.mag + Vec3A::splat(2e-9 * scale);
+        let (lo, hi) = (self.lo - pad, self.hi + pad);
+        // NaN (an infinite end point less an infinite pad) only where a side overflowed.
+        let lo = Vec3A::select(lo.cmpeq(lo), lo, Vec3A::NEG_INFINITY);
+        let hi = Vec3A::select(hi.cmpeq(hi), hi, Vec3A::INFINITY);
+        Aabb {
+            min: lo.into(),
+            max: hi.into(),
         }
     }
-    span.map_or(Aabb::EMPTY, |(lo, hi)| round_segment_box(lo, hi))
+}
+
+/// The union of [`segment_box`] over `rays` (each with its [`inverse_f32`]), padded once: the
+/// whole space if one of them is not valid, the empty box if every extent is empty.
+fn segment_union_box(rays: impl Iterator<Item = (Segment, Vec3A)>, bounds: &Aabb) -> Aabb {
+    let mut span = SegmentSpan::EMPTY;
+    for (ray, inv) in rays {
+        if !span.add(&ray, inv, bounds) {
+            return EVERYWHERE;
+        }
+    }
+    span.padded()
 }
 
 /// The part `[t0, t1]` of a valid ray's interval inside the non-empty box `b` (slabs in
@@ -719,19 +753,20 @@ fn inverse_f32(d: Vec3) -> Vec3A {
     }
 }
 
-/// Whether some point of the valid `ray`'s interval may lie in box `b`: the slab test in `f32`
-/// on three lanes at once, each slab distance widened by [`SLAB_WIDEN`] of itself plus
-/// [`SLAB_TINY`], so that it passes whenever [`clip`] does (and rarely more: the widening is a
-/// millionth of the distance). An axis along which the ray does not move constrains nothing
-/// when the origin lies within the box's slab and culls otherwise, as in [`clip`]. `inv` is
-/// the ray's [`inverse_f32`] (NaN: the `f64` [`clip`] decides). In place of [`clip`]'s `f64`
-/// axis loop with its branches, where the single-ray descents of wide-cone nodes (the dining
-/// room's reflection rays) spent a third of their time: criterion `reflection/dual_lbvh_inline`
-/// −44 % (README, "Wide cones").
+/// The part of the valid `ray`'s interval that may lie in box `b`, `(t₀, t₁)`, empty when
+/// `t₀ > t₁` (or NaN): the slab test in `f32` on three lanes at once, each slab distance
+/// widened by [`SLAB_WIDEN`] of itself plus [`SLAB_TINY`], so that the interval contains
+/// [`clip`]'s (and rarely more: the widening is a millionth of the distance). An axis along
+/// which the ray does not move constrains nothing when the origin lies within the box's slab
+/// and empties the interval otherwise, as in [`clip`]. `inv` is the ray's [`inverse_f32`]
+/// (NaN: the `f64` [`clip`] decides, its ends rounded outwards to `f32`).
 #[inline]
-fn meets_box(ray: &Segment, inv: Vec3A, b: &Aabb) -> bool {
+fn slab_interval(ray: &Segment, inv: Vec3A, b: &Aabb) -> (f32, f32) {
     if inv.x.is_nan() {
-        return clip(ray, b).is_some();
+        return match clip(ray, b) {
+            Some((t0, t1)) => (f32_down(t0), f32_up(t1)),
+            None => (f32::INFINITY, f32::NEG_INFINITY),
+        };
     }
     let (o, d) = (Vec3A::from(ray.origin), Vec3A::from(ray.dir));
     let (lo, hi) = (Vec3A::from(b.min), Vec3A::from(b.max));
@@ -746,7 +781,21 @@ fn meets_box(ray: &Segment, inv: Vec3A, b: &Aabb) -> bool {
     let (all, none) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
     let near = Vec3A::select(still, Vec3A::select(inside, none, all), near);
     let far = Vec3A::select(still, Vec3A::select(inside, all, none), far);
-    near.max_element().max(ray.t_min) <= far.min_element().min(ray.t_max)
+    (
+        near.max_element().max(ray.t_min),
+        far.min_element().min(ray.t_max),
+    )
+}
+
+/// Whether some point of the valid `ray`'s interval may lie in box `b`: [`slab_interval`] is
+/// not empty, so it passes whenever [`clip`] does. In place of [`clip`]'s `f64` axis loop with
+/// its branches, where the single-ray descents of wide-cone nodes (the dining room's
+/// reflection rays) spent a third of their time: criterion `reflection/dual_lbvh_inline`
+/// −44 % (README, "Wide cones").
+#[inline]
+fn meets_box(ray: &Segment, inv: Vec3A, b: &Aabb) -> bool {
+    let (t0, t1) = slab_interval(ray, inv, b);
+    t0 <= t1
 }
 
 /// Whether a point of `ray`'s segment (its interval) may lie in box `b`: [`clip`]; true for a
@@ -1848,12 +1897,17 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
                 Segment::of(&ctx.rays[r as usize])
             })
             .collect();
+        let inverse: Vec<Vec3A> = segments.iter().map(|s| inverse_f32(s.dir)).collect();
         let mut boxes: Vec<(u32, Vec<Aabb>)> = Vec::with_capacity(top_level + 1);
         let lowest_boxes = (first_low..last_low)
             .map(|n| {
                 let leaves = leaves_of(n);
-                let mine = &segments[leaves.start - first_leaf..leaves.end - first_leaf];
-                segment_union_box(mine.iter().copied(), &ctx.bounds)
+                let at = leaves.start - first_leaf..leaves.end - first_leaf;
+                let mine = segments[at.clone()]
+                    .iter()
+                    .copied()
+                    .zip(inverse[at].iter().copied());
+                segment_union_box(mine, &ctx.bounds)
             })
             .collect();
         boxes.push((first_low as u32, lowest_boxes));
@@ -1867,7 +1921,6 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
                 .collect();
             boxes.push((first, level));
         }
-        let inverse = segments.iter().map(|s| inverse_f32(s.dir)).collect();
         if closest {
             for (seg, hit) in segments.iter_mut().zip(&mine) {
                 if hit.is_hit() {
@@ -3418,6 +3471,100 @@ pub(crate) mod tests {
         assert!(clip(&short, &far).is_none() && !f32_says(&short, &far));
     }
 
+    /// The `f32` segment boxes hold the exact (`f64`) end points of what they box, far from
+    /// the origin too, where each rounding is large: unbounded rays clipped to a box 1e4..4e4
+    /// away from the origin (the points on its faces where [`clip`] enters and leaves) and
+    /// bounded segments there, one by one and joined in nodes; and a ray whose direction's
+    /// reciprocal overflows, boxed through [`clip`]'s fallback. (Without the pad, end points
+    /// fall outside.)
+    #[test]
+    fn f32_segment_boxes_hold_the_exact_end_points_far_away() {
+        let bounds = Aabb {
+            min: Vec3::new(1.0e4, -3.0e4, 5.0e3),
+            max: Vec3::new(2.0e4, -1.0e4, 4.0e4),
+        };
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut unit = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let inside =
+            |p: DVec3, b: &Aabb| p.cmpge(b.min.as_dvec3()).all() && p.cmple(b.max.as_dvec3()).all();
+        let (mut points, mut tight) = (0, 0);
+        let mut rays = Vec::new();
+        for i in 0..4000 {
+            let o = bounds.min.as_dvec3()
+                + (bounds.max - bounds.min).as_dvec3()
+                    * DVec3::new(unit() * 1.2 - 0.1, unit() * 1.2 - 0.1, unit() * 1.2 - 0.1);
+            let d = DVec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5).normalize();
+            let t_max = if i % 2 == 0 {
+                f32::INFINITY
+            } else {
+                (unit() * 3e4) as f32
+            };
+            rays.push(test_ray(o.as_vec3(), d.as_vec3(), 0.0, t_max, 0));
+        }
+        for r in &rays {
+            let seg = Segment::of(r);
+            let b = segment_box(r, &bounds);
+            let ends = if r.t_max.is_finite() {
+                Some((r.t_min as f64, r.t_max as f64))
+            } else {
+                clip(&seg, &bounds)
+            };
+            let Some((t0, t1)) = ends else {
+                continue;
+            };
+            for t in [t0, t1] {
+                let p = r.origin.as_dvec3() + r.dir.as_dvec3() * t;
+                points += 1;
+                assert!(inside(p, &b), "{r:?} t {t}: {p} outside {b:?}");
+                // Within a few f32 ulps of a side: the rounding matters here.
+                let gap = (p - b.min.as_dvec3())
+                    .min(b.max.as_dvec3() - p)
+                    .min_element();
+                if gap < 1e-2 {
+                    tight += 1;
+                }
+            }
+        }
+        assert!(points > 4000 && tight * 4 > points, "{points} {tight}");
+        // Joined in nodes of 16, padded once.
+        for group in rays.chunks(16) {
+            let b = segment_union_box(with_inverse(group), &bounds);
+            for r in group {
+                let one = segment_box(r, &bounds);
+                if !one.is_empty() {
+                    assert!(one.min.cmpge(b.min).all() && one.max.cmple(b.max).all());
+                }
+            }
+        }
+        // A direction component whose reciprocal overflows: the f64 clip's interval, rounded
+        // outwards.
+        let creep = test_ray(
+            Vec3::new(1.5e4, -2.0e4, 1.0e4),
+            Vec3::new(1.0, 1e-40, 0.0),
+            0.0,
+            f32::INFINITY,
+            0,
+        );
+        assert!(inverse_f32(creep.dir).x.is_nan());
+        let b = segment_box(&creep, &bounds);
+        let (t0, t1) = clip(&Segment::of(&creep), &bounds).expect("the ray crosses the box");
+        for t in [t0, t1] {
+            let p = creep.origin.as_dvec3() + creep.dir.as_dvec3() * t;
+            assert!(inside(p, &b), "t {t}: {p} outside {b:?}");
+        }
+        assert!(b.max.x < 2.1e4 && b.min.x > 1.4e4, "{b:?}");
+    }
+
+    /// `rays` as [`segment_union_box`] reads them: segments with their [`inverse_f32`].
+    fn with_inverse(rays: &[Ray]) -> impl Iterator<Item = (Segment, Vec3A)> + '_ {
+        rays.iter().map(|r| (Segment::of(r), inverse_f32(r.dir)))
+    }
+
     #[test]
     fn outward_rounding_and_boxes_contain_what_they_must() {
         // (The outward rounding itself is tested with `crsh_core::f32_down`.)
@@ -3475,10 +3622,10 @@ pub(crate) mod tests {
         let all = segment_box(&nan, &bounds);
         assert!(all.min.cmpeq(Vec3::NEG_INFINITY).all() && all.max.cmpeq(Vec3::INFINITY).all());
         assert!(segment_box(&parallel, &Aabb::EMPTY).is_empty());
-        // A node's box, rounded once, holds the boxes of its rays rounded one by one; an
+        // A node's box, padded once, holds the boxes of its rays padded one by one; an
         // invalid ray makes it the whole space, only empty extents the empty box.
         for group in rays.chunks(8) {
-            let b = segment_union_box(group.iter().map(Segment::of), &bounds);
+            let b = segment_union_box(with_inverse(group), &bounds);
             for r in group {
                 let one = segment_box(r, &bounds);
                 if !one.is_empty() {
@@ -3487,9 +3634,9 @@ pub(crate) mod tests {
             }
         }
         let with_nan = [parallel, nan, short];
-        let b = segment_union_box(with_nan.iter().map(Segment::of), &bounds);
+        let b = segment_union_box(with_inverse(&with_nan), &bounds);
         assert!(b.min.cmpeq(Vec3::NEG_INFINITY).all() && b.max.cmpeq(Vec3::INFINITY).all());
-        assert!(segment_union_box([away, reversed].iter().map(Segment::of), &bounds).is_empty());
+        assert!(segment_union_box(with_inverse(&[away, reversed]), &bounds).is_empty());
         assert!(segment_union_box(std::iter::empty(), &bounds).is_empty());
     }
 

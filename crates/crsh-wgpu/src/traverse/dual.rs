@@ -33,8 +33,9 @@
 //! # What differs from the CPU
 //!
 //! - The node test runs in `f32` with the rounding acceptance of the wgpu `crsh` (its module
-//!   doc; the cone condition as a distance from the cone, well-conditioned for narrow cones), the segment boxes and the single-ray slabs in `f32` widened to contain the CPU's
-//!   `f64` ones (`dual.wgsl` states the bounds). Every test keeps what the CPU's keeps, so no
+//!   doc; the cone condition as a distance from the cone, well-conditioned for narrow cones), the segment boxes by the CPU's `f32` formula (with WGSL's less exact reciprocal in the
+//!   clip, so they can differ in their last bits) and the single-ray slabs in `f32` widened
+//!   to contain the CPU's `f64` clip (`dual.wgsl` states the bounds). Every test keeps what the CPU's keeps, so no
 //!   hit is lost, and a few more pairs pass. The choice of the side to split is a size
 //!   comparison evaluated in `f32`: where it comes out differently from the CPU's the pairs
 //!   take another path down both trees. The candidates then differ slightly, and so do the

@@ -145,11 +145,12 @@ fn clip(o: vec3<f32>, d: vec3<f32>, t_min: f32, t_max: f32, lo: vec3<f32>, hi: v
     return vec2<f32>(1.0, 0.0);
 }
 
-// crsh_cpu's dual::segment_box in f32: the end points of the ray's interval (clipped to the
-// scene's box when unbounded), padded by 4ε·(|o| + |d|·|t|) + 2e-9·max(1, |p|∞), twice what
-// covers the CPU's box: the point o + d·t is off by at most 2u·(|o| + |d·t|) (u = ε/2, with or
-// without a fused multiply-add), the CPU's exact point rounded outwards to f32 by at most
-// 2u·|p|, and the CPU pads by 1e-9 of the scale.
+// crsh_cpu's dual::segment_box, the same f32 formula: the end points of the ray's interval
+// (clipped to the scene's box when unbounded), padded by 4ε·(|o| + |d|·|t|) + 2e-9·max(1, |p|∞):
+// the point o + d·t is off by at most 2u·(|o| + |d·t|) (u = ε/2, with or without a fused
+// multiply-add) and the pad's subtraction by u·(|lo| + pad), so the box holds the exact
+// segment. The CPU's clip has a correctly rounded reciprocal and this one WGSL's 2.5 ulp, so
+// the boxes can differ in their last bits; both hold the exact segment.
 fn segment_box(r: Ray) -> RBox {
     if (!ray_valid(r)) {
         return RBox(vec3<f32>(-inf()), 0u, vec3<f32>(inf()), 0u);
