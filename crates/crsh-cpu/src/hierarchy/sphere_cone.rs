@@ -1026,14 +1026,18 @@ fn leaf_node(
             LeafSphere::Welzl => min_sphere(origins).center,
             LeafSphere::BoxCentre => crsh_core::Aabb::from_points(origins.iter().copied()).center(),
         };
-        let sphere = store_sphere(c.as_dvec3(), origins.iter().map(|o| (o.as_dvec3(), 0.0)));
-        let c = sphere.center.as_dvec3();
-        let far = origins
-            .iter()
-            .zip(&lengths[..n])
-            .fold(0.0f64, |m, (o, len)| {
-                m.max((o.as_dvec3() - c).length() + len)
-            });
+        // `store_sphere` over the origins (radius 0) and the reach, from one distance per
+        // origin to the stored centre.
+        let stored = c.as_dvec3();
+        let (measured, far) =
+            origins
+                .iter()
+                .zip(&lengths[..n])
+                .fold((0.0f64, 0.0f64), |(m, f), (o, len)| {
+                    let d = stored.distance(o.as_dvec3());
+                    (m.max(d), f.max(d + len))
+                });
+        let sphere = Sphere::new(c, f32_up(measured * (1.0 + SPHERE_REL_MARGIN)));
         (sphere, far)
     };
     let node = SphereCone {
