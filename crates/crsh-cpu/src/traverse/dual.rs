@@ -326,12 +326,12 @@ pub fn info() -> StageVariantInfo {
         "objects",
         "lbvh",
         &OBJECTS,
-        "object side: `lbvh` a binary sphere hierarchy over the triangles by Morton codes, \
-         rebuilt per frame; `bvh` the same bounds over the topology of obvhs's binary BVH \
-         (PLOC with reinsertion, `fast` preset), rebuilt per frame; `grid` the same bounds \
-         over seed 002's uniform grid (cell ranges halved, then each cell's triangles), \
-         rebuilt per frame; `meshes` the thesis's mesh spheres then triangle spheres (the \
-         `crsh` traverser with mesh culling)",
+        "object side, built with the stage (once for a static scene, every frame for moving \
+         geometry): `lbvh` a binary sphere hierarchy over the triangles by Morton codes; \
+         `bvh` the same bounds over the topology of obvhs's binary BVH (PLOC with \
+         reinsertion, `fast` preset); `grid` the same bounds over seed 002's uniform grid \
+         (cell ranges halved, then each cell's triangles); `meshes` the thesis's mesh spheres \
+         then triangle spheres (the `crsh` traverser with mesh culling)",
     ))
     .param(
         ParamInfo::float(
