@@ -3532,15 +3532,7 @@ pub(crate) mod tests {
         }
         assert!(points > 4000 && tight * 4 > points, "{points} {tight}");
         // Joined in nodes of 16, padded once.
-        for group in rays.chunks(16) {
-            let b = segment_union_box(with_inverse(group), &bounds);
-            for r in group {
-                let one = segment_box(r, &bounds);
-                if !one.is_empty() {
-                    assert!(one.min.cmpge(b.min).all() && one.max.cmple(b.max).all());
-                }
-            }
-        }
+        assert_node_boxes_hold_ray_boxes(&rays, &bounds, 16);
         // A direction component whose reciprocal overflows: the f64 clip's interval, rounded
         // outwards.
         let creep = test_ray(
@@ -3558,6 +3550,20 @@ pub(crate) mod tests {
             assert!(inside(p, &b), "t {t}: {p} outside {b:?}");
         }
         assert!(b.max.x < 2.1e4 && b.min.x > 1.4e4, "{b:?}");
+    }
+
+    /// The box of every `node`-ray chunk of `rays` (one [`segment_union_box`], padded once)
+    /// holds each of its rays' own [`segment_box`].
+    fn assert_node_boxes_hold_ray_boxes(rays: &[Ray], bounds: &Aabb, node: usize) {
+        for group in rays.chunks(node) {
+            let b = segment_union_box(with_inverse(group), bounds);
+            for r in group {
+                let one = segment_box(r, bounds);
+                if !one.is_empty() {
+                    assert!(one.min.cmpge(b.min).all() && one.max.cmple(b.max).all());
+                }
+            }
+        }
     }
 
     /// `rays` as [`segment_union_box`] reads them: segments with their [`inverse_f32`].
@@ -3624,15 +3630,7 @@ pub(crate) mod tests {
         assert!(segment_box(&parallel, &Aabb::EMPTY).is_empty());
         // A node's box, padded once, holds the boxes of its rays padded one by one; an
         // invalid ray makes it the whole space, only empty extents the empty box.
-        for group in rays.chunks(8) {
-            let b = segment_union_box(with_inverse(group), &bounds);
-            for r in group {
-                let one = segment_box(r, &bounds);
-                if !one.is_empty() {
-                    assert!(one.min.cmpge(b.min).all() && one.max.cmple(b.max).all());
-                }
-            }
-        }
+        assert_node_boxes_hold_ray_boxes(&rays, &bounds, 8);
         let with_nan = [parallel, nan, short];
         let b = segment_union_box(with_inverse(&with_nan), &bounds);
         assert!(b.min.cmpeq(Vec3::NEG_INFINITY).all() && b.max.cmpeq(Vec3::INFINITY).all());
