@@ -500,8 +500,9 @@ pub fn triangle_box(tri: [Vec3; 3]) -> Aabb {
 /// clipped to `bounds` (the box of every triangle, margins included) when the interval is
 /// unbounded (a bounded one is only boxed: its end points, no divisions), the empty box when
 /// the interval is empty or misses `bounds`, and the whole space for a ray that is not
-/// [`Ray::is_valid`] (it is then the intersector's to refuse). Computed in `f32` and padded
-/// ([`SegmentSpan`]), the same formula as the wgpu twin's `segment_box`.
+/// [`Ray::is_valid`] (it is then the intersector's to refuse). Computed in `f32`, each side
+/// padded by `4ε·(|o| + |d|·|t|) + 2e-9·max(1, |corner|∞)` to cover the rounding of the end
+/// points: the same formula as the wgpu twin's `segment_box`.
 pub fn segment_box(ray: &Ray, bounds: &Aabb) -> Aabb {
     let seg = Segment::of(ray);
     let mut span = SegmentSpan::EMPTY;
