@@ -163,17 +163,19 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
              (`traverse.objects = bvh`, PLOC `fast`: about 60 ms more to build on Sponza and \
              the dining room, fewer tests and a faster traversal there) and with lowest \
              spheres centred on their origins' box (`hierarchy.leaf_sphere = box`, no Welzl \
-             iterations); for static scenes, where the object hierarchy is built once (CPU \
-             only)",
+             iterations) and lowest nodes of 32 rays, two 4×4 tiles (`hierarchy.subdivision \
+             = 32`: fewer nodes to build and pair); for static scenes, where the object \
+             hierarchy is built once (CPU only)",
             dual_screen_bvh_pipeline(),
         ),
     ]
 }
 
 /// The `dual_screen_bvh` preset's pipeline: [`dual_screen_pipeline`] with `traverse.objects =
-/// bvh` and `hierarchy.leaf_sphere = box` (README, "Object side on obvhs's BVH"). The LBVH is
-/// the cheaper rebuild for moving geometry; over a BVH built once this is the fastest
-/// ray-hierarchy pipeline measured for issue 17 on the CPU.
+/// bvh`, `hierarchy.leaf_sphere = box` and `hierarchy.subdivision = 32` (README, "Object side
+/// on obvhs's BVH" and "Lowest nodes of 32 rays"). The LBVH is the cheaper rebuild for moving
+/// geometry; over a BVH built once this is the fastest ray-hierarchy pipeline measured for
+/// issue 17 on the CPU.
 fn dual_screen_bvh_pipeline() -> PipelineConfig {
     let mut cfg = dual_screen_pipeline();
     if let Some(t) = cfg.traverse.as_mut() {
@@ -183,6 +185,7 @@ fn dual_screen_bvh_pipeline() -> PipelineConfig {
     if let Some(h) = cfg.hierarchy.as_mut() {
         h.params
             .insert("leaf_sphere".into(), ParamValue::Str("box".into()));
+        h.params.insert("subdivision".into(), ParamValue::Int(32));
     }
     cfg
 }
@@ -380,7 +383,8 @@ mod tests {
         screen.hash = inline.hash.clone();
         screen.name = inline.name.clone();
         assert_eq!(screen, inline);
-        // `dual_screen_bvh` is `dual_screen` over obvhs's BVH, with box-centred lowest spheres.
+        // `dual_screen_bvh` is `dual_screen` over obvhs's BVH, with box-centred lowest spheres
+        // and lowest nodes of 32 rays.
         let screen = registry.preset("dual_screen").unwrap();
         let mut over_bvh = registry.preset("dual_screen_bvh").unwrap();
         let t = over_bvh.traverse.as_mut().unwrap();
@@ -391,6 +395,8 @@ mod tests {
         assert_eq!(h.str("leaf_sphere").unwrap(), "box");
         h.params
             .insert("leaf_sphere".into(), ParamValue::Str("welzl".into()));
+        assert_eq!(h.i64("subdivision").unwrap(), 32);
+        h.params.insert("subdivision".into(), ParamValue::Int(16));
         over_bvh.name = screen.name.clone();
         assert_eq!(over_bvh, screen);
     }
