@@ -20,9 +20,10 @@
 //!   with each ray-triangle test (`intersect.test` = `mt`, `watertight`, `projected`), and on
 //!   those of `dual_lbvh` (lane masks included) with `mt`;
 //! - `bvh`: the whole-scene `bvh` any-hit query of the same rays, the baseline, with each test;
-//! - `reflection`: a second batch, the closest-hit reflection rays of a 1024² G-buffer of the
-//!   shared dining room (else the built-in `cornell-mirrors`), traced by `dual_lbvh_inline`
-//!   (the `dual_inline` preset) and by the whole-scene `bvh`, side by side.
+//! - `reflection`: the closest-hit reflection rays of a 1024² G-buffer of the shared dining
+//!   room (else the built-in `cornell-mirrors`), traced by `dual_lbvh_inline` (the
+//!   `dual_inline` preset), and of the shared cornell-mirror (when present), traced by the
+//!   `dual_screen_bvh` preset; each batch also by the whole-scene `bvh`, side by side.
 //!
 //! Run with `cargo bench -p crsh-cpu --bench stages` (add `-- --quick` for a short run, or a
 //! group name to filter).
@@ -420,13 +421,18 @@ fn benches(c: &mut Criterion) {
     g.finish();
 }
 
-/// The `reflection` group: the first-bounce reflection rays of a [`REFLECTION_SIZE`]² G-buffer
-/// of the shared dining room (else the built-in `cornell-mirrors`), traced to their closest
-/// hits by `dual_lbvh_inline` (the `dual_inline` preset's stages, the hierarchy built once,
-/// outside the timing) and by the whole-scene `bvh` (the CWBVH), side by side. Wide cones:
-/// most of the dining room's lowest nodes descend to single rays.
+/// The `reflection` group: first-bounce reflection rays of a [`REFLECTION_SIZE`]² G-buffer,
+/// traced to their closest hits by a ray-hierarchy preset with inline final tests (hashed,
+/// sorted and built into a hierarchy once, outside the timing) and by the whole-scene `bvh`
+/// (the CWBVH), side by side, on two batches:
+/// - the shared dining room (else the built-in `cornell-mirrors`) with the `dual_inline`
+///   preset, id `dual_lbvh_inline`: wide cones, most of the dining room's lowest nodes descend
+///   to single rays;
+/// - the shared cornell-mirror with the `dual_screen_bvh` preset, id `dual_screen_bvh`
+///   (skipped with a printed reason when the shared scenes are absent): coherent rays off
+///   flat mirrors, where the ray side's segment boxes and the node pairs are the cost.
 fn reflection_benches(c: &mut Criterion) {
-    let (tag, scene) = match shared_scene("dining-room/dining-room.toml") {
+    let wide = match shared_scene("dining-room/dining-room.toml") {
         Some(path) => {
             let scene = crsh_scene::load_path(&path)
                 .unwrap_or_else(|e| panic!("loading {}: {e}", path.display()));
@@ -443,6 +449,29 @@ fn reflection_benches(c: &mut Criterion) {
             )
         }
     };
+    reflection_batch(c, wide, "dual_inline", "dual_lbvh_inline");
+    match shared_scene("cornell/cornell-mirror.toml") {
+        Some(path) => {
+            let scene = crsh_scene::load_path(&path)
+                .unwrap_or_else(|e| panic!("loading {}: {e}", path.display()));
+            reflection_batch(
+                c,
+                ("cornell-mirror", scene),
+                "dual_screen_bvh",
+                "dual_screen_bvh",
+            );
+        }
+        None => eprintln!(
+            "reflection bench: the cornell-mirror batch is skipped (cornell/cornell-mirror.toml \
+             not found under CRSH_SCENES or ../shared/scenes)"
+        ),
+    }
+}
+
+/// One batch of the `reflection` group: `scene`'s (named `tag`) first-bounce reflection rays
+/// traced by preset `preset` (inline final tests; benchmark id `reflection/{id}/{tag}`) and by
+/// the whole-scene `bvh` (`reflection/bvh/{tag}`).
+fn reflection_batch(c: &mut Criterion, (tag, scene): (&str, Scene), preset: &str, id: &str) {
     let scene = Arc::new(scene);
     let ctx = StageContext::new(
         &Cpu,
@@ -451,11 +480,11 @@ fn reflection_benches(c: &mut Criterion) {
     );
     let registry = Registry::<Cpu>::builtin();
     let cfg = registry
-        .preset("dual_inline")
-        .expect("the dual_inline preset exists");
+        .preset(preset)
+        .unwrap_or_else(|| panic!("the {preset} preset exists"));
     let st = registry
         .build(&ctx, &cfg)
-        .expect("building dual_inline")
+        .unwrap_or_else(|e| panic!("building {preset}: {e}"))
         .stages;
     let kind = RayKind::Reflection;
     let mut stats = Stats::default();
@@ -467,7 +496,7 @@ fn reflection_benches(c: &mut Criterion) {
     let (_, hierarchy) = hierarchy_of(&st, &rays, kind, &mut stats);
     eprintln!(
         "reflection bench batch: {tag}, {} triangles, {REFLECTION_SIZE}x{REFLECTION_SIZE} \
-         G-buffer, {} reflection rays",
+         G-buffer, {} reflection rays, {preset}",
         scene.triangle_count(),
         rays.len()
     );
@@ -481,7 +510,7 @@ fn reflection_benches(c: &mut Criterion) {
     let mut g = c.benchmark_group("reflection");
     g.throughput(Throughput::Elements(rays.len() as u64));
     g.sample_size(10);
-    g.bench_function(format!("dual_lbvh_inline/{tag}"), |bench| {
+    g.bench_function(format!("{id}/{tag}"), |bench| {
         bench.iter(|| {
             let mut hits = vec![Hit::MISS; rays.len()];
             traverser
