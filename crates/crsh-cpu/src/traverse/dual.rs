@@ -137,9 +137,9 @@
 //!   (their end points joined and padded once, which contains the union of their padded
 //!   boxes), a higher node's the union of its children's; they are computed per traversal,
 //!   O(rays), from the rays' segments gathered once in leaf order (which the single-ray tests
-//!   read too). The `f32` boxes replaced `f64` extents rounded outwards, which cost a fifth
-//!   of the inline traversal of cornell-mirror's 113,043 reflection rays (5.5 → 4.3 ms, two
-//!   threads).
+//!   read too). The `f32` boxes replaced `f64` extents rounded outwards, which were a
+//!   third of a profile of the inline traversal of cornell-mirror's reflection rays (README,
+//!   "Segment boxes in `f32`", for the frame times before and after).
 //! - A pair passes when the boxes overlap (touching counts). The pair test (boxes, then
 //!   cone and sphere) counts **once** in the counters below, as one node test of a BVH does.
 //!
