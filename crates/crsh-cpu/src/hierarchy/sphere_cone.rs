@@ -864,6 +864,12 @@ fn store_sphere(center: DVec3, children: impl Iterator<Item = (DVec3, f64)>) -> 
     let stored = center.as_vec3();
     let c = stored.as_dvec3();
     let measured = children.fold(0.0f64, |m, (p, r)| m.max(c.distance(p) + r));
+    margined_sphere(stored, measured)
+}
+
+/// The sphere stored around `stored` for a measured radius `measured`: enlarged by the margin
+/// and rounded up to `f32`.
+fn margined_sphere(stored: Vec3, measured: f64) -> Sphere {
     Sphere::new(stored, f32_up(measured * (1.0 + SPHERE_REL_MARGIN)))
 }
 
@@ -1037,7 +1043,7 @@ fn leaf_node(
                     let d = stored.distance(o.as_dvec3());
                     (m.max(d), f.max(d + len))
                 });
-        let sphere = Sphere::new(c, f32_up(measured * (1.0 + SPHERE_REL_MARGIN)));
+        let sphere = margined_sphere(c, measured);
         (sphere, far)
     };
     let node = SphereCone {

@@ -3484,28 +3484,20 @@ pub(crate) mod tests {
             min: Vec3::new(1.0e4, -3.0e4, 5.0e3),
             max: Vec3::new(2.0e4, -1.0e4, 4.0e4),
         };
-        let mut x = 0x9e37_79b9_7f4a_7c15u64;
-        let mut unit = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = TestRng(0x9e37_79b9);
         let inside =
             |p: DVec3, b: &Aabb| p.cmpge(b.min.as_dvec3()).all() && p.cmple(b.max.as_dvec3()).all();
         let (mut points, mut tight) = (0, 0);
         let mut rays = Vec::new();
         for i in 0..4000 {
-            let o = bounds.min.as_dvec3()
-                + (bounds.max - bounds.min).as_dvec3()
-                    * DVec3::new(unit() * 1.2 - 0.1, unit() * 1.2 - 0.1, unit() * 1.2 - 0.1);
-            let d = DVec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5).normalize();
+            // Origins in the box and a tenth of its size around it.
+            let o = bounds.min + (bounds.max - bounds.min) * rng.vec3(-0.1, 1.1);
             let t_max = if i % 2 == 0 {
                 f32::INFINITY
             } else {
-                (unit() * 3e4) as f32
+                rng.range(0.0, 3e4)
             };
-            rays.push(test_ray(o.as_vec3(), d.as_vec3(), 0.0, t_max, 0));
+            rays.push(test_ray(o, rng.unit(), 0.0, t_max, 0));
         }
         for r in &rays {
             let seg = Segment::of(r);
