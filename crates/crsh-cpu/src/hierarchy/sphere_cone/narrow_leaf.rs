@@ -74,23 +74,27 @@ fn lanes(column: &[f32], group: usize) -> Vec4 {
 }
 
 impl Columns {
-    /// The rays `leaves` gathered (and padded); `false` when one of them is not for this path.
-    fn gather(&mut self, rays: &[Ray], leaves: &[u32]) -> bool {
-        let n = leaves.len();
-        let padded = n.div_ceil(W) * W;
-        for column in [
+    /// The columns read from the rays (the padding repeats the first ray).
+    fn ray_columns(&mut self) -> [&mut Vec<f32>; 7] {
+        [
             &mut self.ox,
             &mut self.oy,
             &mut self.oz,
             &mut self.dx,
             &mut self.dy,
             &mut self.dz,
-            &mut self.ux,
-            &mut self.uy,
-            &mut self.uz,
             &mut self.t_max,
-            &mut self.value,
-        ] {
+        ]
+    }
+
+    /// The rays `leaves` gathered (and padded); `false` when one of them is not for this path.
+    fn gather(&mut self, rays: &[Ray], leaves: &[u32]) -> bool {
+        let n = leaves.len();
+        let padded = n.div_ceil(W) * W;
+        for column in self.ray_columns() {
+            column.resize(padded, 0.0);
+        }
+        for column in [&mut self.ux, &mut self.uy, &mut self.uz, &mut self.value] {
             column.resize(padded, 0.0);
         }
         self.origins.clear();
@@ -109,18 +113,9 @@ impl Columns {
             self.t_max[k] = r.t_max;
             self.origins.push(r.origin);
         }
-        for k in n..padded {
-            for column in [
-                &mut self.ox,
-                &mut self.oy,
-                &mut self.oz,
-                &mut self.dx,
-                &mut self.dy,
-                &mut self.dz,
-                &mut self.t_max,
-            ] {
-                column[k] = column[0];
-            }
+        for column in self.ray_columns() {
+            let first = column[0];
+            column[n..].fill(first);
         }
         for g in 0..padded / W {
             let (x, y, z) = (lanes(&self.dx, g), lanes(&self.dy, g), lanes(&self.dz, g));
