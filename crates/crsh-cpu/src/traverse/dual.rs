@@ -277,7 +277,12 @@
 //!
 //! As [`super::crsh`]: [`CoreError::InvalidParam`] for a budget that is not a finite positive
 //! number or an unknown `objects`; [`CoreError::InvalidInput`] for an inconsistent hierarchy
-//! ([`super::crsh::prepare_nodes`]) or a scene with 2³¹ triangles or more.
+//! ([`super::crsh::prepare_nodes`]) or a scene with 2³¹ triangles or more. With inline final
+//! tests, also for an `order` that is not a permutation of the batch, hits of another length,
+//! or a ray that is not [`Ray::is_valid`] (named as the intersector names it: the batch's
+//! first); the tasks check the rays as they gather them, rather than a pass over the whole
+//! batch before the traversal (a task that meets an invalid ray stops, and the batch is
+//! an error).
 
 use std::sync::Arc;
 
@@ -1806,6 +1811,9 @@ struct Inline<'a, T: TriangleTest> {
     per_node: usize,
     tests: u64,
     found: u64,
+    /// Whether every ray of the task is [`Ray::is_valid`] (a task with an invalid ray does not
+    /// run: the batch is an error).
+    valid: bool,
 }
 
 /// The smallest `f32` above `t` (finite `t`): a closest-hit ray's interval is open, and a later
@@ -1898,6 +1906,9 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
                 Segment::of(&ctx.rays[r as usize])
             })
             .collect();
+        // The batch's rays are checked here, where the task reads them anyway (a pass over the
+        // whole batch before the traversal read every ray once more).
+        let valid = segments.iter().all(Segment::is_valid);
         let inverse: Vec<Vec3A> = segments.iter().map(|s| inverse_f32(s.dir)).collect();
         let mut boxes: Vec<(u32, Vec<Aabb>)> = Vec::with_capacity(top_level + 1);
         let lowest_boxes = (first_low..last_low)
@@ -1949,6 +1960,7 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
             per_node: widest.div_ceil(LANES),
             tests: 0,
             found: 0,
+            valid,
         }
     }
 
@@ -2510,7 +2522,8 @@ impl Dual {
             check_batch(rays, hits)?;
             return Ok(Some(report));
         };
-        check_batch(rays, hits)?;
+        // The rays themselves are checked by the tasks that read them.
+        crsh_core::ray::check_hits_per_ray("rays", rays.len(), hits.len())?;
         check_permutation(&hierarchy.order, rays.len())?;
         let ctx = Ctx {
             n_rays: rays.len(),
@@ -2527,12 +2540,14 @@ impl Dual {
         let level = task_level(&nodes);
         let (tests, found, counts) = match tris {
             AnyTriangleSet::MollerTrumbore(s) => {
-                trace_tasks(&ctx, s, mode, (root, level), widest, hits)
+                trace_tasks(&ctx, s, mode, (root, level), widest, hits)?
             }
             AnyTriangleSet::Watertight(s) => {
-                trace_tasks(&ctx, s, mode, (root, level), widest, hits)
+                trace_tasks(&ctx, s, mode, (root, level), widest, hits)?
             }
-            AnyTriangleSet::Projected(s) => trace_tasks(&ctx, s, mode, (root, level), widest, hits),
+            AnyTriangleSet::Projected(s) => {
+                trace_tasks(&ctx, s, mode, (root, level), widest, hits)?
+            }
         };
         counts.record(kind, stats);
         stats.add_level(kind, 0, tests, found);
@@ -2570,7 +2585,7 @@ fn trace_tasks<'a, T: TriangleTest>(
     (root, top_level): (u32, usize),
     widest: usize,
     hits: &mut [Hit],
-) -> (u64, u64, Counters) {
+) -> Result<(u64, u64, Counters)> {
     let order = ctx.hierarchy.order.as_slice();
     let n_top = ctx.nodes[top_level].len();
     let mut counts = Counters::new(ctx.nodes.len(), ctx.tree.max_depth + 1);
@@ -2593,6 +2608,9 @@ fn trace_tasks<'a, T: TriangleTest>(
                     widest,
                     current,
                 );
+                if !state.valid {
+                    return (usize::MAX, Vec::new(), 0, 0, Counters::new(0, 0));
+                }
                 let mut task = Task {
                     stack: vec![Pair {
                         node: top as u32,
@@ -2606,6 +2624,13 @@ fn trace_tasks<'a, T: TriangleTest>(
                 (state.first_leaf, state.hits, state.tests, state.found, c)
             })
             .collect();
+        if round.iter().any(|r| r.0 == usize::MAX) {
+            // The error that names the batch's first invalid ray.
+            check_batch(ctx.rays, hits)?;
+            return Err(CoreError::InvalidInput(
+                "dual: a ray of the batch is not valid".into(),
+            ));
+        }
         for (first_leaf, task_hits, t, f, c) in round {
             for (leaf, h) in order[first_leaf..].iter().zip(task_hits) {
                 hits[*leaf as usize] = h;
@@ -2615,7 +2640,7 @@ fn trace_tasks<'a, T: TriangleTest>(
             counts.add(&c);
         }
     }
-    (tests, found, counts)
+    Ok((tests, found, counts))
 }
 
 impl Traverser<Cpu> for Dual {
@@ -4278,6 +4303,18 @@ pub(crate) mod tests {
         bad[17].dir = Vec3::ZERO;
         let err = inline_result(&trav, &bad, &h, HitMode::Any, &tris, n).unwrap_err();
         assert!(err.to_string().contains("ray 17"), "{err}");
+        // The tasks check the rays they read; the error names the batch's first invalid ray,
+        // whichever task met one.
+        let mut bad = rays.clone();
+        bad[120].t_min = f32::NAN;
+        bad[40].origin.y = f32::INFINITY;
+        let shuffled_h = build(&rays, shuffled(n, 9), 8, 2);
+        for h in [&h, &shuffled_h] {
+            for mode in [HitMode::Any, HitMode::Closest] {
+                let err = inline_result(&trav, &bad, h, mode, &tris, n).unwrap_err();
+                assert!(err.to_string().contains("ray 40 "), "{err}");
+            }
+        }
         // An order that is not a permutation of the rays is an error, not a panic.
         let mut dup: Vec<u32> = (0..n as u32).collect();
         dup[5] = dup[6];
