@@ -1838,7 +1838,7 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
         mode: HitMode,
         (top_level, top): (usize, usize),
         widest: usize,
-        hits: Option<&[Hit]>,
+        hits: Option<&TaskHits<'_>>,
     ) -> Inline<'a, T> {
         let h = ctx.hierarchy;
         let order = h.order.as_slice();
@@ -1863,7 +1863,9 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
         let mine: Vec<Hit> = match hits {
             Some(hits) => order[first_leaf..last_leaf]
                 .iter()
-                .map(|&r| hits[r as usize])
+                // SAFETY: this task's rays (the leaves of its node under a checked
+                // permutation) are no other task's.
+                .map(|&r| unsafe { hits.get(r as usize) })
                 .collect(),
             None => vec![Hit::MISS; last_leaf - first_leaf],
         };
@@ -2574,10 +2576,60 @@ fn task_level<N>(levels: &[Vec<N>]) -> usize {
         .unwrap_or(0)
 }
 
+/// The batch's hits while the inline tasks run: each task reads the hits given for its own rays
+/// and writes their results, `hits[order[leaf]]` for the leaves of its node, in parallel. Sound
+/// because `order` is a permutation of the batch (checked before any task runs) and tasks own
+/// disjoint runs of leaves, so no entry is touched by two tasks; each access is bounds-checked.
+/// (The tasks used to hand their hits back for the caller to scatter after each round, on one
+/// thread while the others waited.)
+struct TaskHits<'h> {
+    ptr: *mut Hit,
+    len: usize,
+    _hits: std::marker::PhantomData<&'h mut [Hit]>,
+}
+
+// SAFETY: the entries are plain data, and the callers of `get` and `set` keep each entry to one
+// thread (see the type's doc).
+unsafe impl Send for TaskHits<'_> {}
+// SAFETY: as for `Send`.
+unsafe impl Sync for TaskHits<'_> {}
+
+impl<'h> TaskHits<'h> {
+    fn new(hits: &'h mut [Hit]) -> TaskHits<'h> {
+        TaskHits {
+            ptr: hits.as_mut_ptr(),
+            len: hits.len(),
+            _hits: std::marker::PhantomData,
+        }
+    }
+
+    /// Entry `i`.
+    ///
+    /// # Safety
+    /// No other thread accesses entry `i` at the same time.
+    unsafe fn get(&self, i: usize) -> Hit {
+        assert!(i < self.len, "hit {i} of {}", self.len);
+        // SAFETY: in bounds (checked), and the caller keeps the entry to this thread.
+        unsafe { self.ptr.add(i).read() }
+    }
+
+    /// Sets entry `i` to `hit`.
+    ///
+    /// # Safety
+    /// No other thread accesses entry `i` at the same time.
+    unsafe fn set(&self, i: usize, hit: Hit) {
+        assert!(i < self.len, "hit {i} of {}", self.len);
+        // SAFETY: in bounds (checked), and the caller keeps the entry to this thread.
+        unsafe { self.ptr.add(i).write(hit) }
+    }
+}
+
 /// Every task's traversal (from the object root `root` and the nodes of ray level `top_level`,
 /// the [`task_level`]) with inline final tests of test `T` ([`Inline`]), in rounds of
-/// [`ROUND_TASKS`] tasks run in parallel; each task's hits are merged into `hits`
-/// after its round. Returns the ray-triangle tests, the hits they found and the pair counters.
+/// [`ROUND_TASKS`] tasks run in parallel; each task writes its rays' hits into `hits` itself
+/// ([`TaskHits`]). `hits` must have one entry per ray and `order` be a permutation of them
+/// (the caller checks both). Returns the ray-triangle tests, the hits they found and the pair
+/// counters.
 fn trace_tasks<'a, T: TriangleTest>(
     ctx: &Ctx<'a>,
     set: &'a TriangleSet<T>,
@@ -2592,11 +2644,13 @@ fn trace_tasks<'a, T: TriangleTest>(
     let (mut tests, mut found) = (0u64, 0u64);
     let miss = bytemuck::bytes_of(&Hit::MISS);
     let fresh = crate::position_first(hits, |h| bytemuck::bytes_of(h) != miss).is_none();
+    assert_eq!(order.len(), hits.len(), "one hit per leaf");
+    let out = TaskHits::new(hits);
     for first in (0..n_top).step_by(ROUND_TASKS) {
         // After a round some rays have hits, but the next round's rays are others: a fresh
         // batch stays one for them.
-        let current: Option<&[Hit]> = (!fresh).then_some(&*hits);
-        let round: Vec<(usize, Vec<Hit>, u64, u64, Counters)> = (first
+        let current = (!fresh).then_some(&out);
+        let round: Vec<(bool, u64, u64, Counters)> = (first
             ..(first + ROUND_TASKS).min(n_top))
             .into_par_iter()
             .map(|top| {
@@ -2609,7 +2663,7 @@ fn trace_tasks<'a, T: TriangleTest>(
                     current,
                 );
                 if !state.valid {
-                    return (usize::MAX, Vec::new(), 0, 0, Counters::new(0, 0));
+                    return (false, 0, 0, Counters::new(0, 0));
                 }
                 let mut task = Task {
                     stack: vec![Pair {
@@ -2621,20 +2675,21 @@ fn trace_tasks<'a, T: TriangleTest>(
                     }],
                 };
                 let c = task.run(ctx, &mut state);
-                (state.first_leaf, state.hits, state.tests, state.found, c)
+                for (leaf, h) in order[state.first_leaf..].iter().zip(&state.hits) {
+                    // SAFETY: as for the gather in `Inline::new`: this task's rays only.
+                    unsafe { out.set(*leaf as usize, *h) };
+                }
+                (true, state.tests, state.found, c)
             })
             .collect();
-        if round.iter().any(|r| r.0 == usize::MAX) {
+        if round.iter().any(|r| !r.0) {
             // The error that names the batch's first invalid ray.
             check_batch(ctx.rays, hits)?;
             return Err(CoreError::InvalidInput(
                 "dual: a ray of the batch is not valid".into(),
             ));
         }
-        for (first_leaf, task_hits, t, f, c) in round {
-            for (leaf, h) in order[first_leaf..].iter().zip(task_hits) {
-                hits[*leaf as usize] = h;
-            }
+        for (_, t, f, c) in round {
             tests += t;
             found += f;
             counts.add(&c);
