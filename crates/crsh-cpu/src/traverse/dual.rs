@@ -2650,8 +2650,7 @@ fn trace_tasks<'a, T: TriangleTest>(
         // After a round some rays have hits, but the next round's rays are others: a fresh
         // batch stays one for them.
         let current = (!fresh).then_some(&out);
-        let round: Vec<(bool, u64, u64, Counters)> = (first
-            ..(first + ROUND_TASKS).min(n_top))
+        let round: Vec<(bool, u64, u64, Counters)> = (first..(first + ROUND_TASKS).min(n_top))
             .into_par_iter()
             .map(|top| {
                 let mut state = Inline::<T>::new(
