@@ -196,7 +196,8 @@
 //! segments through `order` itself and boxes its ray nodes from them (the same boxes as the
 //! batched mode's), so no batch-wide array of segments is made (on Sponza's 1.24M shadow rays,
 //! 40 MB written and faulted in before the traversal). They need no synchronization; up to 256
-//! of them run in parallel, and their hits are written back after each round. No candidate
+//! of them run in parallel, and each writes its own rays' hits into the batch's (a task's rays
+//! are no other task's: `order` is a checked permutation). No candidate
 //! arrays exist, so `candidate_budget_mb` does not apply; memory is O(rays) for the hits plus
 //! the round's tasks' segments, boxes and packets. The pair counters are the batched mode's
 //! rows; the final tests are the level-0 row and [`Stats::add_ray_triangle`], inside the
