@@ -653,11 +653,19 @@ impl SegmentSpan {
         if !ray.is_valid() {
             return false;
         }
+        self.add_valid(ray, inv, bounds);
+        true
+    }
+
+    /// [`Self::add`] for a ray known to be [`Ray::is_valid`] (the inline tasks check their rays
+    /// once, as they gather them).
+    #[inline]
+    fn add_valid(&mut self, ray: &Segment, inv: Vec3A, bounds: &Aabb) {
         let (t0, t1) = if ray.t_min.is_finite() && ray.t_max.is_finite() {
             // A bounded segment (shadow rays): its end points, no clipping (no divisions).
             (ray.t_min, ray.t_max)
         } else if bounds.is_empty() {
-            return true;
+            return;
         } else {
             slab_interval(ray, inv, bounds)
         };
@@ -669,7 +677,6 @@ impl SegmentSpan {
             self.hi = self.hi.max(p0.max(p1));
             self.mag = self.mag.max(o.abs() + d.abs() * t0.abs().max(t1.abs()));
         }
-        true
     }
 
     /// The box, each side padded by `4ε·mag + 2e-9·max(1, |corner|∞)` (`ε` = `f32::EPSILON`
@@ -706,6 +713,15 @@ fn segment_union_box(rays: impl Iterator<Item = (Segment, Vec3A)>, bounds: &Aabb
         if !span.add(&ray, inv, bounds) {
             return EVERYWHERE;
         }
+    }
+    span.padded()
+}
+
+/// [`segment_union_box`] of rays known to be [`Ray::is_valid`].
+fn valid_segment_union_box(rays: impl Iterator<Item = (Segment, Vec3A)>, bounds: &Aabb) -> Aabb {
+    let mut span = SegmentSpan::EMPTY;
+    for (ray, inv) in rays {
+        span.add_valid(&ray, inv, bounds);
     }
     span.padded()
 }
@@ -1922,7 +1938,11 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
                     .iter()
                     .copied()
                     .zip(inverse[at].iter().copied());
-                segment_union_box(mine, &ctx.bounds)
+                if valid {
+                    valid_segment_union_box(mine, &ctx.bounds)
+                } else {
+                    segment_union_box(mine, &ctx.bounds)
+                }
             })
             .collect();
         boxes.push((first_low as u32, lowest_boxes));
@@ -3630,6 +3650,10 @@ pub(crate) mod tests {
     fn assert_node_boxes_hold_ray_boxes(rays: &[Ray], bounds: &Aabb, node: usize) {
         for group in rays.chunks(node) {
             let b = segment_union_box(with_inverse(group), bounds);
+            // The inline tasks' union of rays they checked is the same box.
+            if group.iter().all(Ray::is_valid) {
+                assert_eq!(valid_segment_union_box(with_inverse(group), bounds), b);
+            }
             for r in group {
                 let one = segment_box(r, bounds);
                 if !one.is_empty() {
