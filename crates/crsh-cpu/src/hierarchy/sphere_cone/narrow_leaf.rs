@@ -26,9 +26,7 @@
 //! run eq. 3.8-3.11. Spheres and reaches are measured in `f64` from the same gathered columns,
 //! with the same formulas as the exact construction.
 
-use std::f64::consts::PI;
-
-use crsh_core::{Cone, Ray, SphereCone};
+use crsh_core::{Ray, SphereCone};
 use glam::{DVec3, Vec3, Vec4};
 
 use super::{angle, margined_cone, margined_sphere, LeafSphere, WIDE_LEAF_COS};
@@ -63,7 +61,7 @@ pub(super) struct Columns {
     t_max: Vec<f32>,
     /// Per-ray scratch values of one pass (dot products or squared chords).
     value: Vec<f32>,
-    /// The origins as vectors, for Welzl's algorithm.
+    /// The origins as vectors, filled only for Welzl's algorithm.
     origins: Vec<Vec3>,
 }
 
@@ -97,7 +95,6 @@ impl Columns {
         for column in [&mut self.ux, &mut self.uy, &mut self.uz, &mut self.value] {
             column.resize(padded, 0.0);
         }
-        self.origins.clear();
         for (k, &i) in leaves.iter().enumerate() {
             let r = &rays[i as usize];
             // In range implies a finite, non-zero direction (NaN fails the test).
@@ -111,7 +108,6 @@ impl Columns {
             self.dy[k] = r.dir.y;
             self.dz[k] = r.dir.z;
             self.t_max[k] = r.t_max;
-            self.origins.push(r.origin);
         }
         for column in self.ray_columns() {
             let first = column[0];
@@ -129,6 +125,20 @@ impl Columns {
 
     fn groups(&self) -> usize {
         self.ux.len() / W
+    }
+
+    /// The origin of ray `k`.
+    fn origin(&self, k: usize) -> Vec3 {
+        Vec3::new(self.ox[k], self.oy[k], self.oz[k])
+    }
+
+    /// The minimal sphere's centre of the `n` origins (Welzl's algorithm).
+    fn welzl_centre(&mut self, n: usize) -> Vec3 {
+        let (x, y, z) = (&self.ox[..n], &self.oy[..n], &self.oz[..n]);
+        self.origins.clear();
+        self.origins
+            .extend((0..n).map(|k| Vec3::new(x[k], y[k], z[k])));
+        crsh_scene::bounding::min_sphere(&self.origins).center
     }
 
     /// The unit direction of ray `k`.
@@ -294,18 +304,17 @@ pub(super) fn narrow_leaf(
         return None;
     }
     let stored = axis.normalize();
-    let measured = columns.widest_angle(stored, n);
-    let cone: Cone = margined_cone(stored, measured.min(PI));
+    let cone = margined_cone(stored, columns.widest_angle(stored, n));
     let (sphere, far) = if columns.one_point() {
-        (margined_sphere(columns.origins[0], 0.0), columns.longest(n))
+        (margined_sphere(columns.origin(0), 0.0), columns.longest(n))
     } else {
         let c = match centre {
-            LeafSphere::Welzl => crsh_scene::bounding::min_sphere(&columns.origins).center,
+            LeafSphere::Welzl => columns.welzl_centre(n),
             LeafSphere::BoxCentre => columns.box_centre(),
         };
         let stored = c.as_dvec3();
         let (measured, far) = (0..n).fold((0.0f64, 0.0f64), |(m, f), k| {
-            let d = stored.distance(columns.origins[k].as_dvec3());
+            let d = stored.distance(columns.origin(k).as_dvec3());
             (m.max(d), f.max(d + columns.length(k)))
         });
         (margined_sphere(c, measured), far)
