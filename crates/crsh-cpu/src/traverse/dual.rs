@@ -1930,31 +1930,30 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
         let valid = segments.iter().all(Segment::is_valid);
         let inverse: Vec<Vec3A> = segments.iter().map(|s| inverse_f32(s.dir)).collect();
         let mut boxes: Vec<(u32, Vec<Aabb>)> = Vec::with_capacity(top_level + 1);
-        let lowest_boxes = (first_low..last_low)
-            .map(|n| {
-                let leaves = leaves_of(n);
-                let at = leaves.start - first_leaf..leaves.end - first_leaf;
-                let mine = segments[at.clone()]
-                    .iter()
-                    .copied()
-                    .zip(inverse[at].iter().copied());
-                if valid {
+        // A task with an invalid ray does not run (the batch is an error): no boxes for it.
+        if valid {
+            let lowest_boxes = (first_low..last_low)
+                .map(|n| {
+                    let leaves = leaves_of(n);
+                    let at = leaves.start - first_leaf..leaves.end - first_leaf;
+                    let mine = segments[at.clone()]
+                        .iter()
+                        .copied()
+                        .zip(inverse[at].iter().copied());
                     valid_segment_union_box(mine, &ctx.bounds)
-                } else {
-                    segment_union_box(mine, &ctx.bounds)
-                }
-            })
-            .collect();
-        boxes.push((first_low as u32, lowest_boxes));
-        for l in 1..=top_level {
-            let (below_first, below) = &boxes[l - 1];
-            let below_len = ctx.nodes[l - 1].len();
-            let nodes = nodes_at(l);
-            let first = nodes.start as u32;
-            let level = nodes
-                .map(|n| children_box(below, *below_first as usize, below_len, n, sub))
+                })
                 .collect();
-            boxes.push((first, level));
+            boxes.push((first_low as u32, lowest_boxes));
+            for l in 1..=top_level {
+                let (below_first, below) = &boxes[l - 1];
+                let below_len = ctx.nodes[l - 1].len();
+                let nodes = nodes_at(l);
+                let first = nodes.start as u32;
+                let level = nodes
+                    .map(|n| children_box(below, *below_first as usize, below_len, n, sub))
+                    .collect();
+                boxes.push((first, level));
+            }
         }
         if closest {
             for (seg, hit) in segments.iter_mut().zip(&mine) {
