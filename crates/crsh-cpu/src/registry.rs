@@ -172,8 +172,9 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
 }
 
 /// The `dual_screen_bvh` preset's pipeline: [`dual_screen_pipeline`] with `traverse.objects =
-/// bvh`, `hierarchy.leaf_sphere = box` and `hierarchy.subdivision = 32` (README, "Object side
-/// on obvhs's BVH" and "Lowest nodes of 32 rays"). The LBVH is the cheaper rebuild for moving
+/// bvh`, `traverse.wide_cone = 60`, `hierarchy.leaf_sphere = box` and `hierarchy.subdivision =
+/// 32` (README, "Object side on obvhs's BVH", "Lowest nodes of 32 rays" and "Wide ray nodes
+/// through an 8-wide BVH"). The LBVH is the cheaper rebuild for moving
 /// geometry; over a BVH built once this is the fastest ray-hierarchy pipeline measured for
 /// issue 17 on the CPU.
 fn dual_screen_bvh_pipeline() -> PipelineConfig {
@@ -181,6 +182,7 @@ fn dual_screen_bvh_pipeline() -> PipelineConfig {
     if let Some(t) = cfg.traverse.as_mut() {
         t.params
             .insert("objects".into(), ParamValue::Str("bvh".into()));
+        t.params.insert("wide_cone".into(), ParamValue::Float(60.0));
     }
     if let Some(h) = cfg.hierarchy.as_mut() {
         h.params
@@ -383,14 +385,17 @@ mod tests {
         screen.hash = inline.hash.clone();
         screen.name = inline.name.clone();
         assert_eq!(screen, inline);
-        // `dual_screen_bvh` is `dual_screen` over obvhs's BVH, with box-centred lowest spheres
-        // and lowest nodes of 32 rays.
+        // `dual_screen_bvh` is `dual_screen` over obvhs's BVH, with wide lowest nodes traced
+        // through its 8-wide form, box-centred lowest spheres and lowest nodes of 32 rays.
         let screen = registry.preset("dual_screen").unwrap();
         let mut over_bvh = registry.preset("dual_screen_bvh").unwrap();
         let t = over_bvh.traverse.as_mut().unwrap();
         assert_eq!(t.str("objects").unwrap(), "bvh");
         t.params
             .insert("objects".into(), ParamValue::Str("lbvh".into()));
+        assert_eq!(t.f64("wide_cone").unwrap(), 60.0);
+        t.params
+            .insert("wide_cone".into(), ParamValue::Float(180.0));
         let h = over_bvh.hierarchy.as_mut().unwrap();
         assert_eq!(h.str("leaf_sphere").unwrap(), "box");
         h.params

@@ -569,58 +569,83 @@ impl LeafTracer for CwBvh {
         best: &mut Hit,
         _: &mut (),
     ) -> Counts {
-        let mut n = Counts::default();
-        // An empty interval (a ray whose origin offset passed its end, seed 001) ends
-        // without traversal: it can hit nothing.
-        if self.bvh.nodes.is_empty()
-            || (mode == HitMode::Any && best.is_hit())
-            || ray.t_min.partial_cmp(&ray.t_max) != Some(std::cmp::Ordering::Less)
-        {
-            return n;
-        }
-        let r = T::ray_of(ray);
-        let nr = NodeRay::new(ray.origin, ray.dir);
-        let t_lo = entry_bound(ray.t_min);
-        let mut t_hi = cull_distance(ray.t_max.min(best.t));
-        // The last primitive slot (relative to the node's primitive base) of each leaf child
-        // of the node visited last: the first one `traverse!` tests (highest bit first).
-        let mut leaf_tops = 0u32;
-        let bvh = &self.bvh;
-        let mut state = bvh.new_traversal(Vec3A::from(ray.dir));
-        let mut node: &CwBvhNode;
-        'trace: {
-            obvhs::traverse!(
-                bvh,
-                node,
-                state,
-                {
-                    n.inner += 1;
-                    n.bounds += node.child_meta.iter().filter(|&&m| m != 0).count() as u64;
-                    leaf_tops = leaf_top_bits(node);
-                    child_hits(node, &nr, state.oct_inv4, t_lo, t_hi)
-                },
-                {
-                    let slot = state.primitive_id as usize;
-                    n.prims += 1;
-                    n.leaves += u64::from(
-                        (leaf_tops >> (state.primitive_id - state.primitive_group.x)) & 1,
-                    );
-                    let id = self.leaves.ids[slot];
-                    if let Some(h) = T::hit(&leaf_tris[slot], &r, ray.t_min, ray.t_max, id) {
-                        if mode == HitMode::Any {
-                            *best = h;
-                            break 'trace;
-                        }
-                        if h.closer_than(best) {
-                            *best = h;
-                            t_hi = cull_distance(ray.t_max.min(best.t));
-                        }
+        let ids = &self.leaves.ids;
+        trace_cwbvh::<T>(
+            &self.bvh,
+            |slot| (&leaf_tris[slot], ids[slot]),
+            ray,
+            mode,
+            best,
+        )
+    }
+}
+
+/// Traces `ray` through the compressed tree `bvh` with test `T`, merging into `best` as
+/// [`LeafTracer::trace`] does (any hit: skipped when `best` is a hit, stops at the first hit;
+/// an empty interval visits nothing); `leaf(slot)` is the triangle of primitive slot `slot`,
+/// prepared for `T`, and its scene id. The node test is [`child_hits`], so the hits are brute
+/// force's (module doc, "Identical to brute force"). `bvh`'s own [`CwBvh::trace`] and
+/// `dual`'s wide ray nodes (which read the triangles by scene id) share it.
+#[inline]
+pub(crate) fn trace_cwbvh<'t, T: TriangleTest + 't>(
+    bvh: &obvhs::cwbvh::CwBvh,
+    leaf: impl Fn(usize) -> (&'t T::Tri, u32),
+    ray: &Ray,
+    mode: HitMode,
+    best: &mut Hit,
+) -> Counts {
+    let mut n = Counts::default();
+    // An empty interval (a ray whose origin offset passed its end, seed 001) ends
+    // without traversal: it can hit nothing.
+    if bvh.nodes.is_empty()
+        || (mode == HitMode::Any && best.is_hit())
+        || ray.t_min.partial_cmp(&ray.t_max) != Some(std::cmp::Ordering::Less)
+    {
+        return n;
+    }
+    let r = T::ray_of(ray);
+    let nr = NodeRay::new(ray.origin, ray.dir);
+    let t_lo = entry_bound(ray.t_min);
+    let mut t_hi = cull_distance(ray.t_max.min(best.t));
+    // The last primitive slot (relative to the node's primitive base) of each leaf child
+    // of the node visited last: the first one `traverse!` tests (highest bit first).
+    let mut leaf_tops = 0u32;
+    let mut state = bvh.new_traversal(Vec3A::from(ray.dir));
+    let mut node: &CwBvhNode;
+    'trace: {
+        obvhs::traverse!(
+            bvh,
+            node,
+            state,
+            {
+                n.inner += 1;
+                n.bounds += node.child_meta.iter().filter(|&&m| m != 0).count() as u64;
+                leaf_tops = leaf_top_bits(node);
+                let hit = child_hits(node, &nr, state.oct_inv4, t_lo, t_hi);
+                n.bounds_passed += u64::from(hit.count_ones());
+                hit
+            },
+            {
+                let slot = state.primitive_id as usize;
+                n.prims += 1;
+                n.leaves +=
+                    u64::from((leaf_tops >> (state.primitive_id - state.primitive_group.x)) & 1);
+                let (tri, id) = leaf(slot);
+                if let Some(h) = T::hit(tri, &r, ray.t_min, ray.t_max, id) {
+                    n.prims_hit += 1;
+                    if mode == HitMode::Any {
+                        *best = h;
+                        break 'trace;
+                    }
+                    if h.closer_than(best) {
+                        *best = h;
+                        t_hi = cull_distance(ray.t_max.min(best.t));
                     }
                 }
-            );
-        }
-        n
+            }
+        );
     }
+    n
 }
 
 /// Per-ray (or summed) traversal counts (module doc, "Counting").
@@ -634,6 +659,10 @@ pub(crate) struct Counts {
     pub inner: u64,
     /// Leaves whose primitives were tested.
     pub leaves: u64,
+    /// Child boxes the ray overlapped (of `bounds`).
+    pub bounds_passed: u64,
+    /// Leaf primitive tests that found a hit (of `prims`).
+    pub prims_hit: u64,
 }
 
 impl Counts {
@@ -645,6 +674,8 @@ impl Counts {
             prims: self.prims + o.prims,
             inner: self.inner + o.inner,
             leaves: self.leaves + o.leaves,
+            bounds_passed: self.bounds_passed + o.bounds_passed,
+            prims_hit: self.prims_hit + o.prims_hit,
         }
     }
 

@@ -117,6 +117,28 @@
 //! the object-depth rows and, on the ray side, in the lowest node level's row (level 1): the
 //! rows still sum to the bounds.
 //!
+//! # Wide ray nodes
+//!
+//! Single rays still descend a binary tree of one triangle per leaf, and at the pair levels
+//! above them a wide node's box and cone cull little: on the dining room's reflection rays
+//! (lowest-node cones of 63° on average) the pairs and single rays needed 512 tests per ray
+//! against the 8-wide CWBVH's 340. With parameter `wide_cone` below 180 (inline final tests
+//! only), a lowest node whose cone half-angle is at least that many degrees leaves the pair
+//! traversal: its rays are traced one by one, before the task's pairs, through obvhs's
+//! compressed 8-wide BVH (the `bvh` intersector's traversal and node test, so the hits are
+//! brute force's: [`crate::intersect::bvh`], "Identical to brute force"; closest-hit rays merge
+//! into the hits they bring, any-hit rays already hit are skipped), reading the triangles the
+//! inline tests read, by scene id. The node has no live rays for the pairs (in either query
+//! mode), an upper node with none left is not tested, and its segment box is empty, so the
+//! boxes above it are those of the narrow nodes alone. With `objects = bvh` the CWBVH is
+//! compressed from the very obvhs tree the object side was laid out from (one PLOC build);
+//! with `lbvh` or `grid` it is built for it (`fast` preset). Counting: the CWBVH's child-box
+//! tests (obvhs counts, [`crate::intersect::bvh`], "Counting") go to the bounds and the lowest
+//! ray level's row, its triangle tests to the ray-triangle tests and the level-0 row; they are
+//! not in the object-depth rows, which then sum to less than the bounds. [`DualReport`] counts
+//! the rays traced this way. The `dual_screen_bvh` preset sets 60° (README, "Wide ray nodes
+//! through an 8-wide BVH").
+//!
 //! # The box test
 //!
 //! Cones and spheres are loose around the shapes real scenes are made of: long thin
@@ -242,7 +264,8 @@
 //! - the object side's [`Stats::object_levels`], by the object node's depth (0 the root): the
 //!   tests against object nodes at that depth, and how many passed.
 //!
-//! Each side's rows sum to the bounds tests (there is no mesh culling with `lbvh`), and
+//! Each side's rows sum to the bounds tests (there is no mesh culling with `lbvh`; with
+//! `wide_cone` the object rows leave out the wide BVH's tests, see *Wide ray nodes*), and
 //! `tests = hits + misses` in every row.
 //!
 //! # Measured
@@ -299,9 +322,11 @@ use rayon::prelude::*;
 use super::crsh::{budget_bytes, prepare_nodes, Crsh, NodeBound, ABS_MARGIN, REL_MARGIN};
 use crate::backend::Cpu;
 use crate::intersect::brute::{check_batch, check_permutation, merge_repeats, BruteForce};
-use crate::intersect::bvh::{build_bvh2, obvhs_triangle, BuildQuality};
+use crate::intersect::bvh::{build_bvh2, obvhs_triangle, trace_cwbvh, BuildQuality, Counts};
 use crate::intersect::grid::{GridData, MAX_DENSITY, MIN_DENSITY};
 use crate::triangle::{AnyTriangleSet, TestKind, TriangleSet, TriangleTest, LANES};
+use obvhs::bvh2::Bvh2;
+use obvhs::cwbvh::bvh2_to_cwbvh::bvh2_to_cwbvh;
 use obvhs::triangle::Triangle;
 use std::sync::OnceLock;
 
@@ -362,6 +387,18 @@ pub fn info() -> StageVariantInfo {
          nodes' boxes below (incoherent rays: reflections off curved surfaces); false: \
          lowest nodes stay whole",
     ))
+    .param(
+        ParamInfo::float(
+            "wide_cone",
+            WIDE_CONE_OFF,
+            "with `final_tests = inline` and `objects = lbvh`, `bvh` or `grid`: a lowest ray \
+             node whose cone half-angle is at least this many degrees leaves the pair \
+             traversal, and its rays are traced one by one through an 8-wide BVH (obvhs \
+             CWBVH, compressed from the object side's own obvhs tree with `objects = bvh`, \
+             built for it otherwise); 180: never",
+        )
+        .range(0.0, WIDE_CONE_OFF),
+    )
     .param(ParamInfo::choice(
         "final_tests",
         "batched",
@@ -931,11 +968,13 @@ impl Lbvh {
         if n < 2 {
             return Lbvh::build(scene);
         }
-        let tris: Vec<Triangle> = (0..n)
-            .into_par_iter()
-            .map(|t| obvhs_triangle(scene.triangle(t)))
-            .collect();
-        let bvh = build_bvh2(&tris, &quality.params());
+        Lbvh::over_bvh2(scene, &scene_bvh2(scene, quality))
+    }
+
+    /// [`Lbvh::build_bvh2`] over `bvh`, obvhs's binary BVH over all of `scene`'s triangles
+    /// ([`scene_bvh2`]; at least 2 of them, fewer than 2³¹).
+    fn over_bvh2(scene: &Scene, bvh: &Bvh2) -> Result<Lbvh> {
+        let n = scene.triangle_count();
         /// A part of the obvhs tree still to convert: a node, or a run of a leaf's primitives.
         enum Part {
             Node(usize),
@@ -1415,6 +1454,8 @@ pub struct DualReport {
     pub peak_candidate_bytes: u64,
     /// Candidate pairs handed to the sink, over all batches.
     pub candidates: u64,
+    /// Rays of wide lowest nodes traced through the 8-wide BVH (parameter `wide_cone`).
+    pub wide_rays: u64,
 }
 
 /// The `dual` traverser (see the module doc).
@@ -1425,6 +1466,8 @@ pub struct Dual {
     /// test (by [`TestKind`] order: `mt`, `watertight`, `projected`) on first use when the
     /// intersector is not `brute` (whose prepared triangles are used otherwise).
     inline: Option<InlineSets>,
+    /// Parameter `wide_cone` below 180 (inline final tests only).
+    wide: Option<WideRays>,
 }
 
 /// The triangles an inline traversal tests when the pipeline's intersector does not share
@@ -1458,6 +1501,62 @@ impl InlineSets {
         self.sets[i].get_or_init(|| AnyTriangleSet::new(&self.scene, kind))
     }
 }
+
+/// obvhs's binary BVH (PLOC with reinsertion, preset `quality`) over all of `scene`'s
+/// triangles, in scene order (primitive `i` is triangle `i`).
+fn scene_bvh2(scene: &Scene, quality: BuildQuality) -> Bvh2 {
+    let tris: Vec<Triangle> = (0..scene.triangle_count())
+        .into_par_iter()
+        .map(|t| obvhs_triangle(scene.triangle(t)))
+        .collect();
+    build_bvh2(&tris, &quality.params())
+}
+
+/// Parameter `wide_cone` (see *Wide ray nodes* in the module doc): the compressed 8-wide BVH
+/// the rays of wide lowest nodes are traced through, and the half-angle from which a node is
+/// wide.
+#[derive(Clone, Debug)]
+struct WideRays {
+    /// obvhs's CWBVH over all of the scene's triangles: primitive slot `s` is triangle
+    /// `primitive_indices[s]`.
+    bvh: Arc<obvhs::cwbvh::CwBvh>,
+    /// The scene's triangle count (the prepared triangles must cover it).
+    triangles: usize,
+    /// The parameter, in degrees (below 180).
+    degrees: f64,
+}
+
+impl WideRays {
+    /// The CWBVH compressed from `bvh2` (obvhs's binary BVH over all of `scene`'s triangles,
+    /// [`scene_bvh2`]; `None`: built here, `fast` preset), leaves of up to 3 triangles as the
+    /// `bvh` intersector's.
+    fn new(scene: &Scene, bvh2: Option<&Bvh2>, degrees: f64) -> WideRays {
+        let n = scene.triangle_count();
+        let bvh = if n == 0 {
+            obvhs::cwbvh::CwBvh::default()
+        } else {
+            let leaf = BuildQuality::Fast.params().max_prims_per_leaf.clamp(1, 3);
+            match bvh2 {
+                Some(b) => bvh2_to_cwbvh(b, leaf, true, false),
+                None => bvh2_to_cwbvh(&scene_bvh2(scene, BuildQuality::Fast), leaf, true, false),
+            }
+        };
+        WideRays {
+            bvh: Arc::new(bvh),
+            triangles: n,
+            degrees,
+        }
+    }
+
+    /// Whether a lowest node of cone half-angle `half_angle` (radians) is wide.
+    #[inline]
+    fn is_wide(&self, half_angle: f32) -> bool {
+        f64::from(half_angle) >= self.degrees.to_radians()
+    }
+}
+
+/// Parameter `wide_cone`'s value that turns it off.
+pub const WIDE_CONE_OFF: f64 = 180.0;
 
 /// The choices of parameter `final_tests`.
 pub const FINAL_TESTS: [&str; 2] = ["batched", "inline"];
@@ -1576,6 +1675,8 @@ struct Ctx<'a> {
     nodes: &'a [Vec<RayNode>],
     sub: usize,
     tree: &'a Lbvh,
+    /// Parameter `wide_cone` (inline final tests only).
+    wide: Option<&'a WideRays>,
 }
 
 impl Task {
@@ -1808,8 +1909,10 @@ struct Inline<'a, T: TriangleTest> {
     /// Per ray level `l ≥ 1` (entry `l − 1`): the task's first node there, and per node the
     /// number of rays below it left to trace (any-hit only).
     alive: Vec<(u32, Vec<u32>)>,
-    /// Per lowest node of the task: its rays left to trace.
+    /// Per lowest node of the task: its rays left to trace (none for a wide node).
     live: Vec<u32>,
+    /// The task's wide lowest nodes (parameter `wide_cone`), traced by [`Inline::trace_wide`].
+    wide: Vec<u32>,
     /// Per leaf of the task: its best hit so far.
     hits: Vec<Hit>,
     /// The task's segments in leaf order, gathered by the task (closest-hit: their `t_max`
@@ -1886,8 +1989,21 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
                 .collect(),
             None => vec![Hit::MISS; last_leaf - first_leaf],
         };
+        let lowest_cones = &h.levels[0];
+        let is_wide = |n: usize| {
+            ctx.wide
+                .is_some_and(|w| w.is_wide(lowest_cones[n].cone.half_angle))
+        };
+        let wide: Vec<u32> = (first_low..last_low)
+            .filter(|&n| is_wide(n))
+            .map(|n| n as u32)
+            .collect();
         let live: Vec<u32> = (first_low..last_low)
             .map(|n| {
+                if is_wide(n) {
+                    // Traced through the wide BVH, not by the pairs.
+                    return 0;
+                }
                 let leaves = leaves_of(n);
                 let mut m = ((1u64 << leaves.len()) - 1) as u32;
                 if !closest {
@@ -1934,6 +2050,10 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
         if valid {
             let lowest_boxes = (first_low..last_low)
                 .map(|n| {
+                    if is_wide(n) {
+                        // No pair reaches it: its rays need not widen the boxes above it.
+                        return Aabb::EMPTY;
+                    }
                     let leaves = leaves_of(n);
                     let at = leaves.start - first_leaf..leaves.end - first_leaf;
                     let mine = segments[at.clone()]
@@ -1973,6 +2093,7 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
             first_leaf,
             alive,
             live,
+            wide,
             hits: mine,
             segments,
             inverse,
@@ -1998,6 +2119,34 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
         let s = self.seg(leaf);
         Ray::new(RayKind::Shadow, s.origin, s.dir, s.t_min, s.t_max)
     }
+
+    /// Traces the rays of the task's wide lowest nodes one by one through `wide`'s BVH with
+    /// test `T` (query `mode`), merging into their hits; returns the BVH's counts and the rays
+    /// traced.
+    fn trace_wide(&mut self, wide: &WideRays, mode: HitMode) -> (Counts, u64) {
+        let (tris, ids) = (self.tris, &wide.bvh.primitive_indices);
+        let leaf = |slot: usize| {
+            let id = ids[slot];
+            (&tris[id as usize], id)
+        };
+        let (mut counts, mut rays) = (Counts::default(), 0u64);
+        for k in 0..self.wide.len() {
+            let node = self.wide[k] as usize;
+            for leaf_at in lowest_node_leaves(node, self.subdivision, self.offsets, self.n_rays) {
+                let ray = self.ray(leaf_at);
+                let i = leaf_at - self.first_leaf;
+                counts = counts.add(trace_cwbvh::<T>(
+                    &wide.bvh,
+                    leaf,
+                    &ray,
+                    mode,
+                    &mut self.hits[i],
+                ));
+                rays += 1;
+            }
+        }
+        (counts, rays)
+    }
 }
 
 impl<T: TriangleTest> Leaves for Inline<'_, T> {
@@ -2010,9 +2159,7 @@ impl<T: TriangleTest> Leaves for Inline<'_, T> {
 
     #[inline]
     fn live(&self, level: u16, node: u32) -> bool {
-        if self.closest {
-            return true;
-        }
+        // Closest-hit rays stay live to the end, but a wide node's are not the pairs' to trace.
         if level == 0 {
             return self.live[(node - self.first_low) as usize] != 0;
         }
@@ -2202,10 +2349,19 @@ impl Dual {
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<Dual> {
         let objects = spec.str("objects")?;
         let mb = spec.f64("candidate_budget_mb")?;
-        let mut dual = if objects == "grid" {
-            Dual::over_grid(scene, spec.f64("grid_density")?, mb)?
-        } else {
-            Dual::with_options(scene, objects, mb)?
+        let wide = spec.f64("wide_cone")?;
+        let mut dual = match objects {
+            "grid" => Dual::over_grid(scene, spec.f64("grid_density")?, mb)?,
+            // The wide rays' CWBVH is compressed from the object side's own obvhs tree.
+            "bvh"
+                if wide < WIDE_CONE_OFF && (2..LEAF as usize).contains(&scene.triangle_count()) =>
+            {
+                let bvh2 = scene_bvh2(scene, BuildQuality::Fast);
+                let mut dual = Dual::over_tree("bvh", Lbvh::over_bvh2(scene, &bvh2)?, mb)?;
+                dual.wide = Some(WideRays::new(scene, Some(&bvh2), wide));
+                dual
+            }
+            _ => Dual::with_options(scene, objects, mb)?,
         };
         dual.set_box_test(spec.bool("box_test")?);
         dual.set_single_rays(spec.bool("single_rays")?);
@@ -2219,6 +2375,7 @@ impl Dual {
                 })
             }
         }
+        dual.set_wide_cone(scene, wide)?;
         Ok(dual)
     }
 
@@ -2246,6 +2403,7 @@ impl Dual {
         Ok(Dual {
             objects,
             inline: None,
+            wide: None,
         })
     }
 
@@ -2273,6 +2431,7 @@ impl Dual {
                 single_rays: true,
             },
             inline: None,
+            wide: None,
         })
     }
 
@@ -2282,6 +2441,43 @@ impl Dual {
             Objects::Lbvh { source, .. } => source,
             Objects::Meshes(_) => "meshes",
         }
+    }
+
+    /// Sets parameter `wide_cone` (degrees in `0 ..= 180`; 180 turns it off): lowest ray
+    /// nodes whose cone half-angle is at least `degrees` are traced ray by ray through an
+    /// 8-wide BVH (see *Wide ray nodes* in the module doc), built here when this traverser has
+    /// none yet (obvhs PLOC, `fast` preset, over all of `scene`'s triangles; `scene` must be
+    /// this traverser's). Errors on a value out of range, and on a value below 180 without
+    /// inline final tests ([`Dual::set_inline`]) or with `objects = meshes`.
+    pub fn set_wide_cone(&mut self, scene: &Scene, degrees: f64) -> Result<()> {
+        let bad = |reason: String| {
+            Err(CoreError::InvalidParam {
+                key: "traverse.wide_cone".into(),
+                reason,
+            })
+        };
+        if !(0.0..=WIDE_CONE_OFF).contains(&degrees) {
+            return bad(format!("{degrees} is not in 0 ..= {WIDE_CONE_OFF}"));
+        }
+        if degrees >= WIDE_CONE_OFF {
+            self.wide = None;
+            return Ok(());
+        }
+        if self.inline.is_none() || matches!(self.objects, Objects::Meshes(_)) {
+            return bad(format!(
+                "{degrees}° needs `final_tests = inline` and `objects = lbvh`, `bvh` or `grid`"
+            ));
+        }
+        match &mut self.wide {
+            Some(w) => w.degrees = degrees,
+            None => self.wide = Some(WideRays::new(scene, None, degrees)),
+        }
+        Ok(())
+    }
+
+    /// Parameter `wide_cone` in degrees (180: off).
+    pub fn wide_cone(&self) -> f64 {
+        self.wide.as_ref().map_or(WIDE_CONE_OFF, |w| w.degrees)
     }
 
     /// Turns the box test of `objects = lbvh`, `bvh` or `grid` on or off (no effect with
@@ -2302,9 +2498,13 @@ impl Dual {
 
     /// Turns inline final tests on or off (`final_tests = inline`, see *Inline final tests*;
     /// `objects = lbvh`, `bvh` or `grid`; `scene` is the one the stage was built for).
+    /// Turning them off also turns `wide_cone` off ([`Dual::set_wide_cone`]).
     pub fn set_inline(&mut self, scene: &Arc<Scene>, on: bool) {
         self.inline =
             (on && matches!(self.objects, Objects::Lbvh { .. })).then(|| InlineSets::new(scene));
+        if self.inline.is_none() {
+            self.wide = None;
+        }
     }
 
     /// Whether the final tests run inline ([`Traverser::trace`]).
@@ -2410,6 +2610,7 @@ impl Dual {
             nodes: &nodes,
             sub: hierarchy.subdivision as usize,
             tree,
+            wide: None,
         };
         let mut active: Vec<Task> = Vec::new();
         let mut next_top = 0usize;
@@ -2539,6 +2740,13 @@ impl Dual {
                 tris.len()
             )));
         }
+        if let Some(w) = self.wide.as_ref().filter(|w| w.triangles > tris.len()) {
+            return Err(CoreError::InvalidInput(format!(
+                "the wide rays' BVH holds {} triangles, but only {} are prepared",
+                w.triangles,
+                tris.len()
+            )));
+        }
         // No boxes here: each task gathers its own rays' segments and boxes its nodes.
         let Some((root, nodes, segments)) = ray_side(rays, hierarchy, tree, false)? else {
             check_batch(rays, hits)?;
@@ -2558,9 +2766,10 @@ impl Dual {
             nodes: &nodes,
             sub: hierarchy.subdivision as usize,
             tree,
+            wide: self.wide.as_ref(),
         };
         let level = task_level(&nodes);
-        let (tests, found, counts) = match tris {
+        let (tests, found, counts, wide_rays) = match tris {
             AnyTriangleSet::MollerTrumbore(s) => {
                 trace_tasks(&ctx, s, mode, (root, level), widest, hits)?
             }
@@ -2574,6 +2783,7 @@ impl Dual {
         counts.record(kind, stats);
         stats.add_level(kind, 0, tests, found);
         stats.add_ray_triangle(tests);
+        report.wide_rays = wide_rays;
         report.rounds = nodes[level].len().div_ceil(ROUND_TASKS);
         Ok(Some(report))
     }
@@ -2657,11 +2867,11 @@ fn trace_tasks<'a, T: TriangleTest>(
     (root, top_level): (u32, usize),
     widest: usize,
     hits: &mut [Hit],
-) -> Result<(u64, u64, Counters)> {
+) -> Result<(u64, u64, Counters, u64)> {
     let order = ctx.hierarchy.order.as_slice();
     let n_top = ctx.nodes[top_level].len();
     let mut counts = Counters::new(ctx.nodes.len(), ctx.tree.max_depth + 1);
-    let (mut tests, mut found) = (0u64, 0u64);
+    let (mut tests, mut found, mut wide_rays) = (0u64, 0u64, 0u64);
     let miss = bytemuck::bytes_of(&Hit::MISS);
     let fresh = crate::position_first(hits, |h| bytemuck::bytes_of(h) != miss).is_none();
     assert_eq!(order.len(), hits.len(), "one hit per leaf");
@@ -2670,7 +2880,7 @@ fn trace_tasks<'a, T: TriangleTest>(
         // After a round some rays have hits, but the next round's rays are others: a fresh
         // batch stays one for them.
         let current = (!fresh).then_some(&out);
-        let round: Vec<(bool, u64, u64, Counters)> = (first..(first + ROUND_TASKS).min(n_top))
+        let round: Vec<(bool, u64, u64, Counters, u64)> = (first..(first + ROUND_TASKS).min(n_top))
             .into_par_iter()
             .map(|top| {
                 let mut state = Inline::<T>::new(
@@ -2682,8 +2892,12 @@ fn trace_tasks<'a, T: TriangleTest>(
                     current,
                 );
                 if !state.valid {
-                    return (false, 0, 0, Counters::new(0, 0));
+                    return (false, 0, 0, Counters::new(0, 0), 0);
                 }
+                let (wide, wide_rays) = match ctx.wide {
+                    Some(w) => state.trace_wide(w, mode),
+                    None => (Counts::default(), 0),
+                };
                 let mut task = Task {
                     stack: vec![Pair {
                         node: top as u32,
@@ -2693,12 +2907,22 @@ fn trace_tasks<'a, T: TriangleTest>(
                         mask: 0,
                     }],
                 };
-                let c = task.run(ctx, &mut state);
+                let mut c = task.run(ctx, &mut state);
                 for (leaf, h) in order[state.first_leaf..].iter().zip(&state.hits) {
                     // SAFETY: as for the gather in `Inline::new`: this task's rays only.
                     unsafe { out.set(*leaf as usize, *h) };
                 }
-                (true, state.tests, state.found, c)
+                // The wide BVH's box tests count in the lowest ray level's row (they test that
+                // level's rays), not in the object-depth rows (not the object hierarchy's).
+                c.ray[0][0] += wide.bounds;
+                c.ray[0][1] += wide.bounds_passed;
+                (
+                    true,
+                    state.tests + wide.prims,
+                    state.found + wide.prims_hit,
+                    c,
+                    wide_rays,
+                )
             })
             .collect();
         if round.iter().any(|r| !r.0) {
@@ -2708,13 +2932,14 @@ fn trace_tasks<'a, T: TriangleTest>(
                 "dual: a ray of the batch is not valid".into(),
             ));
         }
-        for (_, t, f, c) in round {
+        for (_, t, f, c, w) in round {
             tests += t;
             found += f;
             counts.add(&c);
+            wide_rays += w;
         }
     }
-    Ok((tests, found, counts))
+    Ok((tests, found, counts, wide_rays))
 }
 
 impl Traverser<Cpu> for Dual {
@@ -4104,6 +4329,122 @@ pub(crate) mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn wide_nodes_trace_their_rays_through_the_wide_bvh_with_the_brute_force_hits() {
+        let scenes = [
+            (Arc::new(soup(61, 300)), "soup"),
+            (Arc::new(rooms(62, Vec3::new(2.0, 1.0, -3.0))), "rooms"),
+        ];
+        for (si, (scene, name)) in scenes.iter().enumerate() {
+            // Coherent rays in their own order (narrow nodes) and shuffled (wide ones).
+            let rays = test_rays(scene, 63 + si as u64, 300);
+            let n = rays.len();
+            let brute = BruteForce::with_test(scene, TestKind::Watertight);
+            let refs = [HitMode::Closest, HitMode::Any].map(|m| reference(&brute, &rays, m));
+            for (oi, order) in [(0..n as u32).collect(), shuffled(n, 64)]
+                .into_iter()
+                .enumerate()
+            {
+                let h = build(&rays, order, 8, 2);
+                let cones: Vec<f64> = h.levels[0]
+                    .iter()
+                    .map(|c| f64::from(c.cone.half_angle).to_degrees())
+                    .collect();
+                let mut sorted = cones.clone();
+                sorted.sort_by(f64::total_cmp);
+                // Every node wide, none, and about half of them.
+                let median = sorted[sorted.len() / 2];
+                for objects in ["lbvh", "bvh", "grid"] {
+                    for wide in [0.0, median, WIDE_CONE_OFF] {
+                        let mut trav = inline_dual(scene, objects);
+                        trav.set_wide_cone(scene, wide).unwrap();
+                        assert_eq!(trav.wide_cone(), wide);
+                        let wide_rays: u64 = (0..cones.len())
+                            .filter(|&k| {
+                                let half = f64::from(h.levels[0][k].cone.half_angle);
+                                wide < WIDE_CONE_OFF && half >= wide.to_radians()
+                            })
+                            .map(|k| lowest_node_leaves(k, 8, None, n).len() as u64)
+                            .sum();
+                        for (mode, want) in [HitMode::Closest, HitMode::Any].iter().zip(&refs) {
+                            let what = format!("{name} order {oi} {objects} {wide}° {mode:?}");
+                            // Half the rays start with their hit (merged, as a later round's).
+                            let start: Vec<Hit> = (0..n)
+                                .map(|r| if r % 2 == 0 { want[r] } else { Hit::MISS })
+                                .collect();
+                            for given in [vec![Hit::MISS; n], start] {
+                                let run = || {
+                                    trace_inline(&trav, &rays, &h, *mode, brute.triangles(), &given)
+                                };
+                                let (hits, stats, report) = crate::with_threads(1, run).unwrap();
+                                assert_same(&hits, want, *mode, &what);
+                                let three = crate::with_threads(3, run).unwrap();
+                                assert_eq!((&three.0, &three.1), (&hits, &stats), "{what}");
+                                assert_eq!(report.wide_rays, wide_rays, "{what}");
+                                // The wide BVH's box tests are in the lowest ray level's row,
+                                // its triangle tests in the level-0 row; the object rows hold
+                                // the pairs' tests alone.
+                                let ray_rows: u64 = stats
+                                    .levels
+                                    .iter()
+                                    .filter(|l| l.level > 0)
+                                    .map(|l| l.tests)
+                                    .sum();
+                                let obj_rows: u64 =
+                                    stats.object_levels.iter().map(|l| l.tests).sum();
+                                assert_eq!(ray_rows, stats.tests.bounds, "{what}");
+                                let row0 = stats.levels.iter().find(|l| l.level == 0).unwrap();
+                                assert_eq!(row0.tests, stats.tests.ray_triangle, "{what}");
+                                if wide == 0.0 {
+                                    assert_eq!(obj_rows, 0, "{what}: no pair is tested");
+                                } else if wide_rays == 0 {
+                                    assert_eq!(obj_rows, stats.tests.bounds, "{what}");
+                                } else {
+                                    assert!(obj_rows < stats.tests.bounds, "{what}");
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        // From the spec: off by default; on, with `objects = bvh` compressed from the object
+        // side's own tree; refused where it would not run.
+        let scene = Arc::new(soup(65, 40));
+        let mut spec = StageSpec::new("dual");
+        for p in &info().params {
+            spec.params.insert(p.name.to_string(), p.default.clone());
+        }
+        assert_eq!(Dual::new(&scene, &spec).unwrap().wide_cone(), WIDE_CONE_OFF);
+        spec.params
+            .insert("wide_cone".into(), ParamValue::Float(50.0));
+        let refused = |spec: &StageSpec| {
+            matches!(
+                Dual::new(&scene, spec),
+                Err(CoreError::InvalidParam { key, .. }) if key == "traverse.wide_cone"
+            )
+        };
+        assert!(refused(&spec), "batched final tests");
+        spec.params
+            .insert("final_tests".into(), ParamValue::Str("inline".into()));
+        for objects in ["lbvh", "bvh", "grid"] {
+            spec.params
+                .insert("objects".into(), ParamValue::Str(objects.into()));
+            let t = Dual::new(&scene, &spec).unwrap();
+            assert_eq!((t.objects(), t.wide_cone()), (objects, 50.0));
+        }
+        spec.params
+            .insert("objects".into(), ParamValue::Str("meshes".into()));
+        assert!(refused(&spec), "meshes");
+        let mut t = inline_dual(&scene, "bvh");
+        for bad in [-1.0, 181.0, f64::NAN] {
+            assert!(t.set_wide_cone(&scene, bad).is_err(), "{bad}");
+        }
+        t.set_wide_cone(&scene, 10.0).unwrap();
+        t.set_inline(&scene, false);
+        assert_eq!(t.wide_cone(), WIDE_CONE_OFF, "batched tests drop it");
     }
 
     #[test]

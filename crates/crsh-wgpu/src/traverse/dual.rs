@@ -7,7 +7,9 @@
 //! hierarchy (built on the host by the CPU's own code when the stage is constructed, once per
 //! frame, and uploaded: [`Lbvh::flat`]), the same pair test, the same rule for which side of a
 //! pair to split, single rays with lane masks, and the same counters. `objects = meshes` is
-//! the wgpu [`crate::traverse::crsh::Crsh`] with mesh culling, as on the CPU.
+//! the wgpu [`crate::traverse::crsh::Crsh`] with mesh culling, as on the CPU. `wide_cone`
+//! needs inline final tests, so here only its default (off) is accepted, as on the CPU with
+//! batched final tests.
 //!
 //! # The device algorithm
 //!
