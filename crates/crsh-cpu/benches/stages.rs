@@ -22,7 +22,7 @@
 //! - `bvh`: the whole-scene `bvh` any-hit query of the same rays, the baseline, with each test;
 //! - `reflection`: the closest-hit reflection rays of a 1024² G-buffer of the shared dining
 //!   room (else the built-in `cornell-mirrors`), traced by `dual_lbvh_inline` (the
-//!   `dual_inline` preset), and of the shared cornell-mirror (when present), traced by the
+//!   `dual_inline` preset) and by the `dual_screen_bvh` preset, and of the shared cornell-mirror (when present), traced by the
 //!   `dual_screen_bvh` preset; each batch also by the whole-scene `bvh`, side by side.
 //!
 //! Run with `cargo bench -p crsh-cpu --bench stages` (add `-- --quick` for a short run, or a
@@ -426,8 +426,9 @@ fn benches(c: &mut Criterion) {
 /// sorted and built into a hierarchy once, outside the timing) and by the whole-scene `bvh`
 /// (the CWBVH), side by side, on two batches:
 /// - the shared dining room (else the built-in `cornell-mirrors`) with the `dual_inline`
-///   preset, id `dual_lbvh_inline`: wide cones, most of the dining room's lowest nodes descend
-///   to single rays;
+///   preset, id `dual_lbvh_inline` (wide cones, most of the dining room's lowest nodes descend
+///   to single rays), and with the `dual_screen_bvh` preset, id `dual_screen_bvh` (whose
+///   lowest nodes of 60° and more go through the 8-wide BVH, `traverse.wide_cone`);
 /// - the shared cornell-mirror with the `dual_screen_bvh` preset, id `dual_screen_bvh`
 ///   (skipped with a printed reason when the shared scenes are absent): coherent rays off
 ///   flat mirrors, where the ray side's segment boxes and the node pairs are the cost.
@@ -449,7 +450,14 @@ fn reflection_benches(c: &mut Criterion) {
             )
         }
     };
-    reflection_batch(c, wide, "dual_inline", "dual_lbvh_inline");
+    reflection_batch(
+        c,
+        wide,
+        &[
+            ("dual_inline", "dual_lbvh_inline"),
+            ("dual_screen_bvh", "dual_screen_bvh"),
+        ],
+    );
     match shared_scene("cornell/cornell-mirror.toml") {
         Some(path) => {
             let scene = crsh_scene::load_path(&path)
@@ -457,8 +465,7 @@ fn reflection_benches(c: &mut Criterion) {
             reflection_batch(
                 c,
                 ("cornell-mirror", scene),
-                "dual_screen_bvh",
-                "dual_screen_bvh",
+                &[("dual_screen_bvh", "dual_screen_bvh")],
             );
         }
         None => eprintln!(
@@ -469,9 +476,10 @@ fn reflection_benches(c: &mut Criterion) {
 }
 
 /// One batch of the `reflection` group: `scene`'s (named `tag`) first-bounce reflection rays
-/// traced by preset `preset` (inline final tests; benchmark id `reflection/{id}/{tag}`) and by
+/// (spawned by the first preset's stages) traced by each preset of `presets` (`(preset, id)`,
+/// inline final tests, its own keys and hierarchy; benchmark id `reflection/{id}/{tag}`) and by
 /// the whole-scene `bvh` (`reflection/bvh/{tag}`).
-fn reflection_batch(c: &mut Criterion, (tag, scene): (&str, Scene), preset: &str, id: &str) {
+fn reflection_batch(c: &mut Criterion, (tag, scene): (&str, Scene), presets: &[(&str, &str)]) {
     let scene = Arc::new(scene);
     let ctx = StageContext::new(
         &Cpu,
@@ -479,56 +487,61 @@ fn reflection_batch(c: &mut Criterion, (tag, scene): (&str, Scene), preset: &str
         FrameSize::new(REFLECTION_SIZE, REFLECTION_SIZE).expect("valid size"),
     );
     let registry = Registry::<Cpu>::builtin();
-    let cfg = registry
-        .preset(preset)
-        .unwrap_or_else(|| panic!("the {preset} preset exists"));
-    let st = registry
-        .build(&ctx, &cfg)
-        .unwrap_or_else(|e| panic!("building {preset}: {e}"))
-        .stages;
+    let stages_of = |preset: &str| {
+        let cfg = registry
+            .preset(preset)
+            .unwrap_or_else(|| panic!("the {preset} preset exists"));
+        registry
+            .build(&ctx, &cfg)
+            .unwrap_or_else(|e| panic!("building {preset}: {e}"))
+            .stages
+    };
     let kind = RayKind::Reflection;
     let mut stats = Stats::default();
-    let rays = spawn(&st, REFLECTION_SIZE, kind, &mut stats);
+    let rays = spawn(&stages_of(presets[0].0), REFLECTION_SIZE, kind, &mut stats);
     if rays.is_empty() {
         eprintln!("reflection bench: {tag} spawns no reflection rays, skipped");
         return;
     }
-    let (_, hierarchy) = hierarchy_of(&st, &rays, kind, &mut stats);
-    eprintln!(
-        "reflection bench batch: {tag}, {} triangles, {REFLECTION_SIZE}x{REFLECTION_SIZE} \
-         G-buffer, {} reflection rays, {preset}",
-        scene.triangle_count(),
-        rays.len()
-    );
     let mut spec = crsh_core::StageSpec::new("bvh");
     spec.params
         .insert("test".into(), crsh_core::ParamValue::Str("mt".to_string()));
     let bvh = registry
         .build_intersector(&ctx, &spec)
         .expect("building bvh");
-    let traverser = st.traverser.as_ref().expect("a traverser");
     let mut g = c.benchmark_group("reflection");
     g.throughput(Throughput::Elements(rays.len() as u64));
     g.sample_size(10);
-    g.bench_function(format!("{id}/{tag}"), |bench| {
-        bench.iter(|| {
-            let mut hits = vec![Hit::MISS; rays.len()];
-            traverser
-                .trace(
-                    &Cpu,
-                    &rays,
-                    kind,
-                    kind.hit_mode(),
-                    &*st.intersector,
-                    &hierarchy,
-                    &mut hits,
-                    &mut Stats::default(),
-                )
-                .expect("inline final tests")
-                .unwrap();
-            hits
-        })
-    });
+    for &(preset, id) in presets {
+        let st = stages_of(preset);
+        let (_, hierarchy) = hierarchy_of(&st, &rays, kind, &mut stats);
+        eprintln!(
+            "reflection bench batch: {tag}, {} triangles, {REFLECTION_SIZE}x{REFLECTION_SIZE} \
+             G-buffer, {} reflection rays, {preset}",
+            scene.triangle_count(),
+            rays.len()
+        );
+        let traverser = st.traverser.as_ref().expect("a traverser");
+        g.bench_function(format!("{id}/{tag}"), |bench| {
+            bench.iter(|| {
+                let mut hits = vec![Hit::MISS; rays.len()];
+                traverser
+                    .trace(
+                        &Cpu,
+                        &rays,
+                        kind,
+                        kind.hit_mode(),
+                        &*st.intersector,
+                        &hierarchy,
+                        &mut hits,
+                        &mut Stats::default(),
+                    )
+                    .expect("inline final tests")
+                    .unwrap();
+                hits
+            })
+        });
+    }
     g.bench_function(format!("bvh/{tag}"), |bench| {
         bench.iter(|| {
             let mut hits = vec![Hit::MISS; rays.len()];
