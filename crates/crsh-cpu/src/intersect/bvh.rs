@@ -570,7 +570,7 @@ impl LeafTracer for CwBvh {
         _: &mut (),
     ) -> Counts {
         let ids = &self.leaves.ids;
-        trace_cwbvh::<T>(
+        trace_cwbvh::<T, false>(
             &self.bvh,
             |slot| (&leaf_tris[slot], ids[slot]),
             ray,
@@ -585,9 +585,11 @@ impl LeafTracer for CwBvh {
 /// an empty interval visits nothing); `leaf(slot)` is the triangle of primitive slot `slot`,
 /// prepared for `T`, and its scene id. The node test is [`child_hits`], so the hits are brute
 /// force's (module doc, "Identical to brute force"). `bvh`'s own [`CwBvh::trace`] and
-/// `dual`'s wide ray nodes (which read the triangles by scene id) share it.
+/// `dual`'s wide ray nodes (which read the triangles by scene id) share it. With `TALLY` the
+/// counts include [`Counts::bounds_passed`] and [`Counts::prims_hit`] (left 0 otherwise:
+/// `bvh` does not report them, and its traversal need not count them).
 #[inline]
-pub(crate) fn trace_cwbvh<'t, T: TriangleTest + 't>(
+pub(crate) fn trace_cwbvh<'t, T: TriangleTest + 't, const TALLY: bool>(
     bvh: &obvhs::cwbvh::CwBvh,
     leaf: impl Fn(usize) -> (&'t T::Tri, u32),
     ray: &Ray,
@@ -622,7 +624,9 @@ pub(crate) fn trace_cwbvh<'t, T: TriangleTest + 't>(
                 n.bounds += node.child_meta.iter().filter(|&&m| m != 0).count() as u64;
                 leaf_tops = leaf_top_bits(node);
                 let hit = child_hits(node, &nr, state.oct_inv4, t_lo, t_hi);
-                n.bounds_passed += u64::from(hit.count_ones());
+                if TALLY {
+                    n.bounds_passed += u64::from(hit.count_ones());
+                }
                 hit
             },
             {
@@ -632,7 +636,9 @@ pub(crate) fn trace_cwbvh<'t, T: TriangleTest + 't>(
                     u64::from((leaf_tops >> (state.primitive_id - state.primitive_group.x)) & 1);
                 let (tri, id) = leaf(slot);
                 if let Some(h) = T::hit(tri, &r, ray.t_min, ray.t_max, id) {
-                    n.prims_hit += 1;
+                    if TALLY {
+                        n.prims_hit += 1;
+                    }
                     if mode == HitMode::Any {
                         *best = h;
                         break 'trace;
@@ -659,9 +665,9 @@ pub(crate) struct Counts {
     pub inner: u64,
     /// Leaves whose primitives were tested.
     pub leaves: u64,
-    /// Child boxes the ray overlapped (of `bounds`).
+    /// Child boxes the ray overlapped (of `bounds`; counted by [`trace_cwbvh`] with `TALLY`).
     pub bounds_passed: u64,
-    /// Leaf primitive tests that found a hit (of `prims`).
+    /// Leaf primitive tests that found a hit (of `prims`; as `bounds_passed`).
     pub prims_hit: u64,
 }
 

@@ -2135,7 +2135,7 @@ impl<'a, T: TriangleTest> Inline<'a, T> {
             for leaf_at in lowest_node_leaves(node, self.subdivision, self.offsets, self.n_rays) {
                 let ray = self.ray(leaf_at);
                 let i = leaf_at - self.first_leaf;
-                counts = counts.add(trace_cwbvh::<T>(
+                counts = counts.add(trace_cwbvh::<T, true>(
                     &wide.bvh,
                     leaf,
                     &ray,
