@@ -1555,6 +1555,20 @@ impl WideRays {
     }
 }
 
+/// The error of a refused parameter `wide_cone` of `degrees`: out of range, or set where it
+/// cannot run (batched final tests, `objects = meshes`).
+fn wide_cone_error(degrees: f64, out_of_range: bool) -> CoreError {
+    let reason = if out_of_range {
+        format!("{degrees} is not in 0 ..= {WIDE_CONE_OFF}")
+    } else {
+        format!("{degrees}° needs `final_tests = inline` and `objects = lbvh`, `bvh` or `grid`")
+    };
+    CoreError::InvalidParam {
+        key: "traverse.wide_cone".into(),
+        reason,
+    }
+}
+
 /// Parameter `wide_cone`'s value that turns it off.
 pub const WIDE_CONE_OFF: f64 = 180.0;
 
@@ -2350,6 +2364,11 @@ impl Dual {
         let objects = spec.str("objects")?;
         let mb = spec.f64("candidate_budget_mb")?;
         let wide = spec.f64("wide_cone")?;
+        // Refused before any object hierarchy is built.
+        let inline = spec.str("final_tests")? == "inline";
+        if wide < WIDE_CONE_OFF && (!inline || objects == "meshes") {
+            return Err(wide_cone_error(wide, false));
+        }
         let mut dual = match objects {
             "grid" => Dual::over_grid(scene, spec.f64("grid_density")?, mb)?,
             // The wide rays' CWBVH is compressed from the object side's own obvhs tree.
@@ -2450,23 +2469,15 @@ impl Dual {
     /// this traverser's). Errors on a value out of range, and on a value below 180 without
     /// inline final tests ([`Dual::set_inline`]) or with `objects = meshes`.
     pub fn set_wide_cone(&mut self, scene: &Scene, degrees: f64) -> Result<()> {
-        let bad = |reason: String| {
-            Err(CoreError::InvalidParam {
-                key: "traverse.wide_cone".into(),
-                reason,
-            })
-        };
         if !(0.0..=WIDE_CONE_OFF).contains(&degrees) {
-            return bad(format!("{degrees} is not in 0 ..= {WIDE_CONE_OFF}"));
+            return Err(wide_cone_error(degrees, true));
         }
         if degrees >= WIDE_CONE_OFF {
             self.wide = None;
             return Ok(());
         }
         if self.inline.is_none() || matches!(self.objects, Objects::Meshes(_)) {
-            return bad(format!(
-                "{degrees}° needs `final_tests = inline` and `objects = lbvh`, `bvh` or `grid`"
-            ));
+            return Err(wide_cone_error(degrees, false));
         }
         match &mut self.wide {
             Some(w) => w.degrees = degrees,
