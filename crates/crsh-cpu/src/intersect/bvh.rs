@@ -580,6 +580,29 @@ impl LeafTracer for CwBvh {
     }
 }
 
+/// What a single-ray traversal of test `T` starts from: the ray in `T`'s form, its node-test
+/// form and the node test's interval `(t_lo, t_hi)` (`t_hi` at the best hit so far); `None`
+/// when there is nothing to trace (any hit: `best` is already a hit; an empty interval, a ray
+/// whose origin offset passed its end, seed 001, which can hit nothing).
+#[inline]
+pub(crate) fn start_trace<T: TriangleTest>(
+    ray: &Ray,
+    mode: HitMode,
+    best: &Hit,
+) -> Option<(T::Ray, NodeRay, f32, f32)> {
+    if (mode == HitMode::Any && best.is_hit())
+        || ray.t_min.partial_cmp(&ray.t_max) != Some(std::cmp::Ordering::Less)
+    {
+        return None;
+    }
+    Some((
+        T::ray_of(ray),
+        NodeRay::new(ray.origin, ray.dir),
+        entry_bound(ray.t_min),
+        cull_distance(ray.t_max.min(best.t)),
+    ))
+}
+
 /// Traces `ray` through the compressed tree `bvh` with test `T`, merging into `best` as
 /// [`LeafTracer::trace`] does (any hit: skipped when `best` is a hit, stops at the first hit;
 /// an empty interval visits nothing); `leaf(slot)` is the triangle of primitive slot `slot`,
@@ -597,18 +620,12 @@ pub(crate) fn trace_cwbvh<'t, T: TriangleTest + 't, const TALLY: bool>(
     best: &mut Hit,
 ) -> Counts {
     let mut n = Counts::default();
-    // An empty interval (a ray whose origin offset passed its end, seed 001) ends
-    // without traversal: it can hit nothing.
-    if bvh.nodes.is_empty()
-        || (mode == HitMode::Any && best.is_hit())
-        || ray.t_min.partial_cmp(&ray.t_max) != Some(std::cmp::Ordering::Less)
-    {
+    if bvh.nodes.is_empty() {
         return n;
     }
-    let r = T::ray_of(ray);
-    let nr = NodeRay::new(ray.origin, ray.dir);
-    let t_lo = entry_bound(ray.t_min);
-    let mut t_hi = cull_distance(ray.t_max.min(best.t));
+    let Some((r, nr, t_lo, mut t_hi)) = start_trace::<T>(ray, mode, best) else {
+        return n;
+    };
     // The last primitive slot (relative to the node's primitive base) of each leaf child
     // of the node visited last: the first one `traverse!` tests (highest bit first).
     let mut leaf_tops = 0u32;

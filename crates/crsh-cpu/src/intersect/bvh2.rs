@@ -90,8 +90,8 @@ use obvhs::bvh2::Bvh2;
 
 use crate::backend::Cpu;
 use crate::intersect::bvh::{
-    build_bvh2, build_params, cull_distance, entry_bound, hittable_triangles, obvhs_intersector,
-    quality_param, refit_bvh2, test_param, update_param, BuildQuality, Counts, LeafTracer, Leaves,
+    build_bvh2, build_params, cull_distance, hittable_triangles, obvhs_intersector, quality_param,
+    refit_bvh2, start_trace, test_param, update_param, BuildQuality, Counts, LeafTracer, Leaves,
     NodeRay, SLAB_SLACK,
 };
 use crate::triangle::{TestKind, TriangleTest};
@@ -312,17 +312,12 @@ impl LeafTracer for BinaryBvh {
     ) -> Counts {
         let mut n = Counts::default();
         let nodes = &self.bvh.nodes;
-        // An empty interval (origin offset past the end, seed 001): no traversal.
-        if nodes.is_empty()
-            || (mode == HitMode::Any && best.is_hit())
-            || ray.t_min.partial_cmp(&ray.t_max) != Some(std::cmp::Ordering::Less)
-        {
+        if nodes.is_empty() {
             return n;
         }
-        let r = T::ray_of(ray);
-        let nr = NodeRay::new(ray.origin, ray.dir);
-        let t_lo = entry_bound(ray.t_min);
-        let mut t_hi = cull_distance(ray.t_max.min(best.t));
+        let Some((r, nr, t_lo, mut t_hi)) = start_trace::<T>(ray, mode, best) else {
+            return n;
+        };
         stack.clear();
         let mut index = 0usize;
         loop {

@@ -4281,6 +4281,21 @@ pub(crate) mod tests {
         trav
     }
 
+    /// Checks that an inline traversal's ray-level rows (level ≥ 1) sum to its bound tests and
+    /// its level-0 row is its ray-triangle tests; returns the object rows' sum.
+    fn check_inline_rows(stats: &Stats, what: &str) -> u64 {
+        let ray_rows: u64 = stats
+            .levels
+            .iter()
+            .filter(|l| l.level > 0)
+            .map(|l| l.tests)
+            .sum();
+        assert_eq!(ray_rows, stats.tests.bounds, "{what}");
+        let row0 = stats.levels.iter().find(|l| l.level == 0).unwrap();
+        assert_eq!(row0.tests, stats.tests.ray_triangle, "{what}");
+        stats.object_levels.iter().map(|l| l.tests).sum()
+    }
+
     #[test]
     fn inline_final_tests_give_the_brute_force_hits() {
         let scenes = [
@@ -4316,18 +4331,9 @@ pub(crate) mod tests {
                                 assert_eq!(three.2, report, "{what}");
                                 // The pair rows sum to the bounds on each side; the final
                                 // tests are the level-0 row and never exceed brute force.
-                                let ray_rows: u64 = stats
-                                    .levels
-                                    .iter()
-                                    .filter(|l| l.level > 0)
-                                    .map(|l| l.tests)
-                                    .sum();
-                                let obj_rows: u64 =
-                                    stats.object_levels.iter().map(|l| l.tests).sum();
-                                assert_eq!(ray_rows, stats.tests.bounds, "{what}");
+                                let obj_rows = check_inline_rows(&stats, &what);
                                 assert_eq!(obj_rows, stats.tests.bounds, "{what}");
                                 let row0 = stats.levels.iter().find(|l| l.level == 0).unwrap();
-                                assert_eq!(row0.tests, stats.tests.ray_triangle, "{what}");
                                 assert_eq!(row0.hits + row0.misses, row0.tests, "{what}");
                                 assert!(
                                     stats.tests.ray_triangle
@@ -4397,17 +4403,7 @@ pub(crate) mod tests {
                                 // The wide BVH's box tests are in the lowest ray level's row,
                                 // its triangle tests in the level-0 row; the object rows hold
                                 // the pairs' tests alone.
-                                let ray_rows: u64 = stats
-                                    .levels
-                                    .iter()
-                                    .filter(|l| l.level > 0)
-                                    .map(|l| l.tests)
-                                    .sum();
-                                let obj_rows: u64 =
-                                    stats.object_levels.iter().map(|l| l.tests).sum();
-                                assert_eq!(ray_rows, stats.tests.bounds, "{what}");
-                                let row0 = stats.levels.iter().find(|l| l.level == 0).unwrap();
-                                assert_eq!(row0.tests, stats.tests.ray_triangle, "{what}");
+                                let obj_rows = check_inline_rows(&stats, &what);
                                 if wide == 0.0 {
                                     assert_eq!(obj_rows, 0, "{what}: no pair is tested");
                                 } else if wide_rays == 0 {
