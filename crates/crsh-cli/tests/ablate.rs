@@ -1902,7 +1902,7 @@ fn dual_plan_is_exact_on_every_cell() {
     );
     assert_ok(&o);
     assert!(
-        text(&o.stdout).contains("66 cells, 3 timed runs each (nothing run)"),
+        text(&o.stdout).contains("69 cells, 3 timed runs each (nothing run)"),
         "{}",
         text(&o.stdout)
     );
@@ -1919,15 +1919,16 @@ fn dual_plan_is_exact_on_every_cell() {
     assert_ok(&o);
     let v = read_json(&dir.join("out/results.json"));
     let cs = cells(&v);
-    assert_eq!(cs.len(), 2 * 22);
+    assert_eq!(cs.len(), 2 * 23);
     // `dual_screen` in both tile orders and `dual_screen_bvh`, exact like every cell (below).
     let labelled = |prefix: &str| {
         cs.iter()
             .filter(|c| c["label"].as_str().is_some_and(|l| l.starts_with(prefix)))
             .count()
     };
-    assert_eq!(labelled("preset-dual-screen"), 2 * 3);
-    assert_eq!(labelled("preset-dual-screen-bvh"), 2);
+    assert_eq!(labelled("preset-dual-screen"), 2 * 4);
+    // `dual_screen_bvh` with its wide nodes through the 8-wide BVH and without.
+    assert_eq!(labelled("preset-dual-screen-bvh"), 2 * 2);
     for scene in ["office-boxes", "cornell-mirrors"] {
         let per_ray = |label: &str| -> f64 {
             let c = cs
@@ -1980,7 +1981,7 @@ fn with_scenes(shipped: &str, scenes: &[&str]) -> String {
 #[test]
 fn dual_plans_validate() {
     let dir = scratch("dual-plans");
-    for (plan, cells) in [("plans/dual.toml", 66), ("plans/dual-wgpu.toml", 33)] {
+    for (plan, cells) in [("plans/dual.toml", 69), ("plans/dual-wgpu.toml", 33)] {
         let path = repo_root().join(plan);
         let shipped = std::fs::read_to_string(&path).unwrap();
         assert!(shipped.contains("\"traverse.kind\" = \"dual\""), "{plan}");
