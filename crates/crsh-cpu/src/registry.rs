@@ -164,8 +164,9 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
              the dining room, fewer tests and a faster traversal there) and with lowest \
              spheres centred on their origins' box (`hierarchy.leaf_sphere = box`, no Welzl \
              iterations) and lowest nodes of 32 rays, two 4×4 tiles (`hierarchy.subdivision \
-             = 32`: fewer nodes to build and pair); for static scenes, where the object \
-             hierarchy is built once (CPU only)",
+             = 32`: fewer nodes to build and pair), its lowest nodes of 60° and wider traced \
+             ray by ray through the same tree in obvhs's 8-wide form (`traverse.wide_cone = \
+             60`); for static scenes, where the object hierarchy is built once (CPU only)",
             dual_screen_bvh_pipeline(),
         ),
     ]
