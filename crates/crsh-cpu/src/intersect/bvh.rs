@@ -357,6 +357,18 @@ pub(crate) fn build_bvh2(tris: &[Triangle], params: &BvhBuildParams) -> Bvh2 {
     bvh2
 }
 
+/// obvhs's compressed 8-wide layout of `bvh2` (built with `quality`'s parameters), leaves of
+/// `quality`'s size clamped to the 1 to 3 primitives the layout holds, children ordered: the
+/// tree `bvh` traverses, and `dual`'s wide ray nodes.
+pub(crate) fn compress_bvh2(bvh2: &Bvh2, quality: BuildQuality) -> obvhs::cwbvh::CwBvh {
+    bvh2_to_cwbvh(
+        bvh2,
+        quality.params().max_prims_per_leaf.clamp(1, 3),
+        true,
+        false,
+    )
+}
+
 /// Refits `bvh2` to the moved triangles `tris` (indexed by its primitive indices): each
 /// leaf's box recomputed from its triangles, then the inner boxes bottom-up.
 pub(crate) fn refit_bvh2(bvh2: &mut Bvh2, tris: &[Triangle]) {
@@ -402,12 +414,7 @@ impl CwBvh {
         }
         let t0 = std::time::Instant::now();
         refit_bvh2(&mut bvh2, &tris);
-        let bvh = bvh2_to_cwbvh(
-            &bvh2,
-            self.quality.params().max_prims_per_leaf.clamp(1, 3),
-            true,
-            false,
-        );
+        let bvh = compress_bvh2(&bvh2, self.quality);
         let build_time = t0.elapsed();
         let mut out = CwBvh::assemble(scene, bvh, &current, test, self.quality, build_time);
         out.refit = Some(Box::new(std::sync::Mutex::new(Some(RefitState {
@@ -434,7 +441,7 @@ impl CwBvh {
             let params = quality.params();
             let t0 = std::time::Instant::now();
             let bvh2 = build_bvh2(&tris, &params);
-            let bvh = bvh2_to_cwbvh(&bvh2, params.max_prims_per_leaf.clamp(1, 3), true, false);
+            let bvh = compress_bvh2(&bvh2, quality);
             build_time = t0.elapsed();
             (bvh, Some(bvh2))
         };
@@ -519,15 +526,13 @@ impl LeafTracer for CwBvh {
         _: &mut (),
     ) -> Counts {
         let mut n = Counts::default();
-        if self.bvh.nodes.is_empty()
-            || ray.t_min.partial_cmp(&ray.t_max) != Some(std::cmp::Ordering::Less)
-        {
+        if self.bvh.nodes.is_empty() {
             return n;
         }
-        let r = T::ray_of(ray);
-        let nr = NodeRay::new(ray.origin, ray.dir);
-        let t_lo = entry_bound(ray.t_min);
-        let t_hi = cull_distance(ray.t_max);
+        // Every crossing of the segment, so no best hit culls: a closest-hit start from a miss.
+        let Some((r, nr, t_lo, t_hi)) = start_trace::<T>(ray, HitMode::Closest, &Hit::MISS) else {
+            return n;
+        };
         let mut leaf_tops = 0u32;
         let bvh = &self.bvh;
         let mut state = bvh.new_traversal(Vec3A::from(ray.dir));
@@ -537,16 +542,12 @@ impl LeafTracer for CwBvh {
             node,
             state,
             {
-                n.inner += 1;
-                n.bounds += node.child_meta.iter().filter(|&&m| m != 0).count() as u64;
-                leaf_tops = leaf_top_bits(node);
+                leaf_tops = n.visit(node);
                 child_hits(node, &nr, state.oct_inv4, t_lo, t_hi)
             },
             {
                 let slot = state.primitive_id as usize;
-                n.prims += 1;
-                n.leaves +=
-                    u64::from((leaf_tops >> (state.primitive_id - state.primitive_group.x)) & 1);
+                n.test_prim(leaf_tops, state.primitive_id - state.primitive_group.x);
                 let id = self.leaves.ids[slot];
                 if let Some(h) = T::hit(&leaf_tris[slot], &r, ray.t_min, ray.t_max, id) {
                     out.push(Crossing { t: h.t, tri: id });
@@ -637,9 +638,7 @@ pub(crate) fn trace_cwbvh<'t, T: TriangleTest + 't, const TALLY: bool>(
             node,
             state,
             {
-                n.inner += 1;
-                n.bounds += node.child_meta.iter().filter(|&&m| m != 0).count() as u64;
-                leaf_tops = leaf_top_bits(node);
+                leaf_tops = n.visit(node);
                 let hit = child_hits(node, &nr, state.oct_inv4, t_lo, t_hi);
                 if TALLY {
                     n.bounds_passed += u64::from(hit.count_ones());
@@ -648,9 +647,7 @@ pub(crate) fn trace_cwbvh<'t, T: TriangleTest + 't, const TALLY: bool>(
             },
             {
                 let slot = state.primitive_id as usize;
-                n.prims += 1;
-                n.leaves +=
-                    u64::from((leaf_tops >> (state.primitive_id - state.primitive_group.x)) & 1);
+                n.test_prim(leaf_tops, state.primitive_id - state.primitive_group.x);
                 let (tri, id) = leaf(slot);
                 if let Some(h) = T::hit(tri, &r, ray.t_min, ray.t_max, id) {
                     if TALLY {
@@ -689,6 +686,24 @@ pub(crate) struct Counts {
 }
 
 impl Counts {
+    /// Counts a visit of `node`: its non-empty children's boxes are tested. Returns its
+    /// [`leaf_top_bits`], for [`Counts::test_prim`].
+    #[inline(always)]
+    fn visit(&mut self, node: &CwBvhNode) -> u32 {
+        self.inner += 1;
+        self.bounds += node.child_meta.iter().filter(|&&m| m != 0).count() as u64;
+        leaf_top_bits(node)
+    }
+
+    /// Counts the test of the primitive at slot `rel` (relative to the primitive base of the
+    /// node visited last, whose [`Counts::visit`] gave `leaf_tops`), and its leaf when it is
+    /// the leaf's first.
+    #[inline(always)]
+    fn test_prim(&mut self, leaf_tops: u32, rel: u32) {
+        self.prims += 1;
+        self.leaves += u64::from((leaf_tops >> rel) & 1);
+    }
+
     /// The sum of two counts.
     #[inline]
     pub fn add(self, o: Counts) -> Counts {

@@ -322,11 +322,12 @@ use rayon::prelude::*;
 use super::crsh::{budget_bytes, prepare_nodes, Crsh, NodeBound, ABS_MARGIN, REL_MARGIN};
 use crate::backend::Cpu;
 use crate::intersect::brute::{check_batch, check_permutation, merge_repeats, BruteForce};
-use crate::intersect::bvh::{build_bvh2, obvhs_triangle, trace_cwbvh, BuildQuality, Counts};
+use crate::intersect::bvh::{
+    build_bvh2, compress_bvh2, obvhs_triangle, trace_cwbvh, BuildQuality, Counts,
+};
 use crate::intersect::grid::{GridData, MAX_DENSITY, MIN_DENSITY};
 use crate::triangle::{AnyTriangleSet, TestKind, TriangleSet, TriangleTest, LANES};
 use obvhs::bvh2::Bvh2;
-use obvhs::cwbvh::bvh2_to_cwbvh::bvh2_to_cwbvh;
 use obvhs::triangle::Triangle;
 use std::sync::OnceLock;
 
@@ -959,6 +960,12 @@ impl Lbvh {
     /// (a leaf of several becomes a balanced subtree); the bounds are computed as for the
     /// Morton build. Errors on 2³¹ triangles or more.
     pub fn build_bvh2(scene: &Scene, quality: BuildQuality) -> Result<Lbvh> {
+        Ok(Lbvh::build_bvh2_keeping(scene, quality)?.0)
+    }
+
+    /// [`Lbvh::build_bvh2`], and the obvhs tree it is laid out from (`None` below 2 triangles,
+    /// which [`Lbvh::build`] lays out).
+    fn build_bvh2_keeping(scene: &Scene, quality: BuildQuality) -> Result<(Lbvh, Option<Bvh2>)> {
         let n = scene.triangle_count();
         if n >= LEAF as usize {
             return Err(CoreError::InvalidInput(format!(
@@ -966,9 +973,10 @@ impl Lbvh {
             )));
         }
         if n < 2 {
-            return Lbvh::build(scene);
+            return Ok((Lbvh::build(scene)?, None));
         }
-        Lbvh::over_bvh2(scene, &scene_bvh2(scene, quality))
+        let bvh2 = scene_bvh2(scene, quality);
+        Ok((Lbvh::over_bvh2(scene, &bvh2)?, Some(bvh2)))
     }
 
     /// [`Lbvh::build_bvh2`] over `bvh`, obvhs's binary BVH over all of `scene`'s triangles
@@ -1535,10 +1543,9 @@ impl WideRays {
         let bvh = if n == 0 {
             obvhs::cwbvh::CwBvh::default()
         } else {
-            let leaf = BuildQuality::Fast.params().max_prims_per_leaf.clamp(1, 3);
             match bvh2 {
-                Some(b) => bvh2_to_cwbvh(b, leaf, true, false),
-                None => bvh2_to_cwbvh(&scene_bvh2(scene, BuildQuality::Fast), leaf, true, false),
+                Some(b) => compress_bvh2(b, BuildQuality::Fast),
+                None => compress_bvh2(&scene_bvh2(scene, BuildQuality::Fast), BuildQuality::Fast),
             }
         };
         WideRays {
@@ -2369,15 +2376,14 @@ impl Dual {
         if wide < WIDE_CONE_OFF && (!inline || objects == "meshes") {
             return Err(wide_cone_error(wide, false));
         }
+        // With `objects = bvh`, the obvhs tree the object side is laid out from: the wide
+        // rays' CWBVH is compressed from it (kept only for that).
+        let mut bvh2 = None;
         let mut dual = match objects {
             "grid" => Dual::over_grid(scene, spec.f64("grid_density")?, mb)?,
-            // The wide rays' CWBVH is compressed from the object side's own obvhs tree.
-            "bvh"
-                if wide < WIDE_CONE_OFF && (2..LEAF as usize).contains(&scene.triangle_count()) =>
-            {
-                let bvh2 = scene_bvh2(scene, BuildQuality::Fast);
-                let mut dual = Dual::over_tree("bvh", Lbvh::over_bvh2(scene, &bvh2)?, mb)?;
-                dual.wide = Some(WideRays::new(scene, Some(&bvh2), wide));
+            "bvh" => {
+                let (dual, tree) = Dual::over_bvh(scene, mb)?;
+                bvh2 = tree.filter(|_| wide < WIDE_CONE_OFF);
                 dual
             }
             _ => Dual::with_options(scene, objects, mb)?,
@@ -2394,7 +2400,7 @@ impl Dual {
                 })
             }
         }
-        dual.set_wide_cone(scene, wide)?;
+        dual.set_wide_cone_over(scene, wide, bvh2.as_ref())?;
         Ok(dual)
     }
 
@@ -2406,10 +2412,7 @@ impl Dual {
     pub fn with_options(scene: &Arc<Scene>, objects: &str, budget_mb: f64) -> Result<Dual> {
         let objects = match objects {
             "lbvh" => return Dual::over_tree("lbvh", Lbvh::build(scene)?, budget_mb),
-            "bvh" => {
-                let tree = Lbvh::build_bvh2(scene, BuildQuality::Fast)?;
-                return Dual::over_tree("bvh", tree, budget_mb);
-            }
+            "bvh" => return Ok(Dual::over_bvh(scene, budget_mb)?.0),
             "grid" => return Dual::over_grid(scene, GRID_DENSITY, budget_mb),
             "meshes" => Objects::Meshes(Crsh::with_options(scene, true, budget_mb)?),
             other => {
@@ -2436,6 +2439,14 @@ impl Dual {
             });
         }
         Dual::over_tree("grid", Lbvh::build_grid(scene, k)?, budget_mb)
+    }
+
+    /// The traverser with `objects = bvh` ([`Lbvh::build_bvh2`], `fast` preset), budget as
+    /// [`Dual::with_options`], and the obvhs tree its object side is laid out from (`None`
+    /// below 2 triangles).
+    fn over_bvh(scene: &Scene, budget_mb: f64) -> Result<(Dual, Option<Bvh2>)> {
+        let (tree, bvh2) = Lbvh::build_bvh2_keeping(scene, BuildQuality::Fast)?;
+        Ok((Dual::over_tree("bvh", tree, budget_mb)?, bvh2))
     }
 
     /// The traverser over the object hierarchy `tree` built for `objects = source`, box test
@@ -2469,6 +2480,17 @@ impl Dual {
     /// this traverser's). Errors on a value out of range, and on a value below 180 without
     /// inline final tests ([`Dual::set_inline`]) or with `objects = meshes`.
     pub fn set_wide_cone(&mut self, scene: &Scene, degrees: f64) -> Result<()> {
+        self.set_wide_cone_over(scene, degrees, None)
+    }
+
+    /// [`Dual::set_wide_cone`], a CWBVH it builds compressed from `bvh2` when given (obvhs's
+    /// binary BVH over all of `scene`'s triangles, [`scene_bvh2`]).
+    fn set_wide_cone_over(
+        &mut self,
+        scene: &Scene,
+        degrees: f64,
+        bvh2: Option<&Bvh2>,
+    ) -> Result<()> {
         if !(0.0..=WIDE_CONE_OFF).contains(&degrees) {
             return Err(wide_cone_error(degrees, true));
         }
@@ -2481,7 +2503,7 @@ impl Dual {
         }
         match &mut self.wide {
             Some(w) => w.degrees = degrees,
-            None => self.wide = Some(WideRays::new(scene, None, degrees)),
+            None => self.wide = Some(WideRays::new(scene, bvh2, degrees)),
         }
         Ok(())
     }
