@@ -498,7 +498,11 @@ fn reflection_batch(c: &mut Criterion, (tag, scene): (&str, Scene), presets: &[(
     };
     let kind = RayKind::Reflection;
     let mut stats = Stats::default();
-    let rays = spawn(&stages_of(presets[0].0), REFLECTION_SIZE, kind, &mut stats);
+    let stages: Vec<Stages<Cpu>> = presets
+        .iter()
+        .map(|&(preset, _)| stages_of(preset))
+        .collect();
+    let rays = spawn(&stages[0], REFLECTION_SIZE, kind, &mut stats);
     if rays.is_empty() {
         eprintln!("reflection bench: {tag} spawns no reflection rays, skipped");
         return;
@@ -512,9 +516,8 @@ fn reflection_batch(c: &mut Criterion, (tag, scene): (&str, Scene), presets: &[(
     let mut g = c.benchmark_group("reflection");
     g.throughput(Throughput::Elements(rays.len() as u64));
     g.sample_size(10);
-    for &(preset, id) in presets {
-        let st = stages_of(preset);
-        let (_, hierarchy) = hierarchy_of(&st, &rays, kind, &mut stats);
+    for (st, &(preset, id)) in stages.iter().zip(presets) {
+        let (_, hierarchy) = hierarchy_of(st, &rays, kind, &mut stats);
         eprintln!(
             "reflection bench batch: {tag}, {} triangles, {REFLECTION_SIZE}x{REFLECTION_SIZE} \
              G-buffer, {} reflection rays, {preset}",
