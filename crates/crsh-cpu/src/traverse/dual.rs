@@ -2802,7 +2802,12 @@ impl Dual {
             wide: self.wide.as_ref(),
         };
         let level = task_level(&nodes);
-        let (tests, found, counts, wide_rays) = match tris {
+        let InlineTally {
+            tests,
+            found,
+            counts,
+            wide_rays,
+        } = match tris {
             AnyTriangleSet::MollerTrumbore(s) => {
                 trace_tasks(&ctx, s, mode, (root, level), widest, hits)?
             }
@@ -2900,11 +2905,15 @@ fn trace_tasks<'a, T: TriangleTest>(
     (root, top_level): (u32, usize),
     widest: usize,
     hits: &mut [Hit],
-) -> Result<(u64, u64, Counters, u64)> {
+) -> Result<InlineTally> {
     let order = ctx.hierarchy.order.as_slice();
     let n_top = ctx.nodes[top_level].len();
-    let mut counts = Counters::new(ctx.nodes.len(), ctx.tree.max_depth + 1);
-    let (mut tests, mut found, mut wide_rays) = (0u64, 0u64, 0u64);
+    let mut total = InlineTally {
+        tests: 0,
+        found: 0,
+        counts: Counters::new(ctx.nodes.len(), ctx.tree.max_depth + 1),
+        wide_rays: 0,
+    };
     let miss = bytemuck::bytes_of(&Hit::MISS);
     let fresh = crate::position_first(hits, |h| bytemuck::bytes_of(h) != miss).is_none();
     assert_eq!(order.len(), hits.len(), "one hit per leaf");
@@ -2913,7 +2922,8 @@ fn trace_tasks<'a, T: TriangleTest>(
         // After a round some rays have hits, but the next round's rays are others: a fresh
         // batch stays one for them.
         let current = (!fresh).then_some(&out);
-        let round: Vec<(bool, u64, u64, Counters, u64)> = (first..(first + ROUND_TASKS).min(n_top))
+        // `None`: the task has an invalid ray (and did not run).
+        let round: Vec<Option<InlineTally>> = (first..(first + ROUND_TASKS).min(n_top))
             .into_par_iter()
             .map(|top| {
                 let mut state = Inline::<T>::new(
@@ -2925,7 +2935,7 @@ fn trace_tasks<'a, T: TriangleTest>(
                     current,
                 );
                 if !state.valid {
-                    return (false, 0, 0, Counters::new(0, 0), 0);
+                    return None;
                 }
                 let (wide, wide_rays) = match ctx.wide {
                     Some(w) => state.trace_wide(w, mode),
@@ -2949,30 +2959,47 @@ fn trace_tasks<'a, T: TriangleTest>(
                 // level's rays), not in the object-depth rows (not the object hierarchy's).
                 c.ray[0][0] += wide.bounds;
                 c.ray[0][1] += wide.bounds_passed;
-                (
-                    true,
-                    state.tests + wide.prims,
-                    state.found + wide.prims_hit,
-                    c,
+                Some(InlineTally {
+                    tests: state.tests + wide.prims,
+                    found: state.found + wide.prims_hit,
+                    counts: c,
                     wide_rays,
-                )
+                })
             })
             .collect();
-        if round.iter().any(|r| !r.0) {
+        if round.iter().any(Option::is_none) {
             // The error that names the batch's first invalid ray.
             check_batch(ctx.rays, hits)?;
             return Err(CoreError::InvalidInput(
                 "dual: a ray of the batch is not valid".into(),
             ));
         }
-        for (_, t, f, c, w) in round {
-            tests += t;
-            found += f;
-            counts.add(&c);
-            wide_rays += w;
+        for task in round.iter().flatten() {
+            total.add(task);
         }
     }
-    Ok((tests, found, counts, wide_rays))
+    Ok(total)
+}
+
+/// What inline tasks counted ([`trace_tasks`]).
+struct InlineTally {
+    /// Ray-triangle tests (the pairs' and the wide rays').
+    tests: u64,
+    /// Of them, hits.
+    found: u64,
+    /// Box tests by ray level and object depth (the wide rays' in the lowest ray level's row).
+    counts: Counters,
+    /// Rays traced through the wide BVH ([`DualReport::wide_rays`]).
+    wide_rays: u64,
+}
+
+impl InlineTally {
+    fn add(&mut self, o: &InlineTally) {
+        self.tests += o.tests;
+        self.found += o.found;
+        self.counts.add(&o.counts);
+        self.wide_rays += o.wide_rays;
+    }
 }
 
 impl Traverser<Cpu> for Dual {
