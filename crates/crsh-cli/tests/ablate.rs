@@ -871,8 +871,8 @@ pipeline = "crsh"
             ),
             (
                 "crsh".to_string(),
-                "spheres + brute rebuild".to_string(),
-                "spheres + brute rebuild".to_string()
+                "spheres + crsh rebuild + brute rebuild".to_string(),
+                "spheres + crsh rebuild + brute rebuild".to_string()
             ),
         ]
     );

@@ -399,8 +399,8 @@ impl<B: Backend> Registry<B> {
 
     /// The pipeline `previous` (built by this registry) for a scene whose geometry changed
     /// (`ctx.scene`: same triangles, moved): every stage is constructed again for the new
-    /// scene, except an intersector that can refit its structure ([`Intersector::refit`]),
-    /// which does. [`Pipeline::builds`] says what each stage did and how long it took: the
+    /// scene, except a traverser or an intersector that can refit its structure
+    /// ([`Traverser::refit`], [`Intersector::refit`]), which does. [`Pipeline::builds`] says what each stage did and how long it took: the
     /// per-frame rebuild cost of a dynamic scene.
     pub fn rebuild(
         &self,
@@ -453,7 +453,21 @@ impl<B: Backend> Registry<B> {
         let hasher = optional!(Hash, &cfg.hash);
         let sorter = optional!(Sort, &cfg.sort);
         let hierarchy = optional!(Hierarchy, &cfg.hierarchy);
-        let traverser = optional!(Traverse, &cfg.traverse);
+        let t0 = Instant::now();
+        let refitted = match (previous, &cfg.traverse) {
+            (Some(p), Some(spec)) if p.config.traverse.as_ref() == Some(spec) => {
+                p.stages.traverser.as_ref().and_then(|t| t.refit(ctx))
+            }
+            _ => None,
+        };
+        let traverser = match (refitted, &cfg.traverse) {
+            (Some(result), Some(spec)) => {
+                let stage = result?;
+                done(StageKind::Traverse, spec, true, t0)?;
+                Some(stage)
+            }
+            _ => optional!(Traverse, &cfg.traverse),
+        };
         let t0 = Instant::now();
         let refitted = match previous {
             Some(p) if p.config.intersect == cfg.intersect => p.stages.intersector.refit(ctx),

@@ -337,6 +337,15 @@ pub trait Traverser<B: Backend>: Send + Sync {
         );
         None
     }
+    /// For a scene whose triangles moved (`ctx.scene`: the same triangles, new positions), a
+    /// traverser that reuses this one's work instead of building anew, e.g. an object
+    /// hierarchy whose bounds are recomputed over its kept topology; `None` (the default) when
+    /// the variant has nothing to reuse, and [`crate::Registry::rebuild`] constructs it again.
+    /// As for [`Intersector::refit`], the result must find the same hits as a fresh build.
+    fn refit(&self, ctx: &StageContext<'_, B>) -> Option<Result<Box<dyn Traverser<B>>>> {
+        let _ = ctx;
+        None
+    }
 }
 
 /// What an intersector tests each ray against.

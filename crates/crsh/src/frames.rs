@@ -11,7 +11,8 @@
 //! 3. rebuilds the pipeline for it ([`crsh_core::Registry::rebuild`]): every stage is built
 //!    again for the moved scene, and an intersector whose structure can be refitted (`bvh`
 //!    with `update = "refit"`) refits it; each stage's time is in `stages`, the acceleration
-//!    structure's (the intersector's build or refit, plus the spheres) in `structure_ms`;
+//!    structures' (the traverser's and the intersector's build or refit, plus the spheres) in
+//!    `structure_ms`;
 //! 4. renders it, with the reference on the frames `reference_every` samples.
 //!
 //! The frame time the comparison is about is `frame_ms = update.total_ms + render_ms`: update
@@ -50,10 +51,13 @@ pub struct UpdateReport {
     pub upload_ms: f64,
     /// Each stage's build or refit, in construction order.
     pub stages: Vec<StageBuild>,
-    /// What the acceleration structure's update was: `bvh rebuild`, `bvh refit`,
-    /// `grid rebuild`, `spheres + brute rebuild` ...
+    /// What the acceleration structures' update was: the spheres when they were updated, the
+    /// traverser's build or refit (a `dual` traverser's object hierarchy) and the
+    /// intersector's: `bvh rebuild`, `bvh refit`, `grid rebuild`,
+    /// `spheres + crsh rebuild + brute rebuild`, `spheres + dual refit + brute rebuild` ...
     pub structure: String,
-    /// Its time: the intersector's build or refit, plus the spheres when they were updated, ms.
+    /// Its time: the traverser's and the intersector's build or refit, plus the spheres when
+    /// they were updated, ms.
     pub structure_ms: f64,
     /// Everything before tracing: scene, spheres, upload and every stage, ms.
     pub total_ms: f64,
@@ -253,23 +257,29 @@ fn update_report(
     upload_ms: f64,
     builds: &[StageBuild],
 ) -> UpdateReport {
-    let intersect = builds.iter().find(|b| b.slot == StageKind::Intersect.key());
-    let (name, ms) = match intersect {
-        Some(b) => (
+    // The acceleration structures: a traverser's (an object hierarchy) and the intersector's.
+    let structures: Vec<&StageBuild> = [StageKind::Traverse, StageKind::Intersect]
+        .iter()
+        .filter_map(|k| builds.iter().find(|b| b.slot == k.key()))
+        .collect();
+    let mut names: Vec<String> = structures
+        .iter()
+        .map(|b| {
             format!(
                 "{} {}",
                 b.variant,
                 if b.refit { "refit" } else { "rebuild" }
-            ),
-            b.ms,
-        ),
-        None => ("none".to_string(), 0.0),
-    };
-    let structure = if spheres {
-        format!("spheres + {name}")
-    } else {
-        name
-    };
+            )
+        })
+        .collect();
+    if names.is_empty() {
+        names.push("none".to_string());
+    }
+    if spheres {
+        names.insert(0, "spheres".to_string());
+    }
+    let structure = names.join(" + ");
+    let ms: f64 = structures.iter().map(|b| b.ms).sum();
     let stages_ms: f64 = builds.iter().map(|b| b.ms).sum();
     UpdateReport {
         scene_ms: times.geometry_ms,
@@ -651,7 +661,10 @@ mod tests {
         );
         assert_eq!(json["frames"][2]["report"]["stages"]["traverse"], "crsh");
         let summary = report.summary();
-        assert!(summary.contains("spheres + brute rebuild"), "{summary}");
+        assert!(
+            summary.contains("spheres + crsh rebuild + brute rebuild"),
+            "{summary}"
+        );
         assert_eq!(summary.lines().count(), 3 + 3 + 1);
     }
 

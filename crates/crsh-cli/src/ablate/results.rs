@@ -234,8 +234,8 @@ pub struct FrameMeasure {
     pub frame: u32,
     /// Scene time, seconds.
     pub time_s: f32,
-    /// What the acceleration structure's update was (`bvh rebuild`, `bvh refit`,
-    /// `spheres + brute rebuild`, ...).
+    /// What the acceleration structures' update was (`bvh rebuild`, `bvh refit`,
+    /// `spheres + crsh rebuild + brute rebuild`, `spheres + dual refit + brute rebuild`, ...).
     pub structure: String,
     /// Triangles moved this frame.
     pub moved_triangles: u64,
