@@ -262,7 +262,8 @@ fn gpu_frames_are_deterministic_and_timed() {
 
 /// The frames of the built-in animated scene on the GPU: every pipeline's hits agree with the
 /// CPU's brute force on every frame (the scene is uploaded and the pipeline rebuilt per frame;
-/// `bvh` with `update = refit` refits the host tree and uploads it).
+/// `bvh` with `intersect.update = refit` refits the host tree and uploads it, `dual` with
+/// `traverse.update = refit` its object hierarchy).
 #[test]
 fn gpu_frames_of_the_animated_scene_agree_with_brute_force_on_every_frame() {
     let Some(b) = crsh_wgpu::testing::shared_backend(
@@ -278,6 +279,7 @@ fn gpu_frames_of_the_animated_scene_agree_with_brute_force_on_every_frame() {
         ("bvh", &["intersect.kind=grid"][..]),
         ("crsh", &[][..]),
         ("crsh", &["traverse.kind=dual"][..]),
+        ("crsh", &["traverse.kind=dual", "traverse.update=refit"][..]),
         ("rah", &[][..]),
     ] {
         let cfg = config(name, sets);
@@ -303,6 +305,13 @@ fn gpu_frames_of_the_animated_scene_agree_with_brute_force_on_every_frame() {
                 assert_eq!(
                     intersect.map(|s| s.refit),
                     Some(sets.contains(&"intersect.update=refit") && f.frame > 0),
+                    "{name} {sets:?} frame {}",
+                    f.frame
+                );
+                let traverse = f.update.stages.iter().find(|s| s.slot == "traverse");
+                assert_eq!(
+                    traverse.map(|s| s.refit),
+                    traverse.map(|_| sets.contains(&"traverse.update=refit") && f.frame > 0),
                     "{name} {sets:?} frame {}",
                     f.frame
                 );

@@ -1977,14 +1977,25 @@ fn with_scenes(shipped: &str, scenes: &[&str]) -> String {
 }
 
 /// The shipped dual-traversal plans validate with `--dry-run`: the CPU one and its wgpu twin
-/// (every cell on the wgpu backend, the same scenes, `dual` against `crsh` and `bvh`).
+/// (every cell on the wgpu backend, the same scenes, `dual` against `crsh` and `bvh`), and the
+/// dynamic-scene plan (`dual` rebuilding or refitting its object side).
 #[test]
 fn dual_plans_validate() {
     let dir = scratch("dual-plans");
-    for (plan, cells) in [("plans/dual.toml", 69), ("plans/dual-wgpu.toml", 33)] {
+    for (plan, cells) in [
+        ("plans/dual.toml", 69),
+        ("plans/dual-wgpu.toml", 33),
+        ("plans/dynamic.toml", 26),
+    ] {
         let path = repo_root().join(plan);
         let shipped = std::fs::read_to_string(&path).unwrap();
         assert!(shipped.contains("\"traverse.kind\" = \"dual\""), "{plan}");
+        if plan.contains("dynamic") {
+            assert!(
+                shipped.contains("\"traverse.update\" = [\"rebuild\", \"refit\"]"),
+                "{plan}"
+            );
+        }
         if plan.contains("wgpu") {
             assert!(shipped.contains("backends = [\"wgpu\"]"), "{plan}");
         }

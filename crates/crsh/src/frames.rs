@@ -604,6 +604,8 @@ mod tests {
             ("bvh", &["intersect.kind=grid"][..]),
             ("crsh", &[][..]),
             ("rah", &[][..]),
+            ("dual_inline", &["traverse.update=refit"][..]),
+            ("dual_screen_bvh", &["traverse.update=refit"][..]),
         ] {
             let fs = frames(preset, sets, 4);
             assert_eq!(fs.len(), 4);
@@ -625,6 +627,21 @@ mod tests {
                     "{preset} {sets:?} frame {}",
                     f.frame
                 );
+                let traverse = f.update.stages.iter().find(|b| b.slot == "traverse");
+                let refit = sets.contains(&"traverse.update=refit") && f.frame > 0;
+                assert_eq!(
+                    traverse.map(|b| b.refit),
+                    traverse.map(|_| refit),
+                    "{preset} {sets:?} frame {}",
+                    f.frame
+                );
+                if refit {
+                    assert!(
+                        f.update.structure.contains("dual refit"),
+                        "{}",
+                        f.update.structure
+                    );
+                }
                 // Only the ray-space hierarchies pay for the spheres.
                 let hierarchy = f.render.stats.stages.contains_key("traverse");
                 assert_eq!(f.update.structure.starts_with("spheres"), hierarchy);

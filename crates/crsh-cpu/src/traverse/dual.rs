@@ -67,6 +67,19 @@
 //! entries take the final tests below it (Sponza 18.2M against 27.3M ray-triangle tests) at
 //! the price of more pair tests (34.2M against 23.0M).
 //!
+//! # Moving geometry (`update`)
+//!
+//! The object side is built with the stage, so a moving scene rebuilds it every frame
+//! ([`crsh_core::Registry::rebuild`]). With `update = refit` (`objects = lbvh` or `bvh`) the
+//! next frame's traverser is [`Dual::refitted`] instead: the first frame's topology is kept
+//! and every bound computed again bottom-up from the moved triangles exactly as a build
+//! computes it over that topology, so every node again contains what lies below it and the
+//! hits are a fresh build's; only the tree's quality drifts with the motion (the Morton
+//! order, or PLOC's clusters, of the first frame). With `wide_cone`, obvhs's binary tree the
+//! 8-wide BVH comes from is kept too, refitted (leaf boxes, then `refit_all`) and compressed
+//! again, as the `bvh` intersector's `update = refit` does. A grid's entries and the mesh
+//! spheres follow the positions, so `grid` and `meshes` refuse `refit`.
+//!
 //! # Traversal
 //!
 //! Work starts from every (top-level ray node, object root) pair (with inline final tests,
@@ -313,8 +326,8 @@ use std::sync::Arc;
 use crsh_core::glam::{DVec3, Vec3, Vec3A};
 use crsh_core::{
     f32_down, f32_up, lowest_node_leaves, Aabb, Candidate, CandidateBatch, CoreError, Hit, HitMode,
-    Intersector, ParamInfo, Ray, RayHierarchy, RayKind, Registry, Result, Sphere, StageKind,
-    StageSpec, StageVariantInfo, Stats, Traverser, ALL_LANES,
+    Intersector, ParamInfo, Ray, RayHierarchy, RayKind, Registry, Result, Sphere, StageContext,
+    StageKind, StageSpec, StageVariantInfo, Stats, Traverser, ALL_LANES,
 };
 use crsh_scene::Scene;
 use rayon::prelude::*;
@@ -323,13 +336,13 @@ use super::crsh::{budget_bytes, prepare_nodes, Crsh, NodeBound, ABS_MARGIN, REL_
 use crate::backend::Cpu;
 use crate::intersect::brute::{check_batch, check_permutation, merge_repeats, BruteForce};
 use crate::intersect::bvh::{
-    build_bvh2, compress_bvh2, obvhs_triangle, trace_cwbvh, BuildQuality, Counts,
+    build_bvh2, compress_bvh2, obvhs_triangle, refit_bvh2, trace_cwbvh, BuildQuality, Counts,
 };
 use crate::intersect::grid::{GridData, MAX_DENSITY, MIN_DENSITY};
 use crate::triangle::{AnyTriangleSet, TestKind, TriangleSet, TriangleTest, LANES};
 use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
-use std::sync::OnceLock;
+use std::sync::{Mutex, OnceLock};
 
 /// The choices of parameter `objects`.
 pub const OBJECTS: [&str; 4] = ["lbvh", "bvh", "grid", "meshes"];
@@ -400,6 +413,16 @@ pub fn info() -> StageVariantInfo {
         )
         .range(0.0, WIDE_CONE_OFF),
     )
+    .param(ParamInfo::choice(
+        "update",
+        "rebuild",
+        &UPDATES,
+        "per frame of a moving scene, with `objects = lbvh` or `bvh`: build the object side \
+         anew, or keep the first frame's topology and recompute its bounds bottom-up (`refit`; \
+         with `wide_cone`, obvhs's binary tree is refitted and compressed to the 8-wide BVH \
+         again); the topology of `grid` and the mesh spheres follow the positions, so they \
+         always rebuild",
+    ))
     .param(ParamInfo::choice(
         "final_tests",
         "batched",
@@ -1213,6 +1236,37 @@ impl Lbvh {
         }
     }
 
+    /// The hierarchy over this one's topology for `scene`, the same triangles moved (their
+    /// spheres updated): every leaf's sphere and box, then every internal node's bottom-up,
+    /// as [`Lbvh::build`] computes them (`with_topology`). For [`Lbvh::build`] and
+    /// [`Lbvh::build_bvh2`] trees only: a grid's leaves are clipped to cells that the motion
+    /// moves away from.
+    fn refitted(&self, scene: &Scene) -> Lbvh {
+        // Any order with every node before its children (the bounds run it backwards).
+        let mut preorder = Vec::with_capacity(self.inner.len());
+        let mut stack = if self.inner.is_empty() {
+            Vec::new()
+        } else {
+            vec![0u32]
+        };
+        while let Some(i) = stack.pop() {
+            preorder.push(i);
+            for c in self.inner[i as usize].children {
+                if c & LEAF == 0 {
+                    stack.push(c);
+                }
+            }
+        }
+        Lbvh::with_topology(
+            scene,
+            self.inner.clone(),
+            self.leaf_tris.clone(),
+            &preorder,
+            self.max_depth,
+            None,
+        )
+    }
+
     /// Leaves: the triangles, or with [`Lbvh::build_grid`] the grid's (cell, triangle)
     /// entries (a triangle in several cells is several leaves).
     pub fn triangles(&self) -> usize {
@@ -1476,6 +1530,9 @@ pub struct Dual {
     inline: Option<InlineSets>,
     /// Parameter `wide_cone` below 180 (inline final tests only).
     wide: Option<WideRays>,
+    /// Parameter `update = refit` (`objects = lbvh` or `bvh`), shared by clones: the first
+    /// refit takes what is kept.
+    refit: Option<Arc<Kept>>,
 }
 
 /// The triangles an inline traversal tests when the pipeline's intersector does not share
@@ -1513,11 +1570,15 @@ impl InlineSets {
 /// obvhs's binary BVH (PLOC with reinsertion, preset `quality`) over all of `scene`'s
 /// triangles, in scene order (primitive `i` is triangle `i`).
 fn scene_bvh2(scene: &Scene, quality: BuildQuality) -> Bvh2 {
-    let tris: Vec<Triangle> = (0..scene.triangle_count())
+    build_bvh2(&scene_triangles(scene), &quality.params())
+}
+
+/// `scene`'s triangles for obvhs, in scene order.
+fn scene_triangles(scene: &Scene) -> Vec<Triangle> {
+    (0..scene.triangle_count())
         .into_par_iter()
         .map(|t| obvhs_triangle(scene.triangle(t)))
-        .collect();
-    build_bvh2(&tris, &quality.params())
+        .collect()
 }
 
 /// Parameter `wide_cone` (see *Wide ray nodes* in the module doc): the compressed 8-wide BVH
@@ -1576,11 +1637,42 @@ fn wide_cone_error(degrees: f64, out_of_range: bool) -> CoreError {
     }
 }
 
+/// The error of parameter `update = refit` with `objects` other than `lbvh` and `bvh`.
+fn refit_error(objects: &str) -> CoreError {
+    CoreError::InvalidParam {
+        key: "traverse.update".into(),
+        reason: format!(
+            "`refit` needs `objects = lbvh` or `bvh` (with `{objects}` the object side follows \
+             the positions: it is rebuilt)"
+        ),
+    }
+}
+
 /// Parameter `wide_cone`'s value that turns it off.
 pub const WIDE_CONE_OFF: f64 = 180.0;
 
 /// The choices of parameter `final_tests`.
 pub const FINAL_TESTS: [&str; 2] = ["batched", "inline"];
+
+/// The choices of parameter `update`.
+pub const UPDATES: [&str; 2] = ["rebuild", "refit"];
+
+/// With `update = refit`: what the next frame's [`Dual::refitted`] needs besides the object
+/// tree (which it reads).
+#[derive(Default)]
+struct Kept {
+    /// obvhs's binary tree over all of the scene's triangles (primitive `i` is triangle `i`,
+    /// [`scene_bvh2`]) that the wide rays' CWBVH was compressed from, with `wide_cone` on;
+    /// taken by the refit that uses it.
+    bvh2: Mutex<Option<Bvh2>>,
+}
+
+impl std::fmt::Debug for Kept {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let kept = self.bvh2.lock().map(|b| b.is_some()).unwrap_or(false);
+        f.debug_struct("Kept").field("bvh2", &kept).finish()
+    }
+}
 
 /// The object side.
 #[derive(Clone, Debug)]
@@ -2376,6 +2468,19 @@ impl Dual {
         if wide < WIDE_CONE_OFF && (!inline || objects == "meshes") {
             return Err(wide_cone_error(wide, false));
         }
+        let refit = match spec.str("update")? {
+            "rebuild" => false,
+            "refit" => true,
+            other => {
+                return Err(CoreError::InvalidParam {
+                    key: "traverse.update".into(),
+                    reason: format!("`{other}` is not one of {}", UPDATES.join(", ")),
+                })
+            }
+        };
+        if refit && !matches!(objects, "lbvh" | "bvh") {
+            return Err(refit_error(objects));
+        }
         // With `objects = bvh`, the obvhs tree the object side is laid out from: the wide
         // rays' CWBVH is compressed from it (kept only for that).
         let mut bvh2 = None;
@@ -2400,7 +2505,8 @@ impl Dual {
                 })
             }
         }
-        dual.set_wide_cone_over(scene, wide, bvh2.as_ref())?;
+        dual.set_refit(refit)?;
+        dual.set_wide_cone_over(scene, wide, bvh2)?;
         Ok(dual)
     }
 
@@ -2426,6 +2532,7 @@ impl Dual {
             objects,
             inline: None,
             wide: None,
+            refit: None,
         })
     }
 
@@ -2462,6 +2569,7 @@ impl Dual {
             },
             inline: None,
             wide: None,
+            refit: None,
         })
     }
 
@@ -2484,18 +2592,20 @@ impl Dual {
     }
 
     /// [`Dual::set_wide_cone`], a CWBVH it builds compressed from `bvh2` when given (obvhs's
-    /// binary BVH over all of `scene`'s triangles, [`scene_bvh2`]).
+    /// binary BVH over all of `scene`'s triangles, [`scene_bvh2`]), which `update = refit`
+    /// keeps (it builds one to keep when none is given).
     fn set_wide_cone_over(
         &mut self,
         scene: &Scene,
         degrees: f64,
-        bvh2: Option<&Bvh2>,
+        bvh2: Option<Bvh2>,
     ) -> Result<()> {
         if !(0.0..=WIDE_CONE_OFF).contains(&degrees) {
             return Err(wide_cone_error(degrees, true));
         }
         if degrees >= WIDE_CONE_OFF {
             self.wide = None;
+            self.keep_bvh2(None);
             return Ok(());
         }
         if self.inline.is_none() || matches!(self.objects, Objects::Meshes(_)) {
@@ -2503,9 +2613,99 @@ impl Dual {
         }
         match &mut self.wide {
             Some(w) => w.degrees = degrees,
-            None => self.wide = Some(WideRays::new(scene, bvh2, degrees)),
+            None => {
+                let bvh2 = match bvh2 {
+                    None if self.refit.is_some() && scene.triangle_count() > 0 => {
+                        Some(scene_bvh2(scene, BuildQuality::Fast))
+                    }
+                    given => given,
+                };
+                self.wide = Some(WideRays::new(scene, bvh2.as_ref(), degrees));
+                self.keep_bvh2(bvh2);
+            }
         }
         Ok(())
+    }
+
+    /// Keeps `bvh2` for the next refit (with `update = refit`).
+    fn keep_bvh2(&self, bvh2: Option<Bvh2>) {
+        if let Some(Ok(mut kept)) = self.refit.as_ref().map(|k| k.bvh2.lock()) {
+            *kept = bvh2;
+        }
+    }
+
+    /// Sets parameter `update`: `true` for `refit` ([`Dual::refitted`]; `objects = lbvh` or
+    /// `bvh`, an error with the others), `false` for `rebuild`.
+    pub fn set_refit(&mut self, on: bool) -> Result<()> {
+        if !on {
+            self.refit = None;
+            return Ok(());
+        }
+        match &self.objects {
+            Objects::Lbvh { source, .. } if matches!(*source, "lbvh" | "bvh") => {}
+            _ => return Err(refit_error(self.objects())),
+        }
+        if self.refit.is_none() {
+            self.refit = Some(Arc::new(Kept::default()));
+        }
+        Ok(())
+    }
+
+    /// Whether parameter `update` is `refit`.
+    pub fn refits(&self) -> bool {
+        self.refit.is_some()
+    }
+
+    /// With `update = refit`, this traverser for `scene` (the same triangles as the scene it
+    /// was built for, moved; triangle and mesh spheres updated): the object hierarchy keeps
+    /// its topology and its bounds are computed again bottom-up as a fresh build computes
+    /// them, so every node again contains what lies below it and the
+    /// hits are those of a fresh build, whatever the tree's quality after the motion. With
+    /// `wide_cone`, the kept obvhs tree is refitted (`refit_bvh2`, as the `bvh` intersector's
+    /// `update = refit`) and compressed again (built anew if another refit took it). The
+    /// other settings carry over. `None` with `update = rebuild` or when the triangle count
+    /// differs: build anew.
+    pub fn refitted(&self, scene: &Arc<Scene>) -> Option<Dual> {
+        let kept = self.refit.as_ref()?;
+        let Objects::Lbvh {
+            tree,
+            budget_bytes,
+            source,
+            box_test,
+            single_rays,
+        } = &self.objects
+        else {
+            return None;
+        };
+        let n = scene.triangle_count();
+        if tree.triangles() != n {
+            return None;
+        }
+        let mut out = Dual {
+            objects: Objects::Lbvh {
+                tree: Box::new(tree.refitted(scene)),
+                budget_bytes: *budget_bytes,
+                source,
+                box_test: *box_test,
+                single_rays: *single_rays,
+            },
+            inline: self.inline.as_ref().map(|_| InlineSets::new(scene)),
+            wide: None,
+            refit: Some(Arc::new(Kept::default())),
+        };
+        if let Some(w) = &self.wide {
+            let taken = kept.bvh2.lock().ok().and_then(|mut b| b.take());
+            let bvh2 = match taken {
+                Some(mut b) if n > 0 => {
+                    refit_bvh2(&mut b, &scene_triangles(scene));
+                    Some(b)
+                }
+                _ => None,
+            };
+            // Builds the tree anew when none was kept (and keeps it).
+            out.set_wide_cone_over(scene, w.degrees, bvh2).ok()?;
+        }
+        Some(out)
     }
 
     /// Parameter `wide_cone` in degrees (180: off).
@@ -2537,6 +2737,7 @@ impl Dual {
             (on && matches!(self.objects, Objects::Lbvh { .. })).then(|| InlineSets::new(scene));
         if self.inline.is_none() {
             self.wide = None;
+            self.keep_bvh2(None);
         }
     }
 
@@ -3057,6 +3258,11 @@ impl Traverser<Cpu> for Dual {
         let report = self.traverse_with_report(rays, kind, hierarchy, sink, stats)?;
         stats.peak_candidate_bytes = stats.peak_candidate_bytes.max(report.peak_candidate_bytes);
         Ok(())
+    }
+
+    fn refit(&self, ctx: &StageContext<'_, Cpu>) -> Option<Result<Box<dyn Traverser<Cpu>>>> {
+        let refitted = self.refitted(ctx.scene)?;
+        Some(Ok(Box::new(refitted)))
     }
 }
 
@@ -4501,6 +4707,176 @@ pub(crate) mod tests {
         t.set_wide_cone(&scene, 10.0).unwrap();
         t.set_inline(&scene, false);
         assert_eq!(t.wide_cone(), WIDE_CONE_OFF, "batched tests drop it");
+    }
+
+    /// The spec of `dual` with every default, then `sets` (`key=value`).
+    fn dual_spec(sets: &[(&str, ParamValue)]) -> StageSpec {
+        let mut spec = StageSpec::new("dual");
+        for p in &info().params {
+            spec.params.insert(p.name.to_string(), p.default.clone());
+        }
+        for (k, v) in sets {
+            spec.params.insert(k.to_string(), v.clone());
+        }
+        spec
+    }
+
+    /// Every node of `tree` contains the sphere and the box of every triangle below it, on
+    /// `scene` (in `f64` for the spheres).
+    fn check_tree_bounds(tree: &Lbvh, scene: &Scene, what: &str) {
+        for (i, node) in tree.inner.iter().enumerate() {
+            let mut below = Vec::new();
+            tree.triangles_below(i as u32, &mut below);
+            let c = node.sphere.center.as_dvec3();
+            for &t in &below {
+                let s = &scene.tri_spheres[t as usize];
+                let d = s.center.as_dvec3().distance(c) + s.radius as f64;
+                assert!(
+                    d <= node.sphere.radius as f64,
+                    "{what}: node {i}, triangle {t}"
+                );
+                let bx = triangle_box(scene.triangle(t as usize));
+                assert_eq!(node.bx.union(bx), node.bx, "{what}: node {i}, triangle {t}");
+            }
+        }
+    }
+
+    /// `update = refit`: over the frames of a moving scene, each refit keeps the object
+    /// side's topology, bounds every moved triangle again and finds the brute-force hits, with
+    /// batched and inline final tests and with every lowest node wide (then every ray goes
+    /// through the refitted 8-wide BVH); a refit of a refit works on; `rebuild` offers none.
+    #[test]
+    fn refitted_object_sides_keep_their_topology_and_give_the_brute_force_hits() {
+        let (anim, _) = crsh_scene::load_animated("cornell-mirrors-animated").unwrap();
+        let first = Arc::new(anim.scene().clone());
+        let brute_of = |s: &Scene| BruteForce::with_test(s, TestKind::Watertight);
+        let inline = ("final_tests", ParamValue::Str("inline".into()));
+        let configs: Vec<(&str, Vec<(&str, ParamValue)>)> = vec![
+            ("batched", vec![]),
+            ("inline", vec![inline.clone()]),
+            (
+                "inline, all wide",
+                vec![inline.clone(), ("wide_cone", ParamValue::Float(0.0))],
+            ),
+        ];
+        for objects in ["lbvh", "bvh"] {
+            for (name, sets) in &configs {
+                let mut sets = sets.clone();
+                sets.push(("objects", ParamValue::Str(objects.into())));
+                let rebuild = Dual::new(&first, &dual_spec(&sets)).unwrap();
+                assert!(!rebuild.refits() && rebuild.refitted(&first).is_none());
+                sets.push(("update", ParamValue::Str("refit".into())));
+                let mut trav = Dual::new(&first, &dual_spec(&sets)).unwrap();
+                assert!(trav.refits());
+                let mut scene = anim.scene().clone();
+                for frame in [3, 7, 11] {
+                    let what = format!("{objects} {name} frame {frame}");
+                    anim.update(&mut scene, frame, true).unwrap();
+                    let moved = Arc::new(scene.clone());
+                    let next = trav.refitted(&moved).expect("a refit");
+                    let (old, new) = (trav.lbvh().unwrap(), next.lbvh().unwrap());
+                    // The same topology and leaves; the moved triangles' bounds are new.
+                    let children =
+                        |t: &Lbvh| t.inner.iter().map(|n| n.children).collect::<Vec<_>>();
+                    assert_eq!(children(new), children(old), "{what}");
+                    assert_eq!(new.leaf_tris, old.leaf_tris, "{what}");
+                    assert!(new.leaves != old.leaves, "{what}: nothing moved");
+                    check_tree_bounds(new, &moved, &what);
+                    assert_eq!(
+                        (
+                            next.objects(),
+                            next.wide_cone(),
+                            next.inline(),
+                            next.refits()
+                        ),
+                        (objects, trav.wide_cone(), trav.inline(), true),
+                        "{what}"
+                    );
+                    let brute = brute_of(&moved);
+                    let rays = test_rays(&moved, 70 + u64::from(frame), 400);
+                    let h = build(&rays, (0..rays.len() as u32).collect(), 8, 2);
+                    for mode in [HitMode::Closest, HitMode::Any] {
+                        let want = reference(&brute, &rays, mode);
+                        let got = if next.inline() {
+                            let miss = vec![Hit::MISS; rays.len()];
+                            let (hits, _, report) =
+                                trace_inline(&next, &rays, &h, mode, brute.triangles(), &miss);
+                            if next.wide_cone() == 0.0 {
+                                assert_eq!(report.wide_rays, rays.len() as u64, "{what}");
+                            }
+                            hits
+                        } else {
+                            trace(&next, &brute, &rays, &h, mode).0
+                        };
+                        assert_same(&got, &want, mode, &format!("{what} {mode:?}"));
+                    }
+                    trav = next;
+                }
+            }
+        }
+        // Refused where the object side follows the positions, and a bad value.
+        for objects in ["grid", "meshes"] {
+            let spec = dual_spec(&[
+                ("objects", ParamValue::Str(objects.into())),
+                ("update", ParamValue::Str("refit".into())),
+            ]);
+            assert!(
+                matches!(Dual::new(&first, &spec), Err(CoreError::InvalidParam { key, .. }) if key == "traverse.update"),
+                "{objects}"
+            );
+            let mut t = Dual::with_options(&first, objects, 64.0).unwrap();
+            assert!(t.set_refit(true).is_err(), "{objects}");
+            t.set_refit(false).unwrap();
+        }
+        let spec = dual_spec(&[("update", ParamValue::Str("sometimes".into()))]);
+        assert!(Dual::new(&first, &spec).is_err());
+        // Another triangle count: no refit (the registry builds anew).
+        let mut t = Dual::with_options(&first, "lbvh", 64.0).unwrap();
+        t.set_refit(true).unwrap();
+        assert!(t.refitted(&Arc::new(soup(5, 30))).is_none());
+        t.set_refit(false).unwrap();
+        assert!(t.refitted(&first).is_none());
+    }
+
+    /// Through the registry: a rebuild of a `dual_screen_bvh` pipeline with
+    /// `traverse.update = refit` refits the traverser (`StageBuild::refit`), a rebuild with
+    /// another traverse spec builds it anew.
+    #[test]
+    fn registry_rebuilds_refit_the_dual_traverser() {
+        let registry = Registry::<Cpu>::builtin();
+        let (anim, _) = crsh_scene::load_animated("cornell-mirrors-animated").unwrap();
+        let first = Arc::new(anim.scene().clone());
+        let size = FrameSize::new(16, 16).unwrap();
+        let mut cfg = registry.preset("dual_screen_bvh").unwrap();
+        cfg.set("traverse.update=refit").unwrap();
+        let mut pipeline = registry
+            .build(&StageContext::new(&Cpu, &first, size), &cfg)
+            .unwrap();
+        let traverse_build = |p: &crsh_core::Pipeline<Cpu>| {
+            p.builds
+                .iter()
+                .find(|b| b.slot == StageKind::Traverse.key())
+                .map(|b| b.refit)
+        };
+        assert_eq!(traverse_build(&pipeline), Some(false));
+        let mut scene = anim.scene().clone();
+        for frame in [2, 5] {
+            anim.update(&mut scene, frame, true).unwrap();
+            let moved = Arc::new(scene.clone());
+            pipeline = registry
+                .rebuild(&StageContext::new(&Cpu, &moved, size), &pipeline)
+                .unwrap();
+            assert_eq!(traverse_build(&pipeline), Some(true), "frame {frame}");
+        }
+        let mut cfg = registry.preset("dual_screen_bvh").unwrap();
+        cfg.set("traverse.update=rebuild").unwrap();
+        let p = registry
+            .build(&StageContext::new(&Cpu, &first, size), &cfg)
+            .unwrap();
+        let again = registry
+            .rebuild(&StageContext::new(&Cpu, &first, size), &p)
+            .unwrap();
+        assert_eq!(traverse_build(&again), Some(false));
     }
 
     #[test]

@@ -3,9 +3,10 @@
 //! §5.1's "deeper object hierarchy").
 //!
 //! The twin is [`crsh_cpu::traverse::dual::Dual`]: the same parameters (`objects`,
-//! `grid_density`, `box_test`, `single_rays`, `candidate_budget_mb`), the same object
+//! `grid_density`, `box_test`, `single_rays`, `update`, `candidate_budget_mb`), the same object
 //! hierarchy (built on the host by the CPU's own code when the stage is constructed, once per
-//! frame, and uploaded: [`Lbvh::flat`]), the same pair test, the same rule for which side of a
+//! frame, and uploaded: [`Lbvh::flat`]; with `update = refit` the host traverser is kept and
+//! the next frame uploads its refit), the same pair test, the same rule for which side of a
 //! pair to split, single rays with lane masks, and the same counters. `objects = meshes` is
 //! the wgpu [`crate::traverse::crsh::Crsh`] with mesh culling, as on the CPU. `wide_cone`
 //! needs inline final tests, so here only its default (off) is accepted, as on the CPU with
@@ -58,8 +59,8 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 use crsh_core::{
-    Aabb, CandidateBatch, CoreError, Ray, RayHierarchy, RayKind, Registry, Result, StageSpec,
-    Stats, Traverser,
+    Aabb, CandidateBatch, CoreError, Ray, RayHierarchy, RayKind, Registry, Result, StageContext,
+    StageSpec, Stats, Traverser,
 };
 #[cfg(doc)]
 use crsh_cpu::traverse::dual::Lbvh;
@@ -248,6 +249,8 @@ struct Tree {
     budget_bytes: u64,
     box_test: bool,
     single_rays: bool,
+    /// With `update = refit`: the host traverser, whose refit the next frame uploads.
+    host: Option<Box<crsh_cpu::traverse::dual::Dual>>,
 }
 
 /// Registers the wgpu `dual` under its CPU twin's catalogue entry (same name, parameters,
@@ -284,7 +287,7 @@ impl Dual {
             });
         }
         let cpu = crsh_cpu::traverse::dual::Dual::new(&scene.scene, spec)?;
-        let Some(tree) = cpu.lbvh() else {
+        if cpu.lbvh().is_none() {
             let crsh = crate::traverse::crsh::Crsh::with_options(
                 scene,
                 true,
@@ -293,7 +296,20 @@ impl Dual {
             return Ok(Dual {
                 objects: Objects::Meshes(Box::new(crsh)),
             });
+        }
+        Dual::upload(scene, cpu)
+    }
+
+    /// The wgpu traverser of the host traverser `cpu` (`objects = lbvh`, `bvh` or `grid`,
+    /// built over `scene`'s triangles): its object hierarchy uploaded, and `cpu` itself kept
+    /// when it refits (`update = refit`).
+    fn upload(scene: &Arc<GpuScene>, cpu: crsh_cpu::traverse::dual::Dual) -> Result<Dual> {
+        let Some(tree) = cpu.lbvh() else {
+            return Err(CoreError::InvalidInput(
+                "dual: `objects = meshes` has no object hierarchy to upload".into(),
+            ));
         };
+        let (bounds, max_depth) = (tree.bounds(), tree.max_depth());
         let (flat, root) = tree.flat();
         let nodes: Vec<GpuObjNode> = flat
             .iter()
@@ -323,11 +339,12 @@ impl Dual {
                 source: cpu.objects(),
                 objs: GpuBuffer::from_slice(ctx, "dual object hierarchy", &nodes)?,
                 root,
-                bounds: tree.bounds(),
-                max_depth: tree.max_depth(),
+                bounds,
+                max_depth,
                 budget_bytes: cpu.budget_bytes(),
                 box_test: cpu.box_test(),
                 single_rays: cpu.single_rays(),
+                host: cpu.refits().then(|| Box::new(cpu)),
             })),
         })
     }
@@ -655,6 +672,15 @@ impl Run<'_> {
 impl Traverser<Wgpu> for Dual {
     fn name(&self) -> &str {
         "dual"
+    }
+
+    /// The host traverser's refit ([`crsh_cpu::traverse::dual::Dual::refitted`]), uploaded.
+    fn refit(&self, ctx: &StageContext<'_, Wgpu>) -> Option<Result<Box<dyn Traverser<Wgpu>>>> {
+        let Objects::Tree(tree) = &self.objects else {
+            return None;
+        };
+        let cpu = tree.host.as_ref()?.refitted(&ctx.scene.scene)?;
+        Some(Dual::upload(ctx.scene, cpu).map(|d| Box::new(d) as Box<dyn Traverser<Wgpu>>))
     }
 
     fn traverse(
