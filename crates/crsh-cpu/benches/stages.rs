@@ -23,7 +23,13 @@
 //! - `reflection`: the closest-hit reflection rays of a 1024² G-buffer of the shared dining
 //!   room (else the built-in `cornell-mirrors`), traced by `dual_lbvh_inline` (the
 //!   `dual_inline` preset) and by the `dual_screen_bvh` preset, and of the shared cornell-mirror (when present), traced by the
-//!   `dual_screen_bvh` preset; each batch also by the whole-scene `bvh`, side by side.
+//!   `dual_screen_bvh` preset; each batch also by the whole-scene `bvh`, side by side;
+//! - `object_update`: the `dual` traverser's object side for frame 4 of `sponza-animated`
+//!   (`scenes/sponza-animated.toml`, which needs the shared scenes; else the built-in
+//!   `cornell-mirrors-animated`), built anew (`object_update/build/{objects}/{tag}`) and
+//!   refitted from frame 0's (`traverse.update = refit`, `object_update/refit/...`), for
+//!   `objects = lbvh`, `bvh`, and `bvh` with `wide_cone = 60` (`bvh_wide`: the
+//!   `dual_screen_bvh` preset's, whose 8-wide BVH is compressed again either way).
 //!
 //! Run with `cargo bench -p crsh-cpu --bench stages` (add `-- --quick` for a short run, or a
 //! group name to filter).
@@ -571,9 +577,68 @@ fn config() -> Criterion {
         .measurement_time(Duration::from_secs(3))
 }
 
+/// The `object_update` group (module doc).
+fn object_update_benches(c: &mut Criterion) {
+    use crsh_core::{ParamValue, StageSpec};
+    use crsh_cpu::traverse::dual::{info, Dual};
+    let manifest =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scenes/sponza-animated.toml");
+    let (tag, anim) = match shared_scene("sponza/sponza.toml")
+        .and_then(|_| crsh_scene::load_animated(manifest.to_str()?).ok())
+    {
+        Some((anim, _)) => ("sponza-animated", anim),
+        None => {
+            eprintln!(
+                "object_update bench scene: built-in cornell-mirrors-animated \
+                 (sponza-animated needs sponza/sponza.toml under CRSH_SCENES or ../shared/scenes)"
+            );
+            let (anim, _) =
+                crsh_scene::load_animated("cornell-mirrors-animated").expect("built-in scene");
+            ("cornell-mirrors-animated", anim)
+        }
+    };
+    let first = Arc::new(anim.scene().clone());
+    let mut moved = anim.scene().clone();
+    anim.update(&mut moved, 4, true).expect("frame 4");
+    let moved = Arc::new(moved);
+    let mut g = c.benchmark_group("object_update");
+    g.throughput(Throughput::Elements(moved.triangle_count() as u64));
+    for (id, objects, wide) in [
+        ("lbvh", "lbvh", 180.0),
+        ("bvh", "bvh", 180.0),
+        ("bvh_wide", "bvh", 60.0),
+    ] {
+        let spec = |update: &str| {
+            let mut spec: StageSpec = info().defaults();
+            for (k, v) in [
+                ("objects", ParamValue::Str(objects.into())),
+                ("final_tests", ParamValue::Str("inline".into())),
+                ("wide_cone", ParamValue::Float(wide)),
+                ("update", ParamValue::Str(update.into())),
+            ] {
+                spec.params.insert(k.into(), v);
+            }
+            spec
+        };
+        let (rebuild, refit) = (spec("rebuild"), spec("refit"));
+        g.bench_function(format!("build/{id}/{tag}"), |b| {
+            b.iter(|| Dual::new(&moved, &rebuild).expect("dual"))
+        });
+        // A refit takes what its traverser kept: each one refits a fresh frame-0 traverser.
+        g.bench_function(format!("refit/{id}/{tag}"), |b| {
+            b.iter_batched(
+                || Dual::new(&first, &refit).expect("dual"),
+                |t| t.refitted(&moved).expect("a refit"),
+                BatchSize::PerIteration,
+            )
+        });
+    }
+    g.finish();
+}
+
 criterion_group! {
     name = stages_group;
     config = config();
-    targets = benches, reflection_benches
+    targets = benches, reflection_benches, object_update_benches
 }
 criterion_main!(stages_group);
