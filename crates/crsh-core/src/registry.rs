@@ -400,8 +400,8 @@ impl<B: Backend> Registry<B> {
     /// The pipeline `previous` (built by this registry) for a scene whose geometry changed
     /// (`ctx.scene`: same triangles, moved): every stage is constructed again for the new
     /// scene, except a traverser or an intersector that can refit its structure
-    /// ([`Traverser::refit`], [`Intersector::refit`]), which does. [`Pipeline::builds`] says what each stage did and how long it took: the
-    /// per-frame rebuild cost of a dynamic scene.
+    /// ([`Traverser::refit`], [`Intersector::refit`]), which does. [`Pipeline::builds`] says
+    /// what each stage did and how long it took: the per-frame rebuild cost of a dynamic scene.
     pub fn rebuild(
         &self,
         ctx: &StageContext<'_, B>,

@@ -2659,8 +2659,8 @@ impl Dual {
     /// With `update = refit`, this traverser for `scene` (the same triangles as the scene it
     /// was built for, moved; triangle and mesh spheres updated): the object hierarchy keeps
     /// its topology and its bounds are computed again bottom-up as a fresh build computes
-    /// them, so every node again contains what lies below it and the
-    /// hits are those of a fresh build, whatever the tree's quality after the motion. With
+    /// them, so every node again contains what lies below it and the hits are those of a
+    /// fresh build, whatever the tree's quality after the motion. With
     /// `wide_cone`, the kept obvhs tree is refitted (`refit_bvh2`, as the `bvh` intersector's
     /// `update = refit`) and compressed again (built anew if another refit took it). The
     /// other settings carry over. `None` with `update = rebuild` or when the triangle count
@@ -4675,10 +4675,7 @@ pub(crate) mod tests {
         // From the spec: off by default; on, with `objects = bvh` compressed from the object
         // side's own tree; refused where it would not run.
         let scene = Arc::new(soup(65, 40));
-        let mut spec = StageSpec::new("dual");
-        for p in &info().params {
-            spec.params.insert(p.name.to_string(), p.default.clone());
-        }
+        let mut spec = dual_spec(&[]);
         assert_eq!(Dual::new(&scene, &spec).unwrap().wide_cone(), WIDE_CONE_OFF);
         spec.params
             .insert("wide_cone".into(), ParamValue::Float(50.0));
@@ -4711,10 +4708,7 @@ pub(crate) mod tests {
 
     /// The spec of `dual` with every default, then `sets` (`key=value`).
     fn dual_spec(sets: &[(&str, ParamValue)]) -> StageSpec {
-        let mut spec = StageSpec::new("dual");
-        for p in &info().params {
-            spec.params.insert(p.name.to_string(), p.default.clone());
-        }
+        let mut spec = info().defaults();
         for (k, v) in sets {
             spec.params.insert(k.to_string(), v.clone());
         }
