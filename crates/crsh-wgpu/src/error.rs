@@ -47,6 +47,21 @@ pub enum GpuError {
         /// The limit's value.
         limit: u64,
     },
+    /// A kernel needs more of a per-stage resource than the device allows.
+    #[error(
+        "{what} needs {needed} where the device limit `{limit_name}` is {limit}; no variant of \
+         the kernel fits this device"
+    )]
+    Limit {
+        /// The kernel (and entry point) that does not fit.
+        what: String,
+        /// What it needs.
+        needed: u64,
+        /// The limit's name in `wgpu::Limits`.
+        limit_name: &'static str,
+        /// The limit's value.
+        limit: u64,
+    },
     /// Mapping a buffer for reading failed.
     #[error("buffer map failed: {0}")]
     Map(String),

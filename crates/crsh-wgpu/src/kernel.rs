@@ -33,18 +33,119 @@ pub enum Slot {
     ReadWrite,
 }
 
-/// A compiled WGSL module: one compute pipeline per entry point, all sharing one bind group
-/// layout (group 0, bindings `0..slots.len()`).
+/// A compiled WGSL module: one compute pipeline per entry point over the bindings
+/// `0..slots.len()` of group 0.
+///
+/// Each entry point gets a bind group layout of only the bindings it statically uses (naga's
+/// analysis of the module, the rule by which wgpu derives layouts itself), so that a module
+/// whose entry points share many buffers stays within `max_storage_buffers_per_shader_stage`
+/// as long as each entry point does: 8 under WebGPU's default limits, 16 on Mesa's OpenGL.
+/// Entry points that use the same bindings share one layout.
 #[derive(Debug)]
 pub struct Kernel {
     label: &'static str,
-    layout: wgpu::BindGroupLayout,
-    pipelines: Vec<(&'static str, wgpu::ComputePipeline)>,
+    /// One layout per distinct set of used bindings, with the bindings it holds.
+    layouts: Vec<(Vec<u32>, wgpu::BindGroupLayout)>,
+    /// Entry point, pipeline, index into `layouts`.
+    pipelines: Vec<(&'static str, wgpu::ComputePipeline, usize)>,
+}
+
+/// The bind groups of one set of resources for a [`Kernel`]: one per layout of its entry
+/// points ([`Kernel::bind_group`]).
+#[derive(Debug)]
+pub struct KernelBindings {
+    groups: Vec<wgpu::BindGroup>,
+}
+
+/// Bindings `0..n_slots` of group 0 that each of `entries` statically uses in `source`
+/// (through the functions it calls), in binding order.
+pub fn entry_bindings(
+    label: &str,
+    source: &str,
+    entries: &[&str],
+    n_slots: usize,
+) -> GpuResult<Vec<Vec<u32>>> {
+    use wgpu::naga;
+    let invalid = |reason: String| GpuError::Device {
+        op: format!("kernel `{label}`"),
+        reason,
+    };
+    let module =
+        naga::front::wgsl::parse_str(source).map_err(|e| invalid(e.emit_to_string(source)))?;
+    let info = naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::all(),
+    )
+    .validate(&module)
+    .map_err(|e| invalid(e.emit_to_string(source)))?;
+    entries
+        .iter()
+        .map(|&entry| {
+            let index = module
+                .entry_points
+                .iter()
+                .position(|e| e.name == entry)
+                .ok_or_else(|| invalid(format!("no entry point `{entry}` in the module")))?;
+            let uses = info.get_entry_point(index);
+            let mut used: Vec<u32> = module
+                .global_variables
+                .iter()
+                .filter(|(h, _)| !uses[*h].is_empty())
+                .filter_map(|(_, var)| var.binding.as_ref())
+                .filter(|b| b.group == 0 && (b.binding as usize) < n_slots)
+                .map(|b| b.binding)
+                .collect();
+            used.sort_unstable();
+            used.dedup();
+            Ok(used)
+        })
+        .collect()
+}
+
+/// Fails with [`GpuError::Limit`] when the bindings `used` of `slots` need more storage or
+/// uniform buffers in one shader stage than `limits` allow.
+pub fn check_binding_limits(
+    what: &str,
+    slots: &[Slot],
+    used: &[u32],
+    limits: &wgpu::Limits,
+) -> GpuResult<()> {
+    let count = |f: fn(Slot) -> bool| {
+        used.iter()
+            .filter(|&&b| slots.get(b as usize).is_some_and(|&s| f(s)))
+            .count() as u32
+    };
+    let storage = count(|s| s != Slot::Uniform);
+    let uniform = count(|s| s == Slot::Uniform);
+    for (needed, limit, name) in [
+        (
+            storage,
+            limits.max_storage_buffers_per_shader_stage,
+            "max_storage_buffers_per_shader_stage",
+        ),
+        (
+            uniform,
+            limits.max_uniform_buffers_per_shader_stage,
+            "max_uniform_buffers_per_shader_stage",
+        ),
+    ] {
+        if needed > limit {
+            return Err(GpuError::Limit {
+                what: what.to_string(),
+                needed: u64::from(needed),
+                limit_name: name,
+                limit: u64::from(limit),
+            });
+        }
+    }
+    Ok(())
 }
 
 impl Kernel {
     /// Compiles `source` (with [`COMMON_WGSL`] prepended) and creates a pipeline for each of
-    /// `entries`. Compilation errors come back as [`GpuError::Device`].
+    /// `entries`, each with the layout of the `slots` it uses. Compilation errors come back as
+    /// [`GpuError::Device`]; an entry point that needs more buffers than the device allows
+    /// as [`GpuError::Limit`].
     pub fn new(
         ctx: &GpuContext,
         label: &'static str,
@@ -54,93 +155,125 @@ impl Kernel {
     ) -> GpuResult<Kernel> {
         let device = ctx.device();
         let full = format!("{COMMON_WGSL}\n{source}");
+        let used = entry_bindings(label, &full, entries, slots.len())?;
+        let limits = ctx.limits();
+        for (entry, used) in entries.iter().zip(&used) {
+            check_binding_limits(
+                &format!("kernel `{label}` entry `{entry}`"),
+                slots,
+                used,
+                &limits,
+            )?;
+        }
+        let mut sets: Vec<Vec<u32>> = Vec::new();
+        let layout_of: Vec<usize> = used
+            .iter()
+            .map(|u| match sets.iter().position(|s| s == u) {
+                Some(i) => i,
+                None => {
+                    sets.push(u.clone());
+                    sets.len() - 1
+                }
+            })
+            .collect();
         ctx.capture(label, || {
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some(label),
                 source: wgpu::ShaderSource::Wgsl(full.into()),
             });
-            let layout_entries: Vec<wgpu::BindGroupLayoutEntry> = slots
-                .iter()
-                .enumerate()
-                .map(|(i, slot)| wgpu::BindGroupLayoutEntry {
-                    binding: i as u32,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: match slot {
-                            Slot::Uniform => wgpu::BufferBindingType::Uniform,
-                            Slot::Read => wgpu::BufferBindingType::Storage { read_only: true },
-                            Slot::ReadWrite => {
-                                wgpu::BufferBindingType::Storage { read_only: false }
-                            }
-                        },
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
+            let layouts: Vec<(Vec<u32>, wgpu::BindGroupLayout, wgpu::PipelineLayout)> = sets
+                .into_iter()
+                .map(|set| {
+                    let layout_entries: Vec<wgpu::BindGroupLayoutEntry> = set
+                        .iter()
+                        .map(|&b| layout_entry(b, slots[b as usize]))
+                        .collect();
+                    let layout =
+                        device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                            label: Some(label),
+                            entries: &layout_entries,
+                        });
+                    let pipeline_layout =
+                        device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                            label: Some(label),
+                            bind_group_layouts: &[Some(&layout)],
+                            immediate_size: 0,
+                        });
+                    (set, layout, pipeline_layout)
                 })
                 .collect();
-            let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some(label),
-                entries: &layout_entries,
-            });
-            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some(label),
-                bind_group_layouts: &[Some(&layout)],
-                immediate_size: 0,
-            });
             let pipelines = entries
                 .iter()
-                .map(|&entry| {
+                .zip(&layout_of)
+                .map(|(&entry, &l)| {
                     let p = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                         label: Some(entry),
-                        layout: Some(&pipeline_layout),
+                        layout: Some(&layouts[l].2),
                         module: &module,
                         entry_point: Some(entry),
                         compilation_options: Default::default(),
                         cache: None,
                     });
-                    (entry, p)
+                    (entry, p, l)
                 })
                 .collect();
             Kernel {
                 label,
-                layout,
+                layouts: layouts.into_iter().map(|(s, l, _)| (s, l)).collect(),
                 pipelines,
             }
         })
     }
 
-    /// The pipeline of entry point `entry` (one of those given to [`Kernel::new`]).
-    pub fn pipeline(&self, entry: &str) -> GpuResult<&wgpu::ComputePipeline> {
+    fn entry(&self, entry: &str) -> GpuResult<&(&'static str, wgpu::ComputePipeline, usize)> {
         self.pipelines
             .iter()
-            .find(|(name, _)| *name == entry)
-            .map(|(_, p)| p)
+            .find(|(name, _, _)| *name == entry)
             .ok_or_else(|| GpuError::Device {
                 op: format!("kernel `{}`", self.label),
                 reason: format!("no entry point `{entry}` was compiled"),
             })
     }
 
-    /// A bind group of `resources` in slot order.
+    /// The pipeline of entry point `entry` (one of those given to [`Kernel::new`]).
+    pub fn pipeline(&self, entry: &str) -> GpuResult<&wgpu::ComputePipeline> {
+        self.entry(entry).map(|(_, p, _)| p)
+    }
+
+    /// The bindings entry point `entry` uses, in binding order.
+    pub fn bindings_of(&self, entry: &str) -> GpuResult<&[u32]> {
+        self.entry(entry)
+            .map(|(_, _, l)| self.layouts[*l].0.as_slice())
+    }
+
+    /// The bind groups of `resources`, in slot order: each layout's group holds the resources
+    /// of the bindings its entry points use.
     pub fn bind_group(
         &self,
         ctx: &GpuContext,
         resources: &[wgpu::BindingResource<'_>],
-    ) -> wgpu::BindGroup {
-        let entries: Vec<wgpu::BindGroupEntry<'_>> = resources
+    ) -> KernelBindings {
+        let groups = self
+            .layouts
             .iter()
-            .enumerate()
-            .map(|(i, r)| wgpu::BindGroupEntry {
-                binding: i as u32,
-                resource: r.clone(),
+            .map(|(set, layout)| {
+                let entries: Vec<wgpu::BindGroupEntry<'_>> = set
+                    .iter()
+                    .filter_map(|&b| {
+                        resources.get(b as usize).map(|r| wgpu::BindGroupEntry {
+                            binding: b,
+                            resource: r.clone(),
+                        })
+                    })
+                    .collect();
+                ctx.device().create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some(self.label),
+                    layout,
+                    entries: &entries,
+                })
             })
             .collect();
-        ctx.device().create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(self.label),
-            layout: &self.layout,
-            entries: &entries,
-        })
+        KernelBindings { groups }
     }
 
     /// Records a dispatch of `entry` over `invocations` invocations of [`WG`]-wide workgroups
@@ -151,17 +284,48 @@ impl Kernel {
         ctx: &GpuContext,
         pass: &mut wgpu::ComputePass<'_>,
         entry: &str,
-        bind_group: &wgpu::BindGroup,
+        bindings: &KernelBindings,
         invocations: u32,
     ) -> GpuResult<()> {
         if invocations == 0 {
             return Ok(());
         }
         let (x, y) = grid(ctx, invocations.div_ceil(WG))?;
-        pass.set_pipeline(self.pipeline(entry)?);
-        pass.set_bind_group(0, bind_group, &[]);
+        self.set(pass, entry, bindings)?;
         pass.dispatch_workgroups(x, y, 1);
         Ok(())
+    }
+
+    /// Sets `entry`'s pipeline and its bind group of `bindings` on `pass` (for dispatches
+    /// shaped by the caller, e.g. indirect ones).
+    pub fn set(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        entry: &str,
+        bindings: &KernelBindings,
+    ) -> GpuResult<()> {
+        let (_, pipeline, l) = self.entry(entry)?;
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, &bindings.groups[*l], &[]);
+        Ok(())
+    }
+}
+
+/// The layout entry of binding `binding`, a `slot`, visible to compute.
+fn layout_entry(binding: u32, slot: Slot) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: match slot {
+                Slot::Uniform => wgpu::BufferBindingType::Uniform,
+                Slot::Read => wgpu::BufferBindingType::Storage { read_only: true },
+                Slot::ReadWrite => wgpu::BufferBindingType::Storage { read_only: false },
+            },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
     }
 }
 
@@ -251,9 +415,9 @@ pub fn dispatch_chunks<T>(
     label: &str,
     entry: &str,
     len: usize,
-    mut bind: impl FnMut(Range<usize>) -> wgpu::BindGroup,
+    mut bind: impl FnMut(Range<usize>) -> KernelBindings,
 ) -> GpuResult<()> {
-    let groups: Vec<(wgpu::BindGroup, u32)> = chunks::<T>(ctx, len)
+    let groups: Vec<(KernelBindings, u32)> = chunks::<T>(ctx, len)
         .into_iter()
         .map(|range| {
             let n = range.len() as u32;

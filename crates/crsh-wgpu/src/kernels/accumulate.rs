@@ -80,7 +80,7 @@ pub struct AccumulateKernel {
 
 /// The buffers of one accumulation, bound ([`AccumulateKernel::bind`]).
 pub struct Accumulation {
-    bind_group: wgpu::BindGroup,
+    bind_group: crate::kernel::KernelBindings,
     n: u32,
     n_pixels: u32,
 }

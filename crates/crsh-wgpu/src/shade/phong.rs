@@ -159,7 +159,7 @@ impl Phong {
         params: &Params,
         calls: Calls<'_>,
         report: &GpuBuffer<u32>,
-    ) -> GpuResult<wgpu::BindGroup> {
+    ) -> GpuResult<crate::kernel::KernelBindings> {
         let ctx = self.scene.ctx();
         let u = uniform(ctx, "crsh phong params", params);
         let no_surfaces = GpuBuffer::<Surface>::zeroed(ctx, "crsh phong unused", 0)?;

@@ -86,7 +86,12 @@ struct Buffers<'a> {
     order: &'a GpuBuffer<u32>,
 }
 
-fn bind(ctx: &GpuContext, k: &Kernel, params: &Params, b: &Buffers<'_>) -> wgpu::BindGroup {
+fn bind(
+    ctx: &GpuContext,
+    k: &Kernel,
+    params: &Params,
+    b: &Buffers<'_>,
+) -> crate::kernel::KernelBindings {
     let u = uniform(ctx, "crsh compress params", params);
     k.bind_group(
         ctx,

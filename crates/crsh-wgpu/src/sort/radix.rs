@@ -166,15 +166,13 @@ pub fn stable_radix_order(
         let bg = bind(&params, keys_in, vals_in, keys_out, vals_out);
         {
             let mut pass = ctx.compute_pass(&mut enc, "crsh radix histogram");
-            pass.set_pipeline(k.kernel.pipeline("histogram")?);
-            pass.set_bind_group(0, &bg, &[]);
+            k.kernel.set(&mut pass, "histogram", &bg)?;
             pass.dispatch_workgroups(gx, gy, 1);
         }
         scan.encode_in_place(ctx, &mut enc, &hist, None)?;
         {
             let mut pass = ctx.compute_pass(&mut enc, "crsh radix scatter");
-            pass.set_pipeline(k.kernel.pipeline("scatter")?);
-            pass.set_bind_group(0, &bg, &[]);
+            k.kernel.set(&mut pass, "scatter", &bg)?;
             pass.dispatch_workgroups(gx, gy, 1);
         }
         flip = !flip;

@@ -214,7 +214,12 @@ impl Crsh {
         n.min(self.scene.triangle_count().max(1) as u64) as usize
     }
 
-    fn bind(&self, k: &Kernel, params: &Params, b: &Binds<'_>) -> GpuResult<wgpu::BindGroup> {
+    fn bind(
+        &self,
+        k: &Kernel,
+        params: &Params,
+        b: &Binds<'_>,
+    ) -> GpuResult<crate::kernel::KernelBindings> {
         let ctx = self.scene.ctx();
         let u = uniform(ctx, "crsh traversal params", params);
         let z = &self.unused;

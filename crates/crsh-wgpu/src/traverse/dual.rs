@@ -15,16 +15,17 @@
 //! # The device algorithm
 //!
 //! 1. `prepare`: every ray node becomes the CPU's `NodeBound` (`node_bound.wgsl`, all levels
-//!    in one array); a non-finite or negative node is an error. `lowest_boxes` and
-//!    `upper_boxes`: every node's segment box (the union of its rays' segment boxes,
-//!    [`crsh_cpu::traverse::dual::segment_box`], then of its children's).
+//!    in one array of node records); a non-finite or negative node is an error.
+//!    `lowest_boxes` and `upper_boxes`: every node's segment box, in the same record (the
+//!    union of its rays' segment boxes, [`crsh_cpu::traverse::dual::segment_box`], then of its
+//!    children's).
 //! 2. The pairs (top node, object root) of every top-level ray node are the first
 //!    frontier. Each round, `test_pairs` tests every pair of the frontier with the CPU task's
 //!    rules (box overlap, then `may_hit` against the object node's sphere; a single-ray pair
 //!    tests each live ray's segment against the object node's box) and decides what follows:
 //!    nothing, a candidate, the pair as single rays, the ray node's children or the object
-//!    node's two children. The children and candidate counts are scanned
-//!    ([`crate::kernels::scan`]), and `emit_pairs` writes the next frontier and the round's
+//!    node's two children. The children and candidate counts, in one array, are scanned in one
+//!    pass ([`crate::kernels::scan`]), and `emit_pairs` writes the next frontier and the round's
 //!    candidates and counts each test in its ray level's and object depth's rows. The
 //!    traversal ends when no frontier is left.
 //! 3. A batch of candidates (at the end, or earlier when they fill a quarter of the budget) is
@@ -32,6 +33,10 @@
 //!    `node << tri_bits | triangle`), and repeats (a triangle reached through several grid
 //!    cells) merged into one candidate for the union of their lane masks (`merge_heads`,
 //!    scan, `merge_emit`), so the intersector gets strictly increasing pairs as from the CPU.
+//!
+//! Each pass binds at most 8 storage buffers (WebGPU's default
+//! `max_storage_buffers_per_shader_stage`): the level starts travel in the parameters, a
+//! node's bound and box share a record, and a round's two count arrays one buffer.
 //!
 //! # What differs from the CPU
 //!
@@ -100,7 +105,20 @@ struct Params {
     tri_bits: u32,
     scene_hi: [f32; 3],
     child_first: u32,
+    /// Each level's first index in the node records, then their total.
+    level_first: [[u32; 4]; 16],
 }
+
+/// Ray levels the traversal takes: `Params::level_first` holds `MAX_LEVELS + 1` starts. A
+/// hierarchy over at most 2³² rays with a subdivision of at least 2 has at most 33 levels.
+const MAX_LEVELS: usize = 63;
+
+/// `NodeRec` in WGSL (80 bytes): a ray node's prepared bound ([`BoundWords`]) and its box of
+/// ray segments ([`BoxWords`]).
+type NodeRecWords = [u32; NODE_REC_WORDS];
+
+const NODE_REC_WORDS: usize =
+    (std::mem::size_of::<BoundWords>() + std::mem::size_of::<BoxWords>()) / 4;
 
 /// `ObjNode` in WGSL (48 bytes): [`crsh_cpu::traverse::dual::FlatNode`].
 #[repr(C)]
@@ -134,9 +152,8 @@ impl DualKernels {
     fn new(ctx: &GpuContext) -> GpuResult<DualKernels> {
         use Slot::{Read, ReadWrite, Uniform};
         let slots = [
-            Uniform, Read, Read, ReadWrite, ReadWrite, Read, Read, Read, Read, Read, Read,
-            ReadWrite, ReadWrite, ReadWrite, ReadWrite, ReadWrite, ReadWrite, ReadWrite, ReadWrite,
-            Read, ReadWrite,
+            Uniform, Read, Read, ReadWrite, Read, Read, Read, Read, Read, ReadWrite, ReadWrite,
+            ReadWrite, ReadWrite, ReadWrite, ReadWrite, ReadWrite, Read, ReadWrite,
         ];
         Ok(DualKernels {
             kernel: Kernel::new(
@@ -169,16 +186,13 @@ impl DualKernels {
 struct Binds<'a> {
     level_nodes: Option<&'a GpuBuffer<crsh_core::SphereCone>>,
     level_reach: Option<&'a GpuBuffer<f32>>,
-    bounds: Option<&'a GpuBuffer<BoundWords>>,
-    boxes: Option<&'a GpuBuffer<BoxWords>>,
-    level_first: Option<&'a GpuBuffer<u32>>,
+    nodes: Option<&'a GpuBuffer<NodeRecWords>>,
     rays: Option<&'a GpuBuffer<Ray>>,
     order: Option<&'a GpuBuffer<u32>>,
     offsets: Option<&'a GpuBuffer<u32>>,
     pairs_in: Option<&'a GpuBuffer<GpuPair>>,
     outcome: Option<&'a GpuBuffer<[u32; 2]>>,
-    n_children: Option<&'a GpuBuffer<u32>>,
-    n_cands: Option<&'a GpuBuffer<u32>>,
+    counts: Option<&'a GpuBuffer<u32>>,
     pairs_out: Option<&'a GpuBuffer<GpuPair>>,
     raw: Option<&'a GpuBuffer<GpuPair>>,
     cands: Option<&'a GpuBuffer<crsh_core::Candidate>>,
@@ -205,8 +219,7 @@ enum Objects {
 struct Unused {
     nodes: GpuBuffer<crsh_core::SphereCone>,
     reach: GpuBuffer<f32>,
-    bounds: GpuBuffer<BoundWords>,
-    boxes: GpuBuffer<BoxWords>,
+    records: GpuBuffer<NodeRecWords>,
     rays: GpuBuffer<Ray>,
     outcome: GpuBuffer<[u32; 2]>,
     cands: GpuBuffer<crsh_core::Candidate>,
@@ -220,13 +233,12 @@ impl Unused {
         Ok(Unused {
             nodes: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
             reach: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
-            bounds: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
-            boxes: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
+            records: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
             rays: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
             outcome: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
             cands: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
             keys: GpuBuffer::zeroed(ctx, "dual unused", 0)?,
-            words: (0..8)
+            words: (0..6)
                 .map(|_| GpuBuffer::zeroed(ctx, "dual unused", 0))
                 .collect::<GpuResult<_>>()?,
             pairs: (0..3)
@@ -366,15 +378,18 @@ struct Run<'a> {
     rays: &'a GpuBuffer<Ray>,
     order: &'a GpuBuffer<u32>,
     offsets: Option<&'a GpuBuffer<u32>>,
-    bounds: GpuBuffer<BoundWords>,
-    boxes: GpuBuffer<BoxWords>,
-    level_first: GpuBuffer<u32>,
+    nodes: GpuBuffer<NodeRecWords>,
     kind: RayKind,
     key_bits: u32,
 }
 
 impl Tree {
-    fn bind(&self, k: &Kernel, params: &Params, b: &Binds<'_>) -> GpuResult<wgpu::BindGroup> {
+    fn bind(
+        &self,
+        k: &Kernel,
+        params: &Params,
+        b: &Binds<'_>,
+    ) -> GpuResult<crate::kernel::KernelBindings> {
         let ctx = self.scene.ctx();
         let u = uniform(ctx, "dual traversal params", params);
         let z = &self.unused;
@@ -385,24 +400,21 @@ impl Tree {
                 u.as_entire_binding(),
                 b.level_nodes.unwrap_or(&z.nodes).binding(),
                 b.level_reach.unwrap_or(&z.reach).binding(),
-                b.bounds.unwrap_or(&z.bounds).binding(),
-                b.boxes.unwrap_or(&z.boxes).binding(),
-                b.level_first.unwrap_or(&u32s[0]).binding(),
+                b.nodes.unwrap_or(&z.records).binding(),
                 b.rays.unwrap_or(&z.rays).binding(),
-                b.order.unwrap_or(&u32s[1]).binding(),
-                b.offsets.unwrap_or(&u32s[2]).binding(),
+                b.order.unwrap_or(&u32s[0]).binding(),
+                b.offsets.unwrap_or(&u32s[1]).binding(),
                 self.objs.binding(),
                 b.pairs_in.unwrap_or(&p32s[0]).binding(),
                 b.outcome.unwrap_or(&z.outcome).binding(),
-                b.n_children.unwrap_or(&u32s[3]).binding(),
-                b.n_cands.unwrap_or(&u32s[4]).binding(),
+                b.counts.unwrap_or(&u32s[2]).binding(),
                 b.pairs_out.unwrap_or(&p32s[1]).binding(),
                 b.raw.unwrap_or(&p32s[2]).binding(),
                 b.cands.unwrap_or(&z.cands).binding(),
-                b.lanes.unwrap_or(&u32s[5]).binding(),
+                b.lanes.unwrap_or(&u32s[3]).binding(),
                 b.keys.unwrap_or(&z.keys).binding(),
-                b.sorted.unwrap_or(&u32s[6]).binding(),
-                b.counters.unwrap_or(&u32s[7]).binding(),
+                b.sorted.unwrap_or(&u32s[4]).binding(),
+                b.counters.unwrap_or(&u32s[5]).binding(),
             ],
         ))
     }
@@ -431,9 +443,7 @@ impl Run<'_> {
 
     fn binds(&self) -> Binds<'_> {
         Binds {
-            bounds: Some(&self.bounds),
-            boxes: Some(&self.boxes),
-            level_first: Some(&self.level_first),
+            nodes: Some(&self.nodes),
             rays: Some(self.rays),
             order: Some(self.order),
             offsets: self.offsets,
@@ -498,7 +508,7 @@ impl Run<'_> {
             raw: Some(&raw),
             keys: Some(&keys),
             sorted: Some(&sorted),
-            n_cands: Some(&heads),
+            counts: Some(&heads),
             ..Binds::default()
         };
         let mut enc = encoder(ctx, "dual merge heads");
@@ -596,8 +606,8 @@ impl Run<'_> {
                 let n = frontier.len();
                 ctx.check_storage_binding("dual frontier", frontier.byte_len())?;
                 let outcome = GpuBuffer::<[u32; 2]>::zeroed(ctx, "dual outcome", n)?;
-                let n_children = GpuBuffer::<u32>::zeroed(ctx, "dual children", n)?;
-                let n_cands = GpuBuffer::<u32>::zeroed(ctx, "dual round candidates", n)?;
+                // Children counts, then candidate counts: one scan gives both positions.
+                let counts = GpuBuffer::<u32>::zeroed(ctx, "dual round counts", 2 * n)?;
                 let totals = GpuBuffer::<u32>::zeroed(ctx, "dual totals", 2)?;
                 let params = Params {
                     n: n as u32,
@@ -606,19 +616,19 @@ impl Run<'_> {
                 let binds = Binds {
                     pairs_in: Some(&frontier),
                     outcome: Some(&outcome),
-                    n_children: Some(&n_children),
-                    n_cands: Some(&n_cands),
+                    counts: Some(&counts),
                     counters: Some(&counters),
                     ..self.binds()
                 };
                 let mut enc = encoder(ctx, "dual test pairs");
                 self.tree
                     .dispatch(&mut enc, self.k, "test_pairs", &params, &binds)?;
-                scan.encode_in_place(ctx, &mut enc, &n_children, Some((totals.buffer(), 0)))?;
-                scan.encode_in_place(ctx, &mut enc, &n_cands, Some((totals.buffer(), 4)))?;
+                scan.encode_in_place(ctx, &mut enc, &counts, Some((totals.buffer(), 4)))?;
+                // After the scan, counts[n] is the sum of the children counts.
+                enc.copy_buffer_to_buffer(counts.buffer(), 4 * n as u64, totals.buffer(), 0, 4);
                 submit(ctx, "dual test pairs", enc)?;
                 let t = totals.to_vec(ctx)?;
-                let (children, found) = (t[0] as u64, t[1] as u64);
+                let (children, found) = (t[0] as u64, t[1].wrapping_sub(t[0]) as u64);
                 let needed = (n as u64 + children) * PAIR_BYTES
                     + n as u64 * ROUND_BYTES
                     + (held_len + found) * PAIR_BYTES;
@@ -703,9 +713,9 @@ impl Traverser<Wgpu> for Dual {
         }
         let sub = h.subdivision;
         let level_lens = super::check_hierarchy(ctx, h, n_rays)?;
-        if level_lens.len() > 0xfffe {
+        if level_lens.len() > MAX_LEVELS {
             return Err(CoreError::InvalidInput(format!(
-                "{} hierarchy levels: the dual traversal takes fewer than 65535",
+                "{} hierarchy levels: the dual traversal takes at most {MAX_LEVELS}",
                 level_lens.len()
             )));
         }
@@ -715,10 +725,12 @@ impl Traverser<Wgpu> for Dual {
             firsts.push(firsts.last().copied().unwrap_or(0) + *len as u32);
         }
         let total_nodes = *firsts.last().unwrap_or(&0) as usize;
-        let bounds = GpuBuffer::<BoundWords>::zeroed(ctx, "dual node bounds", total_nodes)?;
-        let boxes = GpuBuffer::<BoxWords>::zeroed(ctx, "dual node boxes", total_nodes)?;
-        ctx.check_storage_binding("dual node bounds", bounds.byte_len())?;
-        let level_first = GpuBuffer::from_slice(ctx, "dual level starts", &firsts)?;
+        let nodes = GpuBuffer::<NodeRecWords>::zeroed(ctx, "dual node records", total_nodes)?;
+        ctx.check_storage_binding("dual node records", nodes.byte_len())?;
+        let mut level_first = [[0u32; 4]; 16];
+        for (i, f) in firsts.iter().enumerate() {
+            level_first[i / 4][i % 4] = *f;
+        }
         let n_tris = tree.scene.triangle_count();
         let b = tree.bounds;
         let base = Params {
@@ -733,6 +745,7 @@ impl Traverser<Wgpu> for Dual {
             scene_lo: b.min.to_array(),
             tri_bits: bits_for(n_tris),
             scene_hi: b.max.to_array(),
+            level_first,
             ..Params::default()
         };
         let run = Run {
@@ -742,9 +755,7 @@ impl Traverser<Wgpu> for Dual {
             rays,
             order: &h.order,
             offsets: h.leaf_offsets.as_ref(),
-            bounds,
-            boxes,
-            level_first,
+            nodes,
             kind,
             key_bits: bits_for(level_lens[0]) + base.tri_bits,
         };

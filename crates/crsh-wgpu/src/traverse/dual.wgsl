@@ -31,6 +31,12 @@ struct Pair {
     info: u32,
 }
 
+// A ray node's prepared bound and the box of its rays' segments, 80 bytes.
+struct NodeRec {
+    bound: Bound,
+    rbox: RBox,
+}
+
 const SINGLE: u32 = 0xffffu;
 const ALL: u32 = 0xffffffffu;
 
@@ -66,37 +72,45 @@ struct Params {
     scene_hi: vec3<f32>,
     // The child level's first index (upper boxes).
     child_first: u32,
+    // Each level's first index in `nodes`, then the total (MAX_LEVELS + 1 entries): in the
+    // parameters rather than a buffer, so that the test pass binds at most 8 storage buffers
+    // (WebGPU's default limit).
+    level_first: array<vec4<u32>, 16>,
 }
 
 @group(0) @binding(0) var<uniform> p: Params;
 @group(0) @binding(1) var<storage, read> level_nodes: array<SphereCone>;
 @group(0) @binding(2) var<storage, read> level_reach: array<f32>;
-// Every level's bounds and segment boxes, lowest level first (level_first[l] .. [l + 1]).
-@group(0) @binding(3) var<storage, read_write> bounds: array<Bound>;
-@group(0) @binding(4) var<storage, read_write> boxes: array<RBox>;
-@group(0) @binding(5) var<storage, read> level_first: array<u32>;
-@group(0) @binding(6) var<storage, read> rays: array<Ray>;
-@group(0) @binding(7) var<storage, read> order: array<u32>;
-@group(0) @binding(8) var<storage, read> offsets: array<u32>;
-@group(0) @binding(9) var<storage, read> objs: array<ObjNode>;
-@group(0) @binding(10) var<storage, read> pairs_in: array<Pair>;
-// Per input pair: (code, live mask); children and candidate counts, scanned in place into
-// output positions between the test and emit passes.
-@group(0) @binding(11) var<storage, read_write> outcome: array<vec2<u32>>;
-@group(0) @binding(12) var<storage, read_write> n_children: array<u32>;
-@group(0) @binding(13) var<storage, read_write> n_cands: array<u32>;
-@group(0) @binding(14) var<storage, read_write> pairs_out: array<Pair>;
+// Every level's prepared bounds and segment boxes, lowest level first (level_first(l) ..
+// level_first(l + 1)).
+@group(0) @binding(3) var<storage, read_write> nodes: array<NodeRec>;
+@group(0) @binding(4) var<storage, read> rays: array<Ray>;
+@group(0) @binding(5) var<storage, read> order: array<u32>;
+@group(0) @binding(6) var<storage, read> offsets: array<u32>;
+@group(0) @binding(7) var<storage, read> objs: array<ObjNode>;
+@group(0) @binding(8) var<storage, read> pairs_in: array<Pair>;
+// Per input pair: (code, live mask).
+@group(0) @binding(9) var<storage, read_write> outcome: array<vec2<u32>>;
+// A round's children counts (0 .. n) then candidate counts (n .. 2n), scanned in place in one
+// pass into output positions between the test and emit passes; the merge's run heads.
+@group(0) @binding(10) var<storage, read_write> counts: array<u32>;
+@group(0) @binding(11) var<storage, read_write> pairs_out: array<Pair>;
 // Candidates as the rounds find them: Pair(node, triangle, lanes, 0).
-@group(0) @binding(15) var<storage, read_write> raw: array<Pair>;
+@group(0) @binding(12) var<storage, read_write> raw: array<Pair>;
 // The merged candidates of a batch (sorted, one per pair) and their lane masks.
-@group(0) @binding(16) var<storage, read_write> cands: array<Candidate>;
-@group(0) @binding(17) var<storage, read_write> lanes: array<u32>;
+@group(0) @binding(13) var<storage, read_write> cands: array<Candidate>;
+@group(0) @binding(14) var<storage, read_write> lanes: array<u32>;
 // Candidate keys (node << tri_bits | tri as vec2<u32>) and their stable sorted order.
-@group(0) @binding(18) var<storage, read_write> keys: array<vec2<u32>>;
-@group(0) @binding(19) var<storage, read> sorted: array<u32>;
+@group(0) @binding(15) var<storage, read_write> keys: array<vec2<u32>>;
+@group(0) @binding(16) var<storage, read> sorted: array<u32>;
 // [0]: bad node report; from 4: per ray level (tests lo, hi, passes lo, hi), then per object
 // depth the same.
-@group(0) @binding(20) var<storage, read_write> counters: array<atomic<u32>>;
+@group(0) @binding(17) var<storage, read_write> counters: array<atomic<u32>>;
+
+// The first index of ray level `l` in `nodes`.
+fn level_first(l: u32) -> u32 {
+    return p.level_first[l / 4u][l % 4u];
+}
 
 fn empty_box() -> RBox {
     return RBox(vec3<f32>(inf()), 0u, vec3<f32>(-inf()), 0u);
@@ -194,7 +208,7 @@ fn prepare(@builtin(global_invocation_id) gid: vec3<u32>,
     if (bound_is_bad(b)) {
         atomicMax(&counters[0], 0xffffffffu - (p.first + i));
     }
-    bounds[p.first + i] = b;
+    nodes[p.first + i].bound = b;
 }
 
 // A lowest node's box: the union of its rays' segment boxes.
@@ -210,7 +224,7 @@ fn lowest_boxes(@builtin(global_invocation_id) gid: vec3<u32>,
     for (var k = 0u; k < leaves.y; k++) {
         b = union_box(b, segment_box(rays[order[leaves.x + k]]));
     }
-    boxes[n] = b;
+    nodes[n].rbox = b;
 }
 
 // A higher node's box: the union of its children's.
@@ -226,9 +240,9 @@ fn upper_boxes(@builtin(global_invocation_id) gid: vec3<u32>,
     let c1 = min(c0 + p.sub, below);
     var b = empty_box();
     for (var c = c0; c < c1; c++) {
-        b = union_box(b, boxes[p.child_first + c]);
+        b = union_box(b, nodes[p.child_first + c].rbox);
     }
-    boxes[p.first + n] = b;
+    nodes[p.first + n].rbox = b;
 }
 
 fn overlaps(a: RBox, lo: vec3<f32>, hi: vec3<f32>) -> bool {
@@ -282,9 +296,9 @@ fn test_pair(q: Pair) -> vec2<u32> {
         }
         return vec2<u32>(SPLIT_OBJECT, live);
     }
-    let at = level_first[level] + q.node;
-    let rb = boxes[at];
-    let nb = bounds[at];
+    let rec = nodes[level_first(level) + q.node];
+    let rb = rec.rbox;
+    let nb = rec.bound;
     var ok = true;
     if (p.box_test != 0u && !overlaps(rb, o.lo, o.hi)) {
         ok = false;
@@ -319,7 +333,7 @@ fn test_pair(q: Pair) -> vec2<u32> {
 
 // The children of ray node `node` at `level` (> 0): [c0, c1) in the level below.
 fn ray_children(level: u32, node: u32) -> vec2<u32> {
-    let below = level_first[level] - level_first[level - 1u];
+    let below = level_first(level) - level_first(level - 1u);
     let c0 = min(node * p.sub, below);
     return vec2<u32>(c0, min(c0 + p.sub, below));
 }
@@ -348,8 +362,8 @@ fn test_pairs(@builtin(global_invocation_id) gid: vec3<u32>,
     let q = pairs_in[k];
     let r = test_pair(q);
     outcome[k] = r;
-    n_children[k] = children_of(q, r.x);
-    n_cands[k] = select(0u, 1u, r.x == CANDIDATE);
+    counts[k] = children_of(q, r.x);
+    counts[p.n + k] = select(0u, 1u, r.x == CANDIDATE);
 }
 
 @compute @workgroup_size(WG)
@@ -361,7 +375,7 @@ fn emit_pairs(@builtin(global_invocation_id) gid: vec3<u32>,
     }
     let q = pairs_in[k];
     let r = outcome[k];
-    let at = n_children[k];
+    let at = counts[k];
     let level = q.info & 0xffffu;
     let depth = q.info >> 16u;
     // The test's counts, in its ray level's row (a single-ray pair: each ray tested, in the
@@ -378,7 +392,7 @@ fn emit_pairs(@builtin(global_invocation_id) gid: vec3<u32>,
     }
     switch (r.x) {
         case 1u: {
-            raw[n_cands[k]] = Pair(q.node, objs[q.obj].a, r.y, 0u);
+            raw[counts[p.n + k] - counts[p.n]] = Pair(q.node, objs[q.obj].a, r.y, 0u);
         }
         case 2u: {
             pairs_out[at] = Pair(q.node, q.obj, r.y, SINGLE | (depth << 16u));
@@ -429,7 +443,7 @@ fn merge_heads(@builtin(global_invocation_id) gid: vec3<u32>,
     if (i >= p.n) {
         return;
     }
-    n_cands[i] = select(0u, 1u, is_head(i));
+    counts[i] = select(0u, 1u, is_head(i));
 }
 
 // A run's head writes its pair once, for the union of the run's lane masks.
@@ -447,6 +461,6 @@ fn merge_emit(@builtin(global_invocation_id) gid: vec3<u32>,
         mask = mask | raw[sorted[j]].mask;
         j++;
     }
-    cands[n_cands[i]] = Candidate(c.node, c.obj);
-    lanes[n_cands[i]] = mask;
+    cands[counts[i]] = Candidate(c.node, c.obj);
+    lanes[counts[i]] = mask;
 }
