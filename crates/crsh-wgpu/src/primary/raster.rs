@@ -1,22 +1,34 @@
-//! `raster` on the wgpu backend: the G-buffer by a real render pass (seed 000 §3.1).
+//! `raster` on the wgpu backend: the G-buffer by a real render pass (Reis 2015 §3.1).
 //!
 //! A render pass draws every triangle (one draw, three vertices per triangle read from the
 //! scene's triangle buffer in the vertex shader, degenerate ones collapsed to a point) with
-//! the scene camera, reverse-Z depth (`near / view depth`, `Greater` test, so among equal
-//! depths the first drawn, i.e. the lower triangle id, stays) and writes the triangle id into
-//! an `R32Uint` target: a visibility buffer (Burns & Hunt 2013). A compute pass then resolves
-//! each pixel exactly as the CPU rasterizer ([`crsh_cpu::primary::raster::Raster`]) does: the
-//! pixel-centre camera ray ([`crsh_scene::Camera::direction`]) is intersected with the plane of
-//! the visible triangle by the Möller-Trumbore solve on the CPU's prepared triangles, and
-//! `surface_from_hit` builds the record (`kernels/surface.wgsl`). Where both backends see the
-//! same triangle their records agree to the rounding of WGSL's `sqrt` and division.
+//! the scene camera and writes the triangle id into an `R32Uint` target: a visibility buffer
+//! (Burns & Hunt 2013). A compute pass then resolves each pixel exactly as the CPU rasterizer
+//! ([`crsh_cpu::primary::raster::Raster`]) does: the pixel-centre camera ray
+//! ([`crsh_scene::Camera::direction`]) is intersected with the plane of the visible triangle by
+//! the Möller-Trumbore solve on the CPU's prepared triangles, and `surface_from_hit` builds the
+//! record (`kernels/surface.wgsl`). Where both backends see the same triangle their records
+//! agree to the rounding of WGSL's `sqrt` and division.
 //!
-//! Coverage is the hardware's (Vulkan: pixel centres, top-left rule, 8 sub-pixel bits as the
-//! CPU rasterizer), with vertices projected in f32 (the CPU projects in f64), so the two differ
-//! only for pixel centres within rounding of an edge or at equal depths. Geometry nearer than
-//! `near` = 1e-6 of the scene's bounding-box diagonal is clipped, as on the CPU. Image sides
-//! above the adapter's `max_texture_dimension_2d` are a [`crate::GpuError::TooLarge`]; the
-//! records are written in chunks of one storage binding.
+//! **Depth is the CPU's, not the hardware's.** The fragment shader solves the same plane hit
+//! for its pixel centre and writes `t · 2^-k` as the fragment depth (a power of two with every
+//! visible `t · 2^-k < 1/2`, so the scaling is exact), discarding the fragment where the CPU
+//! would (no finite plane hit with `t > 0`). The `Less` test then keeps the nearer triangle
+//! and, among equal depths, the first drawn, i.e. the lower id: [`crsh_core::Hit::closer_than`],
+//! the CPU rasterizer's rule. An interpolated hardware depth would depend on the backend: on
+//! OpenGL without clip control, wgpu maps clip z from `[0, 1]` to `[-1, 1]` (`z' = 2z − w`), so
+//! a reverse-Z depth near 0 lands near −1, where an `f32` resolves only about 6e-8, and a
+//! poster 2 cm in front of a wall 5 m away (a relative depth gap of 4e-3 on a reverse-Z value
+//! of about 1e-7) came out behind it. Writing the depth costs the early depth test, a small
+//! price next to the traced bounces.
+//!
+//! Coverage is the hardware's (pixel centres, top-left rule, 8 sub-pixel bits as the CPU
+//! rasterizer), with vertices projected in f32 (the CPU projects in f64), so the two differ
+//! only for pixel centres within rounding of an edge or at depths equal within rounding.
+//! Geometry nearer than `near` = 1e-6 of the scene's bounding-box diagonal is clipped, as on
+//! the CPU (clip z = `near`, clip w = the view depth). Image sides above the adapter's
+//! `max_texture_dimension_2d` are a [`crate::GpuError::TooLarge`]; the records are written in
+//! chunks of one storage binding.
 
 use std::sync::Arc;
 
@@ -32,42 +44,64 @@ use crate::scene::GpuScene;
 
 const DRAW: &str = include_str!("raster_draw.wgsl");
 const RESOLVE: &str = include_str!("raster_resolve.wgsl");
+const CAMERA_RAY: &str = include_str!("camera_ray.wgsl");
 
 /// Near plane distance as a fraction of the scene's bounding-box diagonal (as the CPU's).
 const NEAR_FRACTION: f32 = 1e-6;
 
+/// `View` in `camera_ray.wgsl`: what the pixel-centre camera ray needs.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct View {
+    right: [f32; 3],
+    tan_half: f32,
+    up: [f32; 3],
+    aspect: f32,
+    forward: [f32; 3],
+    width: u32,
+    eye: [f32; 3],
+    height: u32,
+}
+
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 struct DrawCamera {
-    eye: [f32; 3],
+    view: View,
     near: f32,
-    right: [f32; 3],
     sx: f32,
-    up: [f32; 3],
     sy: f32,
-    forward: [f32; 3],
-    pad: f32,
+    depth_scale: f32,
 }
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 struct ResolveParams {
-    width: u32,
-    height: u32,
+    view: View,
     row_stride: u32,
     first: u32,
     count: u32,
     n_tris: u32,
-    tan_half: f32,
-    aspect: f32,
-    right: [f32; 3],
-    a: f32,
-    up: [f32; 3],
-    b: f32,
-    forward: [f32; 3],
-    c: f32,
-    eye: [f32; 3],
-    d: f32,
+}
+
+/// The depth scale of the draw pass: a power of two `2^-k` with `t · 2^-k < 1/2` for every
+/// point of `bounds` seen from `eye` (so a fragment's depth `t · 2^-k` is exact, ordered as
+/// `t`, and inside the depth range with room for rounding).
+fn depth_scale(eye: crsh_core::glam::Vec3, bounds: &crsh_core::Aabb) -> f32 {
+    let (lo, hi) = (bounds.min.as_dvec3(), bounds.max.as_dvec3());
+    let e = eye.as_dvec3();
+    let far = (0..8)
+        .map(|i| {
+            let c = crsh_core::glam::DVec3::new(
+                if i & 1 == 0 { lo.x } else { hi.x },
+                if i & 2 == 0 { lo.y } else { hi.y },
+                if i & 4 == 0 { lo.z } else { hi.z },
+            );
+            (c - e).length()
+        })
+        .filter(|d| d.is_finite())
+        .fold(f64::MIN_POSITIVE, f64::max);
+    let k = (2.0 * far).log2().ceil().clamp(-120.0, 120.0) as i32;
+    2f32.powi(-k)
 }
 
 /// The render pipeline and the resolve kernel (one per device).
@@ -84,12 +118,22 @@ impl RasterKernels {
             let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some("crsh raster draw"),
                 source: wgpu::ShaderSource::Wgsl(
-                    format!("{}\n{DRAW}", crate::kernel::COMMON_WGSL).into(),
+                    format!(
+                        "{}\n{}",
+                        crate::kernel::COMMON_WGSL,
+                        crate::kernels::compose(&[
+                            crate::intersect::MT_WGSL,
+                            crate::kernels::GLAM_WGSL,
+                            CAMERA_RAY,
+                            DRAW
+                        ])
+                    )
+                    .into(),
                 ),
             });
-            let storage = |binding| wgpu::BindGroupLayoutEntry {
+            let storage = |binding, visibility| wgpu::BindGroupLayoutEntry {
                 binding,
-                visibility: wgpu::ShaderStages::VERTEX,
+                visibility,
                 ty: wgpu::BindingType::Buffer {
                     ty: wgpu::BufferBindingType::Storage { read_only: true },
                     has_dynamic_offset: false,
@@ -102,7 +146,7 @@ impl RasterKernels {
                 entries: &[
                     wgpu::BindGroupLayoutEntry {
                         binding: 0,
-                        visibility: wgpu::ShaderStages::VERTEX,
+                        visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
                         ty: wgpu::BindingType::Buffer {
                             ty: wgpu::BufferBindingType::Uniform,
                             has_dynamic_offset: false,
@@ -110,8 +154,9 @@ impl RasterKernels {
                         },
                         count: None,
                     },
-                    storage(1),
-                    storage(2),
+                    storage(1, wgpu::ShaderStages::VERTEX),
+                    storage(2, wgpu::ShaderStages::VERTEX),
+                    storage(3, wgpu::ShaderStages::FRAGMENT),
                 ],
             });
             let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -136,7 +181,7 @@ impl RasterKernels {
                 depth_stencil: Some(wgpu::DepthStencilState {
                     format: wgpu::TextureFormat::Depth32Float,
                     depth_write_enabled: Some(true),
-                    depth_compare: Some(wgpu::CompareFunction::Greater),
+                    depth_compare: Some(wgpu::CompareFunction::Less),
                     stencil: Default::default(),
                     bias: Default::default(),
                 }),
@@ -160,6 +205,7 @@ impl RasterKernels {
             crate::intersect::MT_WGSL,
             crate::kernels::GLAM_WGSL,
             crate::kernels::SURFACE_WGSL,
+            CAMERA_RAY,
             RESOLVE,
         ]);
         let mut slots = vec![Slot::Uniform];
@@ -249,15 +295,22 @@ impl PrimaryVisibility<Wgpu> for Raster {
         let tan_half = (scene.camera.vfov_deg.to_radians() * 0.5).tan();
         let aspect = width as f32 / height as f32;
         let near = NEAR_FRACTION * scene.bounds.diagonal();
-        let cam = DrawCamera {
-            eye: scene.camera.eye.to_array(),
-            near,
+        let view = View {
             right: r.to_array(),
-            sx: 1.0 / (tan_half * aspect),
+            tan_half,
             up: u.to_array(),
-            sy: 1.0 / tan_half,
+            aspect,
             forward: f.to_array(),
-            pad: 0.0,
+            width,
+            eye: scene.camera.eye.to_array(),
+            height,
+        };
+        let cam = DrawCamera {
+            view,
+            near,
+            sx: 1.0 / (tan_half * aspect),
+            sy: 1.0 / tan_half,
+            depth_scale: depth_scale(scene.camera.eye, &scene.bounds),
         };
         let size = wgpu::Extent3d {
             width,
@@ -316,6 +369,10 @@ impl PrimaryVisibility<Wgpu> for Raster {
                     binding: 2,
                     resource: self.scene.info.binding(),
                 },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: self.prepared.binding(),
+                },
             ],
         });
         let n_tris = self.scene.triangle_count() as u32;
@@ -342,7 +399,7 @@ impl PrimaryVisibility<Wgpu> for Raster {
                 depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                     view: &depth_view,
                     depth_ops: Some(wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(0.0),
+                        load: wgpu::LoadOp::Clear(1.0),
                         store: wgpu::StoreOp::Discard,
                     }),
                     stencil_ops: None,
@@ -380,22 +437,11 @@ impl PrimaryVisibility<Wgpu> for Raster {
         let mut groups = Vec::new();
         for range in chunks::<Surface>(ctx, pixels) {
             let params = ResolveParams {
-                width,
-                height,
+                view,
                 row_stride: (row_bytes / 4) as u32,
                 first: range.start as u32,
                 count: range.len() as u32,
                 n_tris,
-                tan_half,
-                aspect,
-                right: r.to_array(),
-                a: 0.0,
-                up: u.to_array(),
-                b: 0.0,
-                forward: f.to_array(),
-                c: 0.0,
-                eye: scene.camera.eye.to_array(),
-                d: 0.0,
             };
             let pu = uniform(ctx, "crsh raster resolve params", &params);
             let bg = k.resolve.bind_group(

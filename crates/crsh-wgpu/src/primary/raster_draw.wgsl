@@ -1,25 +1,29 @@
 // The render pass of `raster`: every triangle drawn with the camera of the CPU rasterizer,
-// depth-tested (reverse Z, strictly nearer wins, so equal depths keep the lower triangle id,
-// primitives being processed in order), writing the triangle id: a visibility buffer.
-// Prepended: common.wgsl.
+// writing the triangle id (a visibility buffer). The depth tested is the CPU rasterizer's own:
+// the distance `t` along the pixel-centre camera ray to the triangle's plane (the solve of
+// the resolve pass), times a power of two, so exact, written as the fragment depth. `Less`
+// keeps the nearer fragment, and among equal depths the first drawn, i.e. the lower triangle
+// id (primitives are processed in order): `Hit::closer_than`, on any backend, whatever its
+// clip-space depth range. Prepended: common.wgsl, mt.wgsl, glam.wgsl, camera_ray.wgsl.
 
 struct Camera {
-    eye: vec3<f32>,
-    // Near plane distance (reverse Z: depth = near / view depth).
+    view: View,
+    // Near plane distance: clip z = near, clip w = view depth, so clipping keeps w >= near.
     near: f32,
-    right: vec3<f32>,
     // 1 / (tan(vfov / 2) · aspect)
     sx: f32,
-    up: vec3<f32>,
     // 1 / tan(vfov / 2)
     sy: f32,
-    forward: vec3<f32>,
-    _pad: f32,
+    // A power of two below 1 / (every visible t): depth = t · depth_scale, exact and in (0, 1).
+    depth_scale: f32,
 }
 
 @group(0) @binding(0) var<uniform> cam: Camera;
 @group(0) @binding(1) var<storage, read> scene_tris: array<Triangle>;
 @group(0) @binding(2) var<storage, read> scene_info: array<TriangleInfo>;
+@group(0) @binding(3) var<storage, read> prepared: array<MtTri>;
+// Unused here (mt.wgsl's counter helper names it).
+@group(0) @binding(4) var<storage, read_write> counters: array<atomic<u32>>;
 
 struct VsOut {
     @builtin(position) clip: vec4<f32>,
@@ -36,10 +40,10 @@ fn vs(@builtin(vertex_index) vi: u32) -> VsOut {
     } else if (vi % 3u == 2u) {
         p = t.v2.xyz;
     }
-    let rel = p - cam.eye;
-    let x = dot(rel, cam.right);
-    let y = dot(rel, cam.up);
-    let z = dot(rel, cam.forward);
+    let rel = p - cam.view.eye;
+    let x = dot(rel, cam.view.right);
+    let y = dot(rel, cam.view.up);
+    let z = dot(rel, cam.view.forward);
     var out: VsOut;
     out.tri = tri;
     if (scene_info[tri].degenerate != 0u) {
@@ -51,7 +55,22 @@ fn vs(@builtin(vertex_index) vi: u32) -> VsOut {
     return out;
 }
 
+struct FsOut {
+    @location(0) tri: u32,
+    @builtin(frag_depth) depth: f32,
+}
+
 @fragment
-fn fs(in: VsOut) -> @location(0) u32 {
-    return in.tri;
+fn fs(in: VsOut) -> FsOut {
+    // Without multisampling the fragment position is the pixel centre.
+    let x = u32(in.clip.x);
+    let y = u32(in.clip.y);
+    let h = pixel_plane_hit(prepared[in.tri], cam.view.eye, camera_dir(cam.view, x, y));
+    if (h.x < 0.0) {
+        discard;
+    }
+    var out: FsOut;
+    out.tri = in.tri;
+    out.depth = min(h.x * cam.depth_scale, 1.0);
+    return out;
 }
