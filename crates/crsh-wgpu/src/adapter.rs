@@ -11,7 +11,15 @@
 //!   (case-insensitive); unlike wgpu's helper, a name that matches nothing is an error, not a
 //!   panic;
 //! * `WGPU_POWER_PREF` (`low`, `high`, `none`) otherwise steers `request_adapter`; the default
-//!   here is `high` (a discrete GPU wins over an integrated one or lavapipe).
+//!   here is `high` (a discrete GPU wins over an integrated one or lavapipe);
+//! * `CRSH_WGPU_LIMITS` (`adapter`, the default, or `webgpu`) picks the limits the device is
+//!   opened with ([`DeviceLimits`]): `webgpu` runs every kernel as a WebGPU implementation
+//!   that grants only the defaults would (8 storage buffers per stage, 128 MiB bindings).
+//!
+//! On OpenGL (`WGPU_BACKEND=gl`, Mesa's llvmpipe where no Vulkan driver is installed) wgpu
+//! drives one GL context, and a call waits at most 6 s for it while another thread's
+//! submission or wait holds it: use a [`GpuContext`] there from one thread at a time (the
+//! renderer does; [`crate::testing`] serialises the tests that share one).
 
 use std::any::{Any, TypeId};
 use std::collections::HashMap;
@@ -92,6 +100,57 @@ pub fn enumerate_adapters() -> Vec<AdapterInfo> {
         .collect()
 }
 
+/// The limits a device is opened with.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DeviceLimits {
+    /// The adapter's own: the most this machine allows (a discrete GPU grants storage
+    /// bindings of several GiB and 1024-invocation workgroups; lavapipe 128 MiB bindings).
+    #[default]
+    Adapter,
+    /// WebGPU's defaults (`wgpu::Limits::default()`, lowered where the adapter has less):
+    /// what every WebGPU implementation grants, so that a kernel that runs here runs
+    /// anywhere.
+    WebGpu,
+}
+
+impl DeviceLimits {
+    /// The environment variable that picks the limits of [`GpuContext::new`].
+    pub const ENV: &'static str = "CRSH_WGPU_LIMITS";
+
+    /// `CRSH_WGPU_LIMITS` (`adapter` or `webgpu`; unset or empty: `adapter`).
+    pub fn from_env() -> GpuResult<DeviceLimits> {
+        match std::env::var(Self::ENV) {
+            Err(_) => Ok(DeviceLimits::Adapter),
+            Ok(v) => match v.trim().to_ascii_lowercase().as_str() {
+                "" | "adapter" => Ok(DeviceLimits::Adapter),
+                "webgpu" | "default" => Ok(DeviceLimits::WebGpu),
+                _ => Err(GpuError::BadEnv {
+                    var: Self::ENV,
+                    value: v,
+                    expected: "`adapter` or `webgpu`",
+                }),
+            },
+        }
+    }
+
+    /// The name in lower case (`adapter`, `webgpu`).
+    pub fn name(self) -> &'static str {
+        match self {
+            DeviceLimits::Adapter => "adapter",
+            DeviceLimits::WebGpu => "webgpu",
+        }
+    }
+
+    /// The limits to request from an adapter whose own are `adapter`.
+    pub fn request(self, adapter: &wgpu::Limits) -> wgpu::Limits {
+        match self {
+            DeviceLimits::Adapter => adapter.clone(),
+            DeviceLimits::WebGpu => wgpu::Limits::default().or_worse_values_from(adapter),
+        }
+    }
+}
+
 /// Optional features requested when the adapter has them, never required.
 ///
 /// `TIMESTAMP_QUERY` (and its in-encoder variant) lets later stages report GPU-side timings.
@@ -165,7 +224,9 @@ impl Profiler {
     }
 }
 
-type KernelCache = Mutex<HashMap<TypeId, Arc<dyn Any + Send + Sync>>>;
+/// Compiled kernels by type: the type's name and the kernel.
+type KernelMap = HashMap<TypeId, (&'static str, Arc<dyn Any + Send + Sync>)>;
+type KernelCache = Mutex<KernelMap>;
 
 /// An open device: instance, adapter, device and queue, plus the limits and features that
 /// were granted and a cache of compiled kernels.
@@ -177,6 +238,7 @@ pub struct GpuContext {
     device: wgpu::Device,
     queue: wgpu::Queue,
     info: AdapterInfo,
+    limits: DeviceLimits,
     kernels: KernelCache,
     profiler: Profiler,
 }
@@ -191,13 +253,17 @@ impl fmt::Debug for GpuContext {
 }
 
 impl GpuContext {
-    /// Opens the adapter chosen by the environment (see the module docs) with the adapter's own
-    /// limits rather than WebGPU's defaults (so a discrete GPU grants storage bindings of
-    /// several GiB and 1024-invocation workgroups; lavapipe grants 128 MiB bindings) and
+    /// Opens the adapter chosen by the environment (see the module docs) with the limits
+    /// `CRSH_WGPU_LIMITS` picks (the adapter's own by default, [`DeviceLimits`]) and
     /// [`OPTIONAL_FEATURES`] where available.
     ///
     /// Fails with [`GpuError::NoAdapter`] when no adapter exists.
     pub fn new() -> GpuResult<Self> {
+        Self::with_limits(DeviceLimits::from_env()?)
+    }
+
+    /// [`GpuContext::new`] with the limits `limits` whatever the environment says.
+    pub fn with_limits(limits: DeviceLimits) -> GpuResult<Self> {
         let instance = new_instance();
         let backends = backends_from_env();
         let adapter = match std::env::var("WGPU_ADAPTER_NAME") {
@@ -238,17 +304,27 @@ impl GpuContext {
                 })?
             }
         };
-        Self::from_adapter(instance, adapter)
+        Self::from_adapter_with_limits(instance, adapter, limits)
     }
 
-    /// Opens a device on a given adapter (for callers that pick adapters themselves).
+    /// Opens a device with the adapter's own limits on a given adapter (for callers that pick
+    /// adapters themselves).
     pub fn from_adapter(instance: wgpu::Instance, adapter: wgpu::Adapter) -> GpuResult<Self> {
+        Self::from_adapter_with_limits(instance, adapter, DeviceLimits::Adapter)
+    }
+
+    /// Opens a device with `limits` on a given adapter.
+    pub fn from_adapter_with_limits(
+        instance: wgpu::Instance,
+        adapter: wgpu::Adapter,
+        limits: DeviceLimits,
+    ) -> GpuResult<Self> {
         let wgpu_info = adapter.get_info();
         let info = AdapterInfo::from(&wgpu_info);
         let desc = wgpu::DeviceDescriptor {
             label: Some("crsh"),
             required_features: adapter.features() & OPTIONAL_FEATURES,
-            required_limits: adapter.limits(),
+            required_limits: limits.request(&adapter.limits()),
             ..Default::default()
         };
         let (device, queue) = pollster::block_on(adapter.request_device(&desc)).map_err(|e| {
@@ -264,6 +340,7 @@ impl GpuContext {
             device,
             queue,
             info,
+            limits,
             kernels: Mutex::new(HashMap::new()),
             profiler,
         })
@@ -294,9 +371,22 @@ impl GpuContext {
         &self.info
     }
 
-    /// The limits granted to the device (the adapter's own).
+    /// The limits granted to the device ([`GpuContext::device_limits`] says which).
     pub fn limits(&self) -> wgpu::Limits {
         self.device.limits()
+    }
+
+    /// Which limits the device was opened with.
+    pub fn device_limits(&self) -> DeviceLimits {
+        self.limits
+    }
+
+    /// The type names of the kernels compiled on this device so far, sorted (what a test
+    /// checks its coverage of the backend's kernels with).
+    pub fn compiled_kernels(&self) -> Vec<&'static str> {
+        let mut names: Vec<&'static str> = self.lock_kernels().values().map(|(n, _)| *n).collect();
+        names.sort_unstable();
+        names
     }
 
     /// The features granted to the device (a subset of [`OPTIONAL_FEATURES`]).
@@ -379,14 +469,20 @@ impl GpuContext {
         init: impl FnOnce(&GpuContext) -> GpuResult<K>,
     ) -> GpuResult<Arc<K>> {
         let id = TypeId::of::<K>();
-        if let Some(k) = self.lock_kernels().get(&id) {
+        if let Some((_, k)) = self.lock_kernels().get(&id) {
             if let Ok(k) = Arc::clone(k).downcast::<K>() {
                 return Ok(k);
             }
         }
         // Compile outside the lock; if two threads race, the first insert wins.
         let built: Arc<dyn Any + Send + Sync> = Arc::new(init(self)?);
-        let stored = Arc::clone(self.lock_kernels().entry(id).or_insert(built));
+        let stored = Arc::clone(
+            &self
+                .lock_kernels()
+                .entry(id)
+                .or_insert((std::any::type_name::<K>(), built))
+                .1,
+        );
         stored.downcast::<K>().map_err(|_| GpuError::Device {
             op: "kernel cache".into(),
             reason: "type mismatch in kernel cache".into(),
@@ -516,9 +612,7 @@ impl GpuContext {
             })
     }
 
-    fn lock_kernels(
-        &self,
-    ) -> std::sync::MutexGuard<'_, HashMap<TypeId, Arc<dyn Any + Send + Sync>>> {
+    fn lock_kernels(&self) -> std::sync::MutexGuard<'_, KernelMap> {
         // A panic while holding the lock cannot leave the map inconsistent (insert is atomic).
         self.kernels.lock().unwrap_or_else(|p| p.into_inner())
     }

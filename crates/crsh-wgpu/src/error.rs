@@ -27,6 +27,16 @@ pub enum GpuError {
         /// Comma-separated names of the adapters that exist.
         found: String,
     },
+    /// An environment variable of the backend has a value it does not take.
+    #[error("{var}=`{value}` is not valid: expected {expected}")]
+    BadEnv {
+        /// The variable.
+        var: &'static str,
+        /// Its value.
+        value: String,
+        /// What it takes.
+        expected: &'static str,
+    },
     /// The adapter refused to create a device.
     #[error("request_device failed on `{adapter}`: {reason}")]
     RequestDevice {

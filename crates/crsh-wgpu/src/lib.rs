@@ -63,10 +63,10 @@ pub mod sort;
 pub mod testing;
 pub mod traverse;
 
-pub use adapter::{enumerate_adapters, AdapterInfo, GpuContext};
+pub use adapter::{enumerate_adapters, AdapterInfo, DeviceLimits, GpuContext};
 pub use backend::{GpuBuffer, Wgpu};
 pub use error::{GpuError, GpuResult};
-pub use kernel::{Kernel, Slot};
+pub use kernel::{Kernel, KernelBindings, Slot};
 pub use kernels::scan::{exclusive_scan, exclusive_scan_cpu, exclusive_scan_in_place, ScanKernel};
 pub use registry::{HostIntersector, GPU_TRIANGLE_TESTS};
 pub use scene::GpuScene;

@@ -1,7 +1,8 @@
 //! Test support shared by this crate's tests, the workspace tests and the CLI's: one device per
 //! process, or a printed skip.
 
-use std::sync::{Arc, OnceLock};
+use std::cell::RefCell;
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
 
 use crsh_core::glam::{DVec3, Vec3};
 use crsh_core::{
@@ -56,11 +57,20 @@ pub fn gpu_required() -> bool {
 
 /// The process-wide device for tests, or `None` after printing `SKIP: no wgpu adapter (...)`
 /// naming `test`. Panics when [`gpu_required`] and no adapter can be opened.
+///
+/// On OpenGL the calling thread first takes its turn on the device ([`take_turn`]): the test
+/// harness runs each test on a thread of its own, and wgpu's single GL context cannot be
+/// shared by tests that run at once.
 pub fn shared_context(test: &str) -> Option<Arc<GpuContext>> {
     static CTX: OnceLock<Result<Arc<GpuContext>, String>> = OnceLock::new();
     let ctx = CTX.get_or_init(|| GpuContext::new().map(Arc::new).map_err(|e| e.to_string()));
     match ctx {
-        Ok(ctx) => Some(Arc::clone(ctx)),
+        Ok(ctx) => {
+            if ctx.info().backend == "gl" {
+                take_turn();
+            }
+            Some(Arc::clone(ctx))
+        }
         Err(e) => {
             if gpu_required() {
                 panic!("CRSH_REQUIRE_GPU=1 but no usable wgpu adapter for `{test}`: {e}");
@@ -69,6 +79,27 @@ pub fn shared_context(test: &str) -> Option<Arc<GpuContext>> {
             None
         }
     }
+}
+
+/// Makes the calling thread the only one of this process using a GL device, until it ends:
+/// it waits for the thread that holds the turn to end (the test harness's threads end with
+/// their test, panics included). Taking it again on the same thread does nothing.
+///
+/// wgpu's GL backend drives one GL context behind a lock that a call waits at most 6 s for,
+/// and Mesa's llvmpipe runs a dispatch while holding it: two tests sharing the device on a
+/// 2-core machine make one of them panic with "Could not lock adapter context".
+pub fn take_turn() {
+    static DEVICE: Mutex<()> = Mutex::new(());
+    thread_local! {
+        static TURN: RefCell<Option<MutexGuard<'static, ()>>> = const { RefCell::new(None) };
+    }
+    TURN.with(|t| {
+        let mut t = t.borrow_mut();
+        if t.is_none() {
+            // A test that panicked with the turn poisons nothing the lock protects.
+            *t = Some(DEVICE.lock().unwrap_or_else(|p| p.into_inner()));
+        }
+    });
 }
 
 /// [`shared_context`] as a [`Wgpu`] backend.

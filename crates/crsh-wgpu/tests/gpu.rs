@@ -4,7 +4,7 @@
 //! Without an adapter these tests print `SKIP: no wgpu adapter (...)` and pass, unless
 //! `CRSH_REQUIRE_GPU=1` (CI), where a missing adapter fails them.
 
-use std::sync::{Arc, OnceLock};
+use std::sync::Arc;
 
 use crsh_core::{Backend, Hit, NO_HIT};
 use crsh_wgpu::kernels::scan::SCAN_BLOCK;
@@ -16,18 +16,7 @@ use crsh_wgpu::{
 /// The shared device for all tests of this binary, or `None` (after printing `SKIP:`) when
 /// this machine has no adapter. Panics when `CRSH_REQUIRE_GPU=1` and there is none.
 fn gpu(test: &str) -> Option<Arc<GpuContext>> {
-    static CTX: OnceLock<Result<Arc<GpuContext>, String>> = OnceLock::new();
-    let ctx = CTX.get_or_init(|| GpuContext::new().map(Arc::new).map_err(|e| e.to_string()));
-    match ctx {
-        Ok(ctx) => Some(Arc::clone(ctx)),
-        Err(e) => {
-            if std::env::var("CRSH_REQUIRE_GPU").as_deref() == Ok("1") {
-                panic!("CRSH_REQUIRE_GPU=1 but no usable wgpu adapter for `{test}`: {e}");
-            }
-            println!("SKIP: no wgpu adapter ({e}) in `{test}`");
-            None
-        }
-    }
+    crsh_wgpu::testing::shared_context(test)
 }
 
 fn backend(test: &str) -> Option<Wgpu> {
