@@ -71,6 +71,17 @@ fn gpu_frame(
         .render(cfg, &o.clone().with_reference(reference), &mut |_| {})
         .unwrap_or_else(|e| panic!("{} with {} on wgpu: {e}", scene.name, cfg.name));
     assert_eq!(r.backend, BackendKind::Wgpu);
+    // The device's primaries are the CPU rasterizer's but where a pixel centre lies within
+    // rounding of an edge.
+    let acc = r.accuracy.expect("a reference was given");
+    let primary = acc.primary_agreement.expect("primaries compared");
+    assert!(
+        primary >= 0.999 && acc.primary_pixels == u64::from(o.width * o.height.unwrap_or(0)),
+        "{} with {}: primary agreement {primary} over {} pixels",
+        scene.name,
+        cfg.name,
+        acc.primary_pixels
+    );
     (r.image, r.stats)
 }
 

@@ -259,6 +259,18 @@ fn wgpu_backend_renders_what_the_cpu_renders() {
     assert_eq!(g["tests"], c["tests"]);
     assert_eq!(f(&g, "/accuracy/hit_agreement"), 1.0);
     assert_eq!(g["accuracy"]["images_identical"], true, "{g:#}");
+    // The primaries are the CPU rasterizer's, on every backend (OpenGL's depth range once
+    // put office-boxes' mirror behind the wall).
+    assert_eq!(f(&g, "/accuracy/primary_agreement"), 1.0, "{g:#}");
+    assert_eq!(f(&g, "/accuracy/primary_pixels"), 768.0);
+    assert_eq!(f(&c, "/accuracy/primary_agreement"), 1.0);
+    assert!(stdout(&o).contains("primary agreement 1.000000 over 768 pixels"));
+    let backend = g["adapter"]["backend"].as_str().unwrap_or("");
+    assert!(
+        ["vulkan", "gl", "metal", "dx12", "webgpu"].contains(&backend),
+        "adapter backend `{backend}`"
+    );
+    assert!(stdout(&o).contains(&format!("({backend}, ")));
     for key in [
         "primary",
         "ray_creation",

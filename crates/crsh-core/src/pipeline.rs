@@ -181,11 +181,18 @@ pub struct FrameOptions {
     /// Reflection / refraction bounces after the primary hit (0: direct light only),
     /// `0..=`[`MAX_DEPTH`]; 3 by default.
     pub max_depth: u32,
+    /// Whether [`Frame::primary_triangles`] is filled: the triangle each pixel sees, read
+    /// back (untimed) for comparing the primary visibility with a reference's. Off by
+    /// default.
+    pub primary_triangles: bool,
 }
 
 impl Default for FrameOptions {
     fn default() -> Self {
-        FrameOptions { max_depth: 3 }
+        FrameOptions {
+            max_depth: 3,
+            primary_triangles: false,
+        }
     }
 }
 
@@ -197,7 +204,15 @@ impl FrameOptions {
 
     /// The same options with `max_depth` bounces.
     pub fn with_max_depth(self, max_depth: u32) -> FrameOptions {
-        FrameOptions { max_depth }
+        FrameOptions { max_depth, ..self }
+    }
+
+    /// The same options, keeping the primary triangles when `keep` ([`Frame::primary_triangles`]).
+    pub fn with_primary_triangles(self, keep: bool) -> FrameOptions {
+        FrameOptions {
+            primary_triangles: keep,
+            ..self
+        }
     }
 }
 
@@ -270,6 +285,9 @@ pub struct Frame<B: Backend> {
     pub image: B::Buffer<[f32; 4]>,
     /// What the frame measured.
     pub stats: Stats,
+    /// With [`FrameOptions::primary_triangles`]: the triangle each pixel's primary hit is on,
+    /// row-major ([`crate::NO_HIT`] for the background).
+    pub primary_triangles: Option<Vec<u32>>,
 }
 
 /// Maximum image side the driver accepts (guards absurd sizes before allocation).
@@ -329,6 +347,18 @@ pub fn render_frame<B: Backend>(
             .gbuffer_with(backend, size.width, size.height, &*stages.intersector, s)
     })?;
     let primary_ms = t_primary.elapsed().as_secs_f64() * 1e3;
+    let primary_triangles = if opts.primary_triangles {
+        let t = Instant::now();
+        let tris = backend
+            .download(&surfaces)?
+            .iter()
+            .map(|s| s.tri)
+            .collect::<Vec<u32>>();
+        driver.untimed_ms += t.elapsed().as_secs_f64() * 1e3;
+        Some(tris)
+    } else {
+        None
+    };
     driver.stats.rays.add(RayKind::Primary, pixels as u64);
     let casts = stages.primary.casts_rays();
     if casts {
@@ -439,7 +469,11 @@ pub fn render_frame<B: Backend>(
         total_steps: driver.total_steps,
         message: "done".into(),
     });
-    Ok(Frame { image, stats })
+    Ok(Frame {
+        image,
+        stats,
+        primary_triangles,
+    })
 }
 
 struct Driver<'a, B: Backend> {

@@ -26,7 +26,6 @@ use std::fmt::Write as _;
 use std::sync::Arc;
 use std::time::Instant;
 
-use crsh_core::metrics::to_rgba8;
 use crsh_core::{FrameOptions, PipelineConfig, Progress, StageBuild, StageKind, TestCounts};
 use crsh_scene::{AnimatedScene, Scene};
 use crsh_wgpu::Wgpu;
@@ -36,7 +35,7 @@ use crate::error::Result;
 use crate::registries::{BackendKind, Registries};
 use crate::renderer::{Render, RenderRequest, Renderer};
 use crate::report::{
-    compare_images, group, AdapterReport, RunInfo, SceneInfo, SetupTimes, StatsReport, TestsReport,
+    group, AdapterReport, RunInfo, SceneInfo, SetupTimes, StatsReport, TestsReport,
 };
 
 /// What one frame spent before tracing: the scene update and the pipeline rebuild.
@@ -204,7 +203,7 @@ pub fn render_frames(
         };
         let mut frame_progress = |p: Progress| progress(f, p);
         let host = built.render(
-            &opts,
+            &opts.clone().with_primary_triangles(reference.is_some()),
             reference.as_ref().map(|r| &r.intersect),
             &mut frame_progress,
         )?;
@@ -212,14 +211,10 @@ pub fn render_frames(
             None => None,
             Some(ref_cfg) => {
                 let t0 = Instant::now();
-                let ref_rgba =
-                    renderer.reference_image(ref_cfg, frame, &opts, &mut frame_progress)?;
-                let counts = host.stats.accuracy.clone().unwrap_or_default();
-                Some(compare_images(
+                let want = renderer.reference_frame(ref_cfg, frame, &opts, &mut frame_progress)?;
+                Some(want.compare(
                     &ref_cfg.intersect.kind,
-                    &counts,
-                    &to_rgba8(&host.image),
-                    &ref_rgba,
+                    &host,
                     t0.elapsed().as_secs_f64() * 1e3,
                 ))
             }

@@ -61,5 +61,5 @@ pub use crsh_wgpu::Wgpu;
 pub use error::{Error, Result};
 pub use frames::{render_frames, FrameRender, FramesReport, FramesRequest, UpdateReport};
 pub use registries::{BackendKind, Registries};
-pub use renderer::{Built, HostFrame, Render, RenderRequest, Renderer};
+pub use renderer::{Built, HostFrame, ReferenceFrame, Render, RenderRequest, Renderer};
 pub use report::{AccuracyReport, AdapterReport, SceneInfo, SetupTimes, StatsReport};

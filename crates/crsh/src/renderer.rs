@@ -106,6 +106,42 @@ pub struct HostFrame {
     pub image: Vec<[f32; 4]>,
     /// What the frame measured.
     pub stats: Stats,
+    /// The triangle each pixel's primary hit is on, when the options asked for it
+    /// ([`FrameOptions::primary_triangles`]).
+    pub primary_triangles: Option<Vec<u32>>,
+}
+
+/// The reference pipeline's frame as accuracy reports compare it ([`Renderer::reference_frame`]).
+#[derive(Clone, Debug)]
+pub struct ReferenceFrame {
+    /// The 8-bit RGBA image.
+    pub rgba: Vec<u8>,
+    /// The triangle each pixel's primary hit is on ([`crsh_core::NO_HIT`] for the background).
+    pub primary_triangles: Vec<u32>,
+}
+
+impl ReferenceFrame {
+    /// The accuracy report of a frame against this reference: [`compare_images`] on the
+    /// images, with the primaries compared when the frame kept them.
+    pub fn compare(
+        &self,
+        reference: &str,
+        frame: &HostFrame,
+        reference_render_ms: f64,
+    ) -> AccuracyReport {
+        let counts = frame.stats.accuracy.clone().unwrap_or_default();
+        let report = compare_images(
+            reference,
+            &counts,
+            &to_rgba8(&frame.image),
+            &self.rgba,
+            reference_render_ms,
+        );
+        match &frame.primary_triangles {
+            Some(p) => report.with_primaries(p, &self.primary_triangles),
+            None => report,
+        }
+    }
 }
 
 /// What [`Renderer::render`] produced.
@@ -346,22 +382,26 @@ impl<'r> Renderer<'r> {
             .resolve(&cfg.reference(intersect), BackendKind::Cpu)?)
     }
 
-    /// The 8-bit image of the (resolved) reference pipeline `reference` on the CPU.
-    pub fn reference_image(
+    /// The 8-bit image and the primary triangles of the (resolved) reference pipeline
+    /// `reference` on the CPU.
+    pub fn reference_frame(
         &self,
         reference: &PipelineConfig,
         frame: FrameSize,
         opts: &FrameOptions,
         progress: &mut dyn FnMut(Progress),
-    ) -> Result<Vec<u8>> {
+    ) -> Result<ReferenceFrame> {
         let f = self.registries.cpu.render(
             &self.cpu_context(frame),
             reference,
-            opts,
+            &opts.clone().with_primary_triangles(true),
             None,
             progress,
         )?;
-        Ok(to_rgba8(&f.image))
+        Ok(ReferenceFrame {
+            rgba: to_rgba8(&f.image),
+            primary_triangles: f.primary_triangles.unwrap_or_default(),
+        })
     }
 
     /// Renders one frame of `cfg` as `request` says (see the module documentation).
@@ -378,25 +418,24 @@ impl<'r> Renderer<'r> {
             .map(|r| self.reference_config(&resolved, r))
             .transpose()?;
         let frame = self.frame_size(request.width, request.height)?;
-        let opts = FrameOptions::default().with_max_depth(request.max_depth);
+        let opts = FrameOptions::default()
+            .with_max_depth(request.max_depth)
+            .with_primary_triangles(reference.is_some());
         let built = self.build(&resolved, frame)?;
         let host = built.render(&opts, reference.as_ref().map(|r| &r.intersect), progress)?;
         let accuracy = match &reference {
             None => None,
             Some(ref_cfg) => {
                 let t0 = Instant::now();
-                let ref_rgba = self.reference_image(ref_cfg, frame, &opts, &mut |p| {
+                let want = self.reference_frame(ref_cfg, frame, &opts, &mut |p| {
                     progress(Progress {
                         message: format!("reference: {}", p.message),
                         ..p
                     })
                 })?;
-                let counts = host.stats.accuracy.clone().unwrap_or_default();
-                Some(compare_images(
+                Some(want.compare(
                     &ref_cfg.intersect.kind,
-                    &counts,
-                    &to_rgba8(&host.image),
-                    &ref_rgba,
+                    &host,
                     t0.elapsed().as_secs_f64() * 1e3,
                 ))
             }
@@ -472,6 +511,7 @@ impl Built<'_> {
                 Ok(HostFrame {
                     image: f.image,
                     stats: f.stats,
+                    primary_triangles: f.primary_triangles,
                 })
             }
             BuiltInner::Wgpu(p) => {
@@ -490,6 +530,7 @@ impl Built<'_> {
                 Ok(HostFrame {
                     image,
                     stats: f.stats,
+                    primary_triangles: f.primary_triangles,
                 })
             }
         }
@@ -527,19 +568,37 @@ mod tests {
         let acc = r.accuracy.as_ref().unwrap();
         assert_eq!(acc.hit_agreement, 1.0);
         assert!(acc.images_identical);
+        assert_eq!(
+            (acc.primary_agreement, acc.primary_pixels),
+            (Some(1.0), 24 * 16)
+        );
         let report = r.report(&s, "office-boxes", "", 0.0);
         assert_eq!(report.stages, r.stats.stages);
         assert!(report.summary().contains("hash=thesis"));
-        // The same build renders again, equal counters.
+        assert!(report
+            .summary()
+            .contains("primary agreement 1.000000 over 384 pixels (0 see another triangle)"));
+        // The same build renders again, equal counters; the primary triangles only when
+        // asked for, and then the CPU rasterizer's.
         let built = renderer.build(&r.config, r.frame).unwrap();
-        let again = built
-            .render(
-                &FrameOptions::default().with_max_depth(1),
-                None,
-                &mut |_| {},
-            )
-            .unwrap();
+        let opts = FrameOptions::default().with_max_depth(1);
+        let again = built.render(&opts, None, &mut |_| {}).unwrap();
         assert_eq!(again.stats.tests, r.stats.tests);
+        assert!(again.primary_triangles.is_none());
+        let kept = built
+            .render(&opts.with_primary_triangles(true), None, &mut |_| {})
+            .unwrap();
+        let raster =
+            crsh_cpu::primary::raster::Raster::new(&s, &crsh_core::StageSpec::new("raster"))
+                .unwrap();
+        let want: Vec<u32> = raster
+            .visibility(24, 16)
+            .unwrap()
+            .iter()
+            .map(|h| h.tri)
+            .collect();
+        assert_eq!(kept.primary_triangles, Some(want));
+        assert_eq!(kept.stats.tests, r.stats.tests);
     }
 
     #[test]

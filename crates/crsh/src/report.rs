@@ -124,6 +124,16 @@ impl TestsReport {
 pub struct AccuracyReport {
     /// The reference intersector variant (e.g. `brute`).
     pub reference: String,
+    /// Fraction of pixels whose primary hit is on the triangle the reference pipeline's
+    /// primary stage (the CPU twin of this one) sees there, the background included; `null`
+    /// when the primaries were not compared ([`AccuracyReport::with_primaries`]). Secondary
+    /// rays start from the primaries, so a frame can agree on every traced ray and still
+    /// show other surfaces.
+    pub primary_agreement: Option<f64>,
+    /// Pixels compared for [`Self::primary_agreement`].
+    pub primary_pixels: u64,
+    /// Pixels whose primary triangle differs from the reference's.
+    pub primary_mismatches: u64,
     /// Fraction of traced rays whose hit/miss and nearest triangle match the reference
     /// (a different triangle at a `t` equal within 1e-6 relative counts as a match).
     pub hit_agreement: f64,
@@ -524,9 +534,17 @@ impl StatsReport {
                 ),
                 None => "images identical".to_string(),
             };
+            let primary = match a.primary_agreement {
+                Some(p) => format!(
+                    "primary agreement {p:.6} over {} pixels ({} see another triangle); ",
+                    group(a.primary_pixels),
+                    group(a.primary_mismatches)
+                ),
+                None => String::new(),
+            };
             let _ = writeln!(
                 s,
-                "accuracy  vs {}: hit agreement {:.6} over {} rays ({} hit/miss, {} nearest mismatches); {}",
+                "accuracy  vs {}: {primary}hit agreement {:.6} over {} rays ({} hit/miss, {} nearest mismatches); {}",
                 a.reference,
                 a.hit_agreement,
                 group(a.rays_compared),
@@ -620,6 +638,9 @@ pub fn compare_images(
         .count() as u64;
     AccuracyReport {
         reference: reference.to_string(),
+        primary_agreement: None,
+        primary_pixels: 0,
+        primary_mismatches: 0,
         hit_agreement: counts.hit_agreement(),
         psnr_db: psnr.is_finite().then_some(psnr),
         images_identical: pixels_differing == 0,
@@ -631,6 +652,27 @@ pub fn compare_images(
         mean_abs_t_error: counts.mean_abs_t_error(),
         self_hits: counts.self_hits,
         reference_render_ms,
+    }
+}
+
+impl AccuracyReport {
+    /// The report with the primary visibility compared: `got` and `want` hold the triangle
+    /// each pixel's primary hit is on (the frame's and the reference's,
+    /// [`crsh_core::Frame::primary_triangles`]); a pixel one of them lacks counts as a
+    /// mismatch.
+    pub fn with_primaries(self, got: &[u32], want: &[u32]) -> AccuracyReport {
+        let pixels = got.len().max(want.len()) as u64;
+        let same = got.iter().zip(want).filter(|(a, b)| a == b).count() as u64;
+        AccuracyReport {
+            primary_agreement: Some(if pixels == 0 {
+                1.0
+            } else {
+                same as f64 / pixels as f64
+            }),
+            primary_pixels: pixels,
+            primary_mismatches: pixels - same,
+            ..self
+        }
     }
 }
 
@@ -794,6 +836,14 @@ mod tests {
         assert!(!diff.images_identical);
         assert_eq!(diff.pixels_differing, 1);
         assert!(diff.psnr_db.unwrap() > 40.0);
+        assert_eq!(diff.primary_agreement, None);
+        let p = diff.clone().with_primaries(&[1, 2, 3, 4], &[1, 2, 9, 4]);
+        assert_eq!(
+            (p.primary_agreement, p.primary_pixels, p.primary_mismatches),
+            (Some(0.75), 4, 1)
+        );
+        let short = diff.with_primaries(&[1, 2], &[1, 2, 3]);
+        assert_eq!((short.primary_pixels, short.primary_mismatches), (3, 1));
     }
 
     #[test]
@@ -819,6 +869,9 @@ mod tests {
     fn json_has_required_keys_and_null_psnr() {
         let acc = AccuracyReport {
             reference: "brute".into(),
+            primary_agreement: Some(1.0),
+            primary_pixels: 4,
+            primary_mismatches: 0,
             hit_agreement: 1.0,
             psnr_db: None,
             images_identical: true,

@@ -156,6 +156,10 @@ impl KindPerRay {
 pub struct CellAccuracy {
     /// The reference intersector.
     pub reference: String,
+    /// Fraction of pixels whose primary hit is on the reference pipeline's triangle (`null`
+    /// in results written before it was measured).
+    #[serde(default)]
+    pub primary_agreement: Option<f64>,
     /// Fraction of traced rays whose hit agrees with the reference.
     pub hit_agreement: f64,
     /// PSNR (dB) of the image against the reference pipeline's image; `null` when identical.

@@ -23,9 +23,8 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::Arc;
 use std::time::Duration;
 
-use crsh::report::{compare_images, mrays_per_s};
+use crsh::report::mrays_per_s;
 use crsh::{AccuracyReport, FramesRequest, Registries, RenderRequest, Renderer, UpdateReport};
-use crsh_core::metrics::to_rgba8;
 use crsh_core::{AccuracyCounts, FrameOptions, KindStats, RayKind, Stats};
 use crsh_scene::{AnimatedScene, Scene};
 use crsh_wgpu::Wgpu;
@@ -41,7 +40,7 @@ use super::results::{
 type LoadedScene = Result<Arc<Scene>, String>;
 
 /// The reference images of the current scene, by reference configuration and size.
-type ReferenceImages = HashMap<String, Result<Arc<Vec<u8>>, String>>;
+type ReferenceImages = HashMap<String, Result<Arc<crsh::ReferenceFrame>, String>>;
 
 /// What the cells of one scene share: the scene, its renderers (the wgpu one uploads the scene
 /// once) and the reference images.
@@ -311,7 +310,11 @@ fn measure(
     let opts = FrameOptions::default().with_max_depth(cell.depth);
     let frame = |reference: Option<&crsh_core::StageSpec>| {
         built
-            .render(&opts, reference, &mut |_| {})
+            .render(
+                &opts.clone().with_primary_triangles(reference.is_some()),
+                reference,
+                &mut |_| {},
+            )
             .map_err(|e| format!("render failed: {e}"))
     };
     for _ in 0..plan.warmup {
@@ -325,7 +328,6 @@ fn measure(
         None => None,
         Some(ref_cfg) => {
             let checked = frame(Some(&ref_cfg.intersect))?;
-            let rgba = to_rgba8(&checked.image);
             let key = serde_json::json!([
                 cell.scene_spec,
                 frame_size.width,
@@ -337,19 +339,20 @@ fn measure(
                 ref_cfg.intersect,
             ])
             .to_string();
-            let ref_rgba = ref_images
+            let want = ref_images
                 .entry(key)
                 .or_insert_with(|| {
                     renderer
-                        .reference_image(ref_cfg, frame_size, &opts, &mut |_| {})
+                        .reference_frame(ref_cfg, frame_size, &opts, &mut |_| {})
                         .map(Arc::new)
                         .map_err(|e| format!("reference render failed: {e}"))
                 })
                 .clone()?;
             let counts = checked.stats.accuracy.clone().unwrap_or_default();
-            let a = compare_images(&ref_cfg.intersect.kind, &counts, &rgba, &ref_rgba, 0.0);
+            let a = want.compare(&ref_cfg.intersect.kind, &checked, 0.0);
             Some(CellAccuracy {
                 reference: a.reference,
+                primary_agreement: a.primary_agreement,
                 hit_agreement: a.hit_agreement,
                 psnr_db: a.psnr_db,
                 images_identical: a.images_identical,
@@ -704,6 +707,10 @@ fn frames_accuracy(seq: &[FrameRun]) -> Option<CellAccuracy> {
     }
     Some(CellAccuracy {
         reference: first.reference.clone(),
+        primary_agreement: checked
+            .iter()
+            .filter_map(|(a, _)| a.primary_agreement)
+            .reduce(f64::min),
         hit_agreement: checked
             .iter()
             .map(|(a, _)| a.hit_agreement)
