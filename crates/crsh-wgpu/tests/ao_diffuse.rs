@@ -850,18 +850,9 @@ fn frames_agree_with(
     ((psnr, differ), (cpu, gpu))
 }
 
-/// The G-buffers the frame tests start from: every scene from the CPU's G-buffer (so the
-/// frames differ only by the stages under test), and the scenes where the wgpu rasterizer
-/// agrees with the CPU's from the device's own. (On office-boxes the device rasterizer picks
-/// the wall 2 cm behind a poster at 69 of 1728 pixels, a depth defect of `raster` that
-/// `raster_shade.rs` reports too, which the AO rays from the wall then turn black.)
-fn primaries(scene: &str) -> Vec<Primary> {
-    if scene == "cornell-mirrors" {
-        vec![Primary::Host, Primary::Device]
-    } else {
-        vec![Primary::Host]
-    }
-}
+/// The G-buffers the frame tests start from, on every scene: the CPU's (so the frames differ
+/// only by the stages under test) and the wgpu rasterizer's own.
+const PRIMARIES: [Primary; 2] = [Primary::Host, Primary::Device];
 
 /// AO frames agree between the backends, without offsets and with `offsets = center` (default
 /// offset policy); with offsets the device's hits are exactly the CPU brute force's on its own
@@ -882,7 +873,7 @@ fn ao_frames_agree_between_the_backends() {
             let agreement = if offsets == "none" { 0.9999 } else { 1.0 };
             for intersect in ["bvh", "brute"] {
                 let cfg = config("ao", "ao", intersect, &sets);
-                for primary in primaries(name) {
+                for primary in PRIMARIES {
                     let (_, (cpu, gpu)) =
                         frames_agree_with(&b, &builtin(name), &cfg, 1, primary, 35.0, agreement);
                     let ended = |s: &Stats| s.per_kind.get("ao").map_or(0, |k| k.offset_ended);
@@ -908,7 +899,7 @@ fn diffuse_frames_agree_between_the_backends() {
             "bvh",
             &["raygen.samples=2".into(), "shade.background=0.1".into()],
         );
-        for primary in primaries(name) {
+        for primary in PRIMARIES {
             frames_agree(&b, &builtin(name), &cfg, 2, primary, 35.0);
         }
     }

@@ -138,8 +138,15 @@ fn raster_gbuffer_matches_the_cpu_rasterizer() {
                 scene.name
             );
         }
+        println!(
+            "{}: {differ} of {} pixels see another triangle",
+            scene.name,
+            got.len()
+        );
+        // One pixel in a thousand at most: on office-boxes at 256×192 the OpenGL backend's
+        // interpolated depth once put 1,924 of 49,152 pixels on the surfaces behind.
         assert!(
-            differ * 200 <= got.len(),
+            differ * 1000 <= got.len(),
             "{}: {differ} of {} pixels see another triangle",
             scene.name,
             got.len()
