@@ -14,6 +14,17 @@ pub enum SceneError {
         /// The OS error.
         source: std::io::Error,
     },
+    /// A mesh file in a format this loader does not read (only OBJ/MTL today; PLY and glTF
+    /// are planned).
+    #[error("{context}: mesh '{}' is a .{format} file, and crsh reads .obj meshes only", path.display())]
+    UnsupportedFormat {
+        /// The manifest (and instance) that names the mesh.
+        context: String,
+        /// The mesh file.
+        path: PathBuf,
+        /// Its extension, in lower case.
+        format: String,
+    },
     /// The scene is structurally invalid (bad index, NaN coordinate, empty, too large, ...).
     #[error("{context}: {message}")]
     Invalid {

@@ -580,10 +580,13 @@ fn check_obj(mesh: &Path, context: &str) -> Result<(), SceneError> {
     if ok {
         Ok(())
     } else {
-        Err(SceneError::invalid(
-            context,
-            format!("mesh '{}' is not an .obj file", mesh.display()),
-        ))
+        Err(SceneError::UnsupportedFormat {
+            context: context.to_string(),
+            path: mesh.to_path_buf(),
+            format: mesh
+                .extension()
+                .map_or_else(String::new, |e| e.to_string_lossy().to_lowercase()),
+        })
     }
 }
 
