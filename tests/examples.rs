@@ -69,7 +69,12 @@ fn render_scene_renders_a_scene_from_code() {
         .map_or("office-boxes".to_string(), |p| p.display().to_string());
     let o = run("render_scene", &dir, &[&scene, "crsh", ".", "48"]);
     assert_ok(&o);
-    assert!(text(&o.stdout).contains("accuracy  vs bvh: hit agreement 1.000000"));
+    let out = text(&o.stdout);
+    assert!(
+        out.contains("accuracy  vs bvh: primary agreement 1.000000"),
+        "{out}"
+    );
+    assert!(out.contains("; hit agreement 1.000000"), "{out}");
     let stats = json(&dir.join("render_scene.json"));
     assert_eq!(stats["width"], 48);
     assert_eq!(stats["stages"]["hash"], "thesis");
