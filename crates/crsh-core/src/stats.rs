@@ -98,6 +98,11 @@ pub struct TestCounts {
     /// "visited leaves"). Not part of `total`.
     #[serde(default)]
     pub leaves: u64,
+    /// Some stage that ran does not count its tests (a tracer whose internals are opaque to
+    /// crsh: Embree): the counts above are then partial, and reports show them as absent
+    /// (`null`, "—"), never as 0. Set with [`Stats::mark_tests_uncounted`].
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub uncounted: bool,
 }
 
 /// Per hierarchy level counters (tables 4.1-4.24 of seed 000).
@@ -421,6 +426,12 @@ impl Stats {
     pub fn add_ray_triangle(&mut self, n: u64) {
         self.tests.ray_triangle += n;
         self.tests.total += n;
+    }
+
+    /// Marks the test counts as unknown ([`TestCounts::uncounted`]): a stage traced rays
+    /// without counting its bounding and ray-triangle tests.
+    pub fn mark_tests_uncounted(&mut self) {
+        self.tests.uncounted = true;
     }
 
     /// Adds `inner` visited inner nodes and `leaves` visited leaves of an object hierarchy

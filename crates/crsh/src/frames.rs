@@ -307,8 +307,8 @@ pub struct FrameRow {
     pub frame_ms: f64,
     /// Rays traced.
     pub traced_rays: u64,
-    /// Bounds and ray-triangle tests per traced ray.
-    pub tests_per_ray: f64,
+    /// Bounds and ray-triangle tests per traced ray (`None` when not counted).
+    pub tests_per_ray: Option<f64>,
     /// The frame's full report (its `output` is the frame's PNG).
     pub report: StatsReport,
 }
@@ -456,13 +456,16 @@ impl FramesReport {
         t.frame_ms += row.frame_ms;
         t.mean_frame_ms = t.frame_ms / t.frames as f64;
         t.traced_rays += row.traced_rays;
+        let (a, b) = (t.tests.counts(), &r.stats.tests);
         let sum = TestCounts {
-            bounds: t.tests.bounds + r.stats.tests.bounds,
-            ray_triangle: t.tests.ray_triangle + r.stats.tests.ray_triangle,
-            total: t.tests.total + r.stats.tests.total,
-            brute_force: t.tests.brute_force + r.stats.tests.brute_force,
-            inner_nodes: t.tests.inner_nodes + r.stats.tests.inner_nodes,
-            leaves: t.tests.leaves + r.stats.tests.leaves,
+            bounds: a.bounds + b.bounds,
+            ray_triangle: a.ray_triangle + b.ray_triangle,
+            total: a.total + b.total,
+            brute_force: a.brute_force + b.brute_force,
+            inner_nodes: a.inner_nodes + b.inner_nodes,
+            leaves: a.leaves + b.leaves,
+            // Before the first frame the totals hold no counts (and read as uncounted).
+            uncounted: (t.frames > 1 && a.uncounted) || b.uncounted,
         };
         t.tests = TestsReport::new(&sum, t.traced_rays);
         if let Some(a) = &r.accuracy {
@@ -517,7 +520,7 @@ impl FramesReport {
                 .unwrap_or_else(|| "-".into());
             let _ = writeln!(
                 s,
-                "{:>5}  {:>8.2}  {:>10.2}  {:<24}  {:>9.2}  {:>9.2}  {:>8.2}  {:>9.2}  {:>8.2}  {:>9.1}  {}",
+                "{:>5}  {:>8.2}  {:>10.2}  {:<24}  {:>9.2}  {:>9.2}  {:>8.2}  {:>9.2}  {:>8.2}  {:>9}  {}",
                 r.frame,
                 r.update.scene_ms,
                 r.update.spheres_ms,
@@ -527,14 +530,14 @@ impl FramesReport {
                 r.trace_ms,
                 r.render_ms,
                 r.frame_ms,
-                r.tests_per_ray,
+                tests_cell(r.tests_per_ray),
                 agreement
             );
         }
         let t = &self.totals;
         let _ = writeln!(
             s,
-            "total  {} frames: update {:.1} ms (structure {:.1}) | trace {:.1} | render {:.1} | frame {:.1} ms, mean {:.2} ms/frame | {:.1} tests per traced ray{}",
+            "total  {} frames: update {:.1} ms (structure {:.1}) | trace {:.1} | render {:.1} | frame {:.1} ms, mean {:.2} ms/frame | {} tests per traced ray{}",
             t.frames,
             t.update_ms,
             t.structure_ms,
@@ -542,7 +545,7 @@ impl FramesReport {
             t.render_ms,
             t.frame_ms,
             t.mean_frame_ms,
-            t.tests.per_traced_ray,
+            tests_cell(t.tests.per_traced_ray),
             match t.min_hit_agreement {
                 Some(a) => format!(
                     " | hit agreement ≥ {a:.6} on {} checked frames",
@@ -553,6 +556,11 @@ impl FramesReport {
         );
         s
     }
+}
+
+/// Tests per ray with one decimal, or "—" when they were not counted.
+fn tests_cell(v: Option<f64>) -> String {
+    v.map_or_else(|| "—".to_string(), |v| format!("{v:.1}"))
 }
 
 #[cfg(test)]

@@ -75,49 +75,81 @@ pub struct RaysReport {
     pub total: u64,
 }
 
-/// Intersection tests, plus derived ratios.
+/// Intersection tests, plus derived ratios. The counted fields are `None` (`null` in JSON,
+/// "—" in the summary) when a stage that ran does not count its tests
+/// ([`TestCounts::uncounted`]: Embree), never 0.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct TestsReport {
     /// Bounding-volume tests (BVH node boxes, hierarchy nodes vs spheres).
-    pub bounds: u64,
+    pub bounds: Option<u64>,
     /// Exact ray-triangle tests.
-    pub ray_triangle: u64,
+    pub ray_triangle: Option<u64>,
     /// `bounds + ray_triangle`.
-    pub total: u64,
+    pub total: Option<u64>,
     /// What brute force would need: Σ over traced rays × scene triangles.
     pub brute_force: u64,
     /// `total / rays.traced` (0 when nothing was traced).
-    pub per_traced_ray: f64,
+    pub per_traced_ray: Option<f64>,
     /// `total / brute_force` (0 when nothing was traced): the fraction of the brute-force work done.
-    pub fraction_of_brute_force: f64,
+    pub fraction_of_brute_force: Option<f64>,
     /// Object-hierarchy inner nodes visited (seed 001's "visited internal nodes"; 0 without
     /// an object hierarchy).
-    pub inner_nodes: u64,
+    pub inner_nodes: Option<u64>,
     /// Object-hierarchy leaves visited.
-    pub leaves: u64,
+    pub leaves: Option<u64>,
     /// `inner_nodes / rays.traced`.
-    pub inner_nodes_per_ray: f64,
+    pub inner_nodes_per_ray: Option<f64>,
     /// `leaves / rays.traced`.
-    pub leaves_per_ray: f64,
+    pub leaves_per_ray: Option<f64>,
 }
 
 impl TestsReport {
     /// The counts `t` with their ratios over `traced` rays.
     pub fn new(t: &TestCounts, traced: u64) -> TestsReport {
+        let known = |v: u64| (!t.uncounted).then_some(v);
+        let known_f = |v: f64| (!t.uncounted).then_some(v);
         TestsReport {
-            bounds: t.bounds,
-            ray_triangle: t.ray_triangle,
-            total: t.total,
+            bounds: known(t.bounds),
+            ray_triangle: known(t.ray_triangle),
+            total: known(t.total),
             brute_force: t.brute_force,
-            per_traced_ray: ratio(t.total as f64, traced as f64),
-            fraction_of_brute_force: ratio(t.total as f64, t.brute_force as f64),
-            inner_nodes: t.inner_nodes,
-            leaves: t.leaves,
-            inner_nodes_per_ray: ratio(t.inner_nodes as f64, traced as f64),
-            leaves_per_ray: ratio(t.leaves as f64, traced as f64),
+            per_traced_ray: known_f(ratio(t.total as f64, traced as f64)),
+            fraction_of_brute_force: known_f(ratio(t.total as f64, t.brute_force as f64)),
+            inner_nodes: known(t.inner_nodes),
+            leaves: known(t.leaves),
+            inner_nodes_per_ray: known_f(ratio(t.inner_nodes as f64, traced as f64)),
+            leaves_per_ray: known_f(ratio(t.leaves as f64, traced as f64)),
+        }
+    }
+
+    /// Whether the test counts are unknown ([`TestCounts::uncounted`]).
+    pub fn uncounted(&self) -> bool {
+        self.total.is_none()
+    }
+
+    /// The counts again (unknown ones as 0, with [`TestCounts::uncounted`] set), e.g. to sum
+    /// frames.
+    pub fn counts(&self) -> TestCounts {
+        TestCounts {
+            bounds: self.bounds.unwrap_or(0),
+            ray_triangle: self.ray_triangle.unwrap_or(0),
+            total: self.total.unwrap_or(0),
+            brute_force: self.brute_force,
+            inner_nodes: self.inner_nodes.unwrap_or(0),
+            leaves: self.leaves.unwrap_or(0),
+            uncounted: self.uncounted(),
         }
     }
 }
+
+/// `Some(v)` as a grouped number, `None` as "—" (a count that was not counted).
+fn group_opt(v: Option<u64>) -> String {
+    v.map_or_else(|| "—".to_string(), group)
+}
+
+/// The keys of the per-kind and per-generation entries that count tests: `null` in the JSON
+/// of a frame whose tests were not counted.
+const TEST_KEYS: [&str; 4] = ["bounds", "ray_triangle", "inner_nodes", "leaves"];
 
 /// Agreement with the reference intersector (`--reference`).
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -377,7 +409,27 @@ impl StatsReport {
     pub fn to_json(&self) -> String {
         // Every field is a plain number, string, map with string keys or list, and every f64
         // is finite (ratios guard against 0, PSNR infinity is `null`).
-        serde_json::to_string_pretty(self).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
+        let mut v = match serde_json::to_value(self) {
+            Ok(v) => v,
+            Err(e) => return format!("{{\"error\": \"{e}\"}}"),
+        };
+        if self.tests.uncounted() {
+            // The per-kind and per-generation counts are partial too: absent, not 0.
+            let null_tests = |entry: &mut serde_json::Value| {
+                for key in TEST_KEYS {
+                    if let Some(x) = entry.get_mut(key) {
+                        *x = serde_json::Value::Null;
+                    }
+                }
+            };
+            if let Some(m) = v["per_kind"].as_object_mut() {
+                m.values_mut().for_each(null_tests);
+            }
+            if let Some(a) = v["generations"].as_array_mut() {
+                a.iter_mut().for_each(null_tests);
+            }
+        }
+        serde_json::to_string_pretty(&v).unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
     }
 
     /// The human-readable summary printed on stdout.
@@ -429,25 +481,37 @@ impl StatsReport {
         }
         let _ = writeln!(s, "rays      {kinds} | traced {}", group(r.traced));
         let t = &self.tests;
-        let _ = writeln!(
-            s,
-            "tests     bounds {} | ray-triangle {} | total {} | brute force {} | {:.1} per traced ray ({:.4}% of brute force)",
-            group(t.bounds),
-            group(t.ray_triangle),
-            group(t.total),
-            group(t.brute_force),
-            t.per_traced_ray,
-            t.fraction_of_brute_force * 100.0,
-        );
-        if t.inner_nodes + t.leaves > 0 {
-            let _ = writeln!(
-                s,
-                "visits    inner nodes {} | leaves {} | per traced ray {:.2} / {:.2}",
-                group(t.inner_nodes),
-                group(t.leaves),
-                t.inner_nodes_per_ray,
-                t.leaves_per_ray,
-            );
+        match (t.per_traced_ray, t.fraction_of_brute_force) {
+            (Some(per_ray), Some(fraction)) => {
+                let _ = writeln!(
+                    s,
+                    "tests     bounds {} | ray-triangle {} | total {} | brute force {} | {per_ray:.1} per traced ray ({:.4}% of brute force)",
+                    group_opt(t.bounds),
+                    group_opt(t.ray_triangle),
+                    group_opt(t.total),
+                    group(t.brute_force),
+                    fraction * 100.0,
+                );
+            }
+            _ => {
+                let _ = writeln!(
+                    s,
+                    "tests     bounds — | ray-triangle — | total — | brute force {} (not counted: a stage that ran does not report its tests)",
+                    group(t.brute_force),
+                );
+            }
+        }
+        if let (Some(inner), Some(leaves)) = (t.inner_nodes, t.leaves) {
+            if inner + leaves > 0 {
+                let _ = writeln!(
+                    s,
+                    "visits    inner nodes {} | leaves {} | per traced ray {:.2} / {:.2}",
+                    group(inner),
+                    group(leaves),
+                    t.inner_nodes_per_ray.unwrap_or(0.0),
+                    t.leaves_per_ray.unwrap_or(0.0),
+                );
+            }
         }
         for (key, choice) in &self.choices {
             let _ = writeln!(s, "choice    {key}: {choice}");
@@ -485,7 +549,7 @@ impl StatsReport {
                 group(p.single_rays),
             );
         }
-        s.push_str(&generation_lines(&self.generations));
+        s.push_str(&generation_lines(&self.generations, self.tests.uncounted()));
         let _ = writeln!(
             s,
             "setup ms  scene load {:.1} | build stages {:.1}{}",
@@ -559,8 +623,9 @@ impl StatsReport {
 
 /// One line per generation of secondary rays, when the frame traced more than one: each
 /// kind's rays, tests per ray and, with a ray-space hierarchy, its lowest nodes' cone
-/// half-angles (mean and widest). Empty for a single generation.
-fn generation_lines(generations: &[crsh_core::GenerationStats]) -> String {
+/// half-angles (mean and widest; tests per ray "—" when `uncounted`). Empty for a single
+/// generation.
+fn generation_lines(generations: &[crsh_core::GenerationStats], uncounted: bool) -> String {
     let mut numbers: Vec<u32> = generations
         .iter()
         .filter(|g| g.generation > 0)
@@ -576,8 +641,12 @@ fn generation_lines(generations: &[crsh_core::GenerationStats]) -> String {
             .iter()
             .filter(|g| g.generation == n && g.rays > 0)
             .map(|g| {
-                let tests = (g.bounds + g.ray_triangle) as f64 / g.rays as f64;
-                let mut part = format!("{} {} ({tests:.1} tests/ray", g.ray_kind, group(g.rays));
+                let tests = if uncounted {
+                    "—".to_string()
+                } else {
+                    format!("{:.1}", (g.bounds + g.ray_triangle) as f64 / g.rays as f64)
+                };
+                let mut part = format!("{} {} ({tests} tests/ray", g.ray_kind, group(g.rays));
                 if g.nodes > 0 {
                     let _ = write!(
                         part,
@@ -847,13 +916,39 @@ mod tests {
     }
 
     #[test]
+    fn uncounted_tests_are_absent_not_zero() {
+        let mut r = report(None);
+        let mut counts = r.tests.counts();
+        counts.uncounted = true;
+        r.tests = TestsReport::new(&counts, r.rays.traced);
+        assert!(r.tests.uncounted());
+        assert_eq!((r.tests.total, r.tests.per_traced_ray), (None, None));
+        assert_eq!(r.tests.brute_force, 1400, "brute force's count is known");
+        let v: serde_json::Value = serde_json::from_str(&r.to_json()).unwrap();
+        assert!(v["tests"]["bounds"].is_null() && v["tests"]["total"].is_null());
+        assert!(v["per_kind"]["shadow"]["bounds"].is_null());
+        assert!(v["per_kind"]["shadow"]["ray_triangle"].is_null());
+        assert_eq!(v["per_kind"]["shadow"]["rays"], 10);
+        assert!(v["generations"][1]["bounds"].is_null());
+        let text = r.summary();
+        assert!(
+            text.contains("tests     bounds — | ray-triangle — | total —"),
+            "{text}"
+        );
+        assert!(!text.contains("visits "), "{text}");
+        // A counted report keeps its numbers.
+        let v: serde_json::Value = serde_json::from_str(&report(None).to_json()).unwrap();
+        assert_eq!(v["per_kind"]["shadow"]["bounds"], 20);
+    }
+
+    #[test]
     fn derived_numbers() {
         let r = report(None);
         assert_eq!(r.rays.traced, 14);
         assert_eq!(r.rays.total, 30);
-        assert_eq!(r.tests.total, 42);
-        assert!((r.tests.per_traced_ray - 3.0).abs() < 1e-12);
-        assert!((r.tests.fraction_of_brute_force - 0.03).abs() < 1e-12);
+        assert_eq!(r.tests.total, Some(42));
+        assert!((r.tests.per_traced_ray.unwrap() - 3.0).abs() < 1e-12);
+        assert!((r.tests.fraction_of_brute_force.unwrap() - 0.03).abs() < 1e-12);
         // 10 rays in 2 ms = 5000 rays/s = 0.005 Mrays/s.
         assert!((r.mrays_per_s["shadow"] - 0.005).abs() < 1e-12);
         assert!((r.mrays_per_s["reflection"] - 0.008).abs() < 1e-12);

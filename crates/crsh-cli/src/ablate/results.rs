@@ -109,6 +109,10 @@ pub struct CellTests {
     /// `leaves / rays.traced`.
     #[serde(default)]
     pub leaves_per_ray: f64,
+    /// A stage of the cell does not count its tests (Embree): every count above is unknown,
+    /// and tables and CSV leave it blank ("—"), never 0.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub uncounted: bool,
 }
 
 /// One ray kind's work per ray, from its [`KindStats`]: what seed 001's tables set against the
@@ -785,16 +789,20 @@ impl Results {
             row.push(num(&|m| m.rays.ao.to_string()));
             row.push(num(&|m| m.rays.diffuse.to_string()));
             row.push(num(&|m| m.rays.traced.to_string()));
-            row.push(num(&|m| m.tests.bounds.to_string()));
-            row.push(num(&|m| m.tests.ray_triangle.to_string()));
-            row.push(num(&|m| m.tests.total.to_string()));
+            // Uncounted tests (Embree) are blank cells, not 0.
+            let counted = |f: &dyn Fn(&Measures) -> String| {
+                m.filter(|m| !m.tests.uncounted).map(f).unwrap_or_default()
+            };
+            row.push(counted(&|m| m.tests.bounds.to_string()));
+            row.push(counted(&|m| m.tests.ray_triangle.to_string()));
+            row.push(counted(&|m| m.tests.total.to_string()));
             row.push(num(&|m| m.tests.brute_force.to_string()));
-            row.push(num(&|m| format!("{:.4}", m.tests.per_ray)));
-            row.push(num(&|m| format!("{:.6e}", m.tests.fraction)));
-            row.push(num(&|m| m.tests.inner_nodes.to_string()));
-            row.push(num(&|m| m.tests.leaves.to_string()));
-            row.push(num(&|m| format!("{:.4}", m.tests.inner_nodes_per_ray)));
-            row.push(num(&|m| format!("{:.4}", m.tests.leaves_per_ray)));
+            row.push(counted(&|m| format!("{:.4}", m.tests.per_ray)));
+            row.push(counted(&|m| format!("{:.6e}", m.tests.fraction)));
+            row.push(counted(&|m| m.tests.inner_nodes.to_string()));
+            row.push(counted(&|m| m.tests.leaves.to_string()));
+            row.push(counted(&|m| format!("{:.4}", m.tests.inner_nodes_per_ray)));
+            row.push(counted(&|m| format!("{:.4}", m.tests.leaves_per_ray)));
             for kind in &mesh_kinds {
                 let c = m.and_then(|m| m.mesh_culling.get(kind));
                 row.push(c.map(|c| c.tests.to_string()).unwrap_or_default());

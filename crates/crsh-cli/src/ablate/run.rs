@@ -442,6 +442,7 @@ fn measures_of(
             leaves: t.leaves,
             inner_nodes_per_ray: ratio(t.inner_nodes as f64, traced as f64),
             leaves_per_ray: ratio(t.leaves as f64, traced as f64),
+            uncounted: t.uncounted,
         },
         per_kind_per_ray: median
             .per_kind
@@ -498,6 +499,7 @@ fn add_stats(sum: &mut Stats, s: &Stats) {
     sum.tests.ray_triangle += s.tests.ray_triangle;
     sum.tests.total += s.tests.total;
     sum.tests.brute_force += s.tests.brute_force;
+    sum.tests.uncounted |= s.tests.uncounted;
     sum.traced_rays += s.traced_rays;
     for (kind, k) in &s.per_kind {
         let e = sum.per_kind.entry(kind.clone()).or_default();
