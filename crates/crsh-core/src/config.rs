@@ -402,6 +402,11 @@ pub struct StageVariantInfo {
     /// before any stage is built.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub scene_only: bool,
+    /// Listed but left out of this build (e.g. a cargo feature that links a system library
+    /// was off): why, and how to get it. Constructing it fails; presets that use it are
+    /// skipped by [`crate::Registry::available_presets`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unavailable: Option<&'static str>,
 }
 
 impl StageVariantInfo {
@@ -413,6 +418,15 @@ impl StageVariantInfo {
             doc,
             params: Vec::new(),
             scene_only: false,
+            unavailable: None,
+        }
+    }
+
+    /// The same entry, marked as left out of this build with `reason` unless `built`.
+    pub fn built_if(self, built: bool, reason: &'static str) -> Self {
+        StageVariantInfo {
+            unavailable: (!built).then_some(reason),
+            ..self
         }
     }
 

@@ -34,6 +34,22 @@ pub enum CoreError {
         /// What was asked.
         what: String,
     },
+    /// The variant exists but this build of crsh left it out: it needs a cargo feature (and a
+    /// system library) that was not enabled.
+    #[error(
+        "{stage} `{variant}` is not in this build: build crsh with the `{feature}` cargo \
+         feature (`cargo build --release -p crsh-cli --features {feature}`), which needs {needs}"
+    )]
+    NotBuilt {
+        /// Stage slot.
+        stage: &'static str,
+        /// Variant name.
+        variant: String,
+        /// The cargo feature that builds it.
+        feature: &'static str,
+        /// What the feature needs installed (e.g. the Debian package).
+        needs: &'static str,
+    },
     /// The filled slots of a pipeline do not fit together (a hash without a sorter, a
     /// hierarchy without a traverser, a whole-scene intersector under a hierarchy, ...).
     #[error("pipeline stages `{slots}` do not fit together: {reason}")]

@@ -60,7 +60,7 @@ pub use pipeline::{
     count_self_hits, render_frame, timed, trace_batch, Frame, FrameOptions, FrameSize, Pipeline,
     Progress, StageBuild, Stages, MAX_DEPTH, MAX_IMAGE_SIDE,
 };
-pub use ray::{Hit, HitMode, Ray, RayKind, Surface, NO_HIT};
+pub use ray::{Hit, HitMode, Ray, RayKind, Surface, NO_HIT, UNKNOWN_TRI};
 pub use registry::{BuiltinVariants, Preset, Registry, StageContext};
 pub use stage::{
     check_leaf_offsets, lowest_node_leaves, Candidate, CandidateBatch, Hasher, HierarchyBuilder,

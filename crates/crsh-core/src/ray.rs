@@ -11,6 +11,11 @@ use serde::{Deserialize, Serialize};
 /// Triangle id of a miss (in [`Hit::tri`] and [`Surface::tri`]).
 pub const NO_HIT: u32 = u32::MAX;
 
+/// Triangle id of an any hit whose triangle the intersector does not report (an occlusion
+/// query such as Embree's `rtcOccluded` says only that something lies in the segment): a hit,
+/// but no triangle of the scene ([`Hit::occluded`]).
+pub const UNKNOWN_TRI: u32 = u32::MAX - 1;
+
 /// The kinds of rays the pipelines trace: a Whitted pipeline's (seed 000 §3.2.3), and the
 /// ambient-occlusion and diffuse rays of seed 001's measurements.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
@@ -257,6 +262,16 @@ impl Hit {
         u: 0.0,
         v: 0.0,
     };
+
+    /// An any hit of a segment ending at `t` whose triangle is unknown ([`UNKNOWN_TRI`]).
+    pub fn occluded(t: f32) -> Hit {
+        Hit {
+            t,
+            tri: UNKNOWN_TRI,
+            u: 0.0,
+            v: 0.0,
+        }
+    }
 
     /// Whether this records a hit.
     pub fn is_hit(&self) -> bool {

@@ -367,6 +367,25 @@ impl<B: Backend> Registry<B> {
         &self.presets
     }
 
+    /// The presets this build can construct: those whose every stage variant is available
+    /// ([`StageVariantInfo::unavailable`] unset), in registration order. Suites that run
+    /// "every preset" use these and report the others as skipped ([`Self::unavailable`]).
+    pub fn available_presets(&self) -> impl Iterator<Item = &Preset> {
+        self.presets
+            .iter()
+            .filter(|p| self.unavailable(&p.config).is_none())
+    }
+
+    /// Why `cfg` cannot be built in this build (the first of its variants that is
+    /// [`StageVariantInfo::unavailable`], named), or `None`.
+    pub fn unavailable(&self, cfg: &PipelineConfig) -> Option<String> {
+        StageKind::ALL.iter().find_map(|&slot| {
+            let spec = cfg.slot(slot)?;
+            let reason = self.variant(slot, &spec.kind)?.unavailable?;
+            Some(format!("{} `{}`: {reason}", slot.key(), spec.kind))
+        })
+    }
+
     /// The preset `name` (resolved), if registered.
     pub fn preset(&self, name: &str) -> Option<PipelineConfig> {
         self.presets
