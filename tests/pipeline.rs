@@ -38,11 +38,17 @@ fn registry() -> &'static Registry<Cpu> {
     REGISTRY.get_or_init(Registry::<Cpu>::builtin)
 }
 
-/// The names of the built-in presets.
+/// The names of the built-in presets this build can construct (the Embree ones need the
+/// `embree` feature; the others are reported as skipped).
 fn presets() -> Vec<String> {
-    registry()
-        .presets()
-        .iter()
+    let registry = registry();
+    for p in registry.presets() {
+        if let Some(why) = registry.unavailable(&p.config) {
+            println!("SKIP preset {}: {why}", p.name);
+        }
+    }
+    registry
+        .available_presets()
         .map(|p| p.name.clone())
         .collect()
 }

@@ -250,7 +250,7 @@ fn pipelines_text(l: &PipelinesListing) -> String {
             let backends: Vec<&str> = v.backends.iter().map(|b| b.name()).collect();
             let _ = writeln!(
                 s,
-                "  {:w$}  [{}] {}{}",
+                "  {:w$}  [{}] {}{}{}",
                 v.info.name,
                 backends.join(", "),
                 v.info.doc,
@@ -258,7 +258,11 @@ fn pipelines_text(l: &PipelinesListing) -> String {
                     " (whole-scene queries only)"
                 } else {
                     ""
-                }
+                },
+                v.info
+                    .unavailable
+                    .map(|why| format!(" [{why}]"))
+                    .unwrap_or_default()
             );
             for p in &v.info.params {
                 let choices = if p.choices.is_empty() {

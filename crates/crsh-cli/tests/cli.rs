@@ -432,6 +432,49 @@ fn expect_error(dir: &Path, args: &[&str], code: i32, needle: &str) {
     );
 }
 
+/// `--pipeline embree` and `embree_packets`: with the `embree` feature they render
+/// office-boxes with `bvh`'s hits (agreement ≥ 0.9999), name the variant and its mode, and
+/// report their tests as absent (`null`), never 0; without it the command fails with one
+/// line naming the feature and the package to install.
+#[test]
+fn embree_renders_with_the_feature_and_is_named_without() {
+    let dir = scratch("embree");
+    for (preset, mode) in [("embree", "single"), ("embree_packets", "packet16")] {
+        let args = [
+            "--pipeline",
+            preset,
+            "--scene",
+            "office-boxes",
+            "--width",
+            "64",
+            "--height",
+            "48",
+            "--reference",
+            "bvh",
+        ];
+        if !cfg!(feature = "embree") {
+            let mut all = vec!["render"];
+            all.extend_from_slice(&args);
+            expect_error(&dir, &all, 1, "--features embree");
+            expect_error(&dir, &all, 1, "libembree-dev");
+            continue;
+        }
+        let (s, o) = render(&dir, &args);
+        assert_eq!(s["stages"]["intersect"], "embree");
+        assert_eq!(s["config"]["intersect"]["mode"], mode);
+        assert!(s["tests"]["bounds"].is_null() && s["tests"]["total"].is_null());
+        assert!(s["per_kind"]["shadow"]["ray_triangle"].is_null());
+        assert!(u(&s, "/per_kind/shadow/rays") > 0);
+        let agreement = f(&s, "/accuracy/hit_agreement");
+        assert!(agreement >= 0.9999, "{preset}: hit agreement {agreement}");
+        assert!(
+            stdout(&o).contains("tests     bounds — |"),
+            "{}",
+            stdout(&o)
+        );
+    }
+}
+
 #[test]
 fn bad_input_gives_clear_errors() {
     let dir = scratch("errors");

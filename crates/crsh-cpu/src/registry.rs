@@ -42,6 +42,7 @@ impl BuiltinVariants for Cpu {
         crate::intersect::bvh2::register(registry)?;
         crate::intersect::grid::register(registry)?;
         crate::intersect::kdtree::register(registry)?;
+        crate::intersect::embree::register(registry)?;
         crate::shade::phong::register(registry)?;
         crate::shade::ao::register(registry)?;
         crate::shade::diffuse::register(registry)?;
@@ -62,8 +63,14 @@ pub fn add_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<
 }
 
 /// The presets with a setting the wgpu backend lacks (`dual_inline`, `dual_screen`,
-/// `dual_screen_bvh`: inline final tests).
-pub const CPU_ONLY_PRESETS: [&str; 3] = ["dual_inline", "dual_screen", "dual_screen_bvh"];
+/// `dual_screen_bvh`: inline final tests; `embree`, `embree_packets`: a CPU library).
+pub const CPU_ONLY_PRESETS: [&str; 5] = [
+    "dual_inline",
+    "dual_screen",
+    "dual_screen_bvh",
+    "embree",
+    "embree_packets",
+];
 
 /// [`add_presets`] less [`CPU_ONLY_PRESETS`]: the wgpu backend's presets.
 pub fn add_gpu_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<()> {
@@ -101,6 +108,20 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
             "bvh",
             "the obvhs CWBVH: the object-hierarchy baseline",
             PipelineConfig::whitted("bvh", "bvh"),
+        ),
+        (
+            "embree",
+            "Intel Embree 3, single rays (rtcIntersect1/rtcOccluded1) over its high-quality \
+             (spatial-split) BVH: the tracer CPU renderers use, the anchor to beat (needs the \
+             `embree` feature; CPU only)",
+            embree_pipeline("single", false),
+        ),
+        (
+            "embree_packets",
+            "Intel Embree 3, 16-wide packets of consecutive rays (rtcIntersect16/rtcOccluded16) \
+             with the coherent flag, high-quality BVH: Embree's fastest mode on coherent rays \
+             (needs the `embree` feature; CPU only)",
+            embree_pipeline("packet16", true),
         ),
         (
             "grid",
@@ -170,6 +191,20 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
             dual_screen_bvh_pipeline(),
         ),
     ]
+}
+
+/// A Whitted pipeline on the `embree` intersector with query `mode` and coherent flag
+/// `coherent` (build quality `high`).
+fn embree_pipeline(mode: &str, coherent: bool) -> PipelineConfig {
+    let mut cfg =
+        PipelineConfig::whitted(if coherent { "embree_packets" } else { "embree" }, "embree");
+    cfg.intersect
+        .params
+        .insert("mode".into(), ParamValue::Str(mode.into()));
+    cfg.intersect
+        .params
+        .insert("coherent".into(), ParamValue::Bool(coherent));
+    cfg
 }
 
 /// The `dual_screen_bvh` preset's pipeline: [`dual_screen_pipeline`] with `traverse.objects =
@@ -293,6 +328,8 @@ mod tests {
             [
                 "brute",
                 "bvh",
+                "embree",
+                "embree_packets",
                 "grid",
                 "kdtree",
                 "crsh",
@@ -310,6 +347,8 @@ mod tests {
             assert_eq!(cfg.name, name);
             let expect = if ["brute", "bvh", "grid", "kdtree"].contains(&name) {
                 name
+            } else if name.starts_with("embree") {
+                "embree"
             } else {
                 "brute"
             };
@@ -339,6 +378,28 @@ mod tests {
             assert_eq!(cfg.raygen.str("shadow_origin").unwrap(), "light");
             assert_eq!(cfg.shade.f64("ambient").unwrap(), 0.05);
         }
+        // The Embree presets are listed in every build, and available with the feature only.
+        let available: Vec<&str> = registry
+            .available_presets()
+            .map(|p| p.name.as_str())
+            .collect();
+        for name in ["embree", "embree_packets"] {
+            let cfg = registry.preset(name).unwrap();
+            assert_eq!(
+                available.contains(&name),
+                crate::intersect::embree::AVAILABLE
+            );
+            let why = registry.unavailable(&cfg);
+            assert_eq!(
+                why.is_none(),
+                crate::intersect::embree::AVAILABLE,
+                "{why:?}"
+            );
+        }
+        assert_eq!(
+            available.len() + 2 * usize::from(!crate::intersect::embree::AVAILABLE),
+            names.len()
+        );
     }
 
     #[test]

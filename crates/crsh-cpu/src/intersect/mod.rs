@@ -4,5 +4,6 @@ pub mod brute;
 pub mod brute64;
 pub mod bvh;
 pub mod bvh2;
+pub mod embree;
 pub mod grid;
 pub mod kdtree;
