@@ -32,7 +32,8 @@
 //!   than the slack. There `bvh` reports fewer self-intersections than `brute` with the same
 //!   test (`crsh stress`: `stadium/teapot` with `fixed`, 0 against 1; `far/plane-1e7` with
 //!   `projected`, 577 against 592), and nothing else differs.
-//! - The `slow` preset (`BvhBuildParams::slow_build`) is used without its spatial pre-splits:
+//! - The `slow` and `very_slow` presets (`BvhBuildParams::slow_build`, `very_slow_build`)
+//!   are used without their spatial pre-splits:
 //!   their clipped boxes are computed in floating point and are not guaranteed to contain
 //!   their triangle fragments, which would break the guarantee above. Everything else of the
 //!   preset (PLOC search distance, reinsertion, sort precision) is kept.
@@ -128,11 +129,14 @@ pub enum BuildQuality {
     Medium,
     /// `BvhBuildParams::slow_build` without spatial pre-splits (see the module doc).
     Slow,
+    /// `BvhBuildParams::very_slow_build` (full reinsertion, 128-bit Morton sort, leaves of
+    /// up to 8 before collapsing) without spatial pre-splits.
+    VerySlow,
 }
 
 impl BuildQuality {
     /// The names accepted by `build_quality`.
-    pub const NAMES: [&'static str; 3] = ["fast", "medium", "slow"];
+    pub const NAMES: [&'static str; 4] = ["fast", "medium", "slow", "very_slow"];
 
     /// The preset called `name`.
     pub fn from_name(name: &str) -> Option<BuildQuality> {
@@ -140,6 +144,7 @@ impl BuildQuality {
             "fast" => Some(BuildQuality::Fast),
             "medium" => Some(BuildQuality::Medium),
             "slow" => Some(BuildQuality::Slow),
+            "very_slow" => Some(BuildQuality::VerySlow),
             _ => None,
         }
     }
@@ -152,6 +157,10 @@ impl BuildQuality {
             BuildQuality::Slow => BvhBuildParams {
                 pre_split: false,
                 ..BvhBuildParams::slow_build()
+            },
+            BuildQuality::VerySlow => BvhBuildParams {
+                pre_split: false,
+                ..BvhBuildParams::very_slow_build()
             },
         }
     }
@@ -1136,7 +1145,12 @@ pub(crate) mod tests {
         for (seed, n) in [(21u64, 500usize), (22, 60), (23, 1)] {
             let scene = soup(seed, n);
             let rays = random_rays(&scene, seed + 100, 1500);
-            for q in [BuildQuality::Fast, BuildQuality::Medium, BuildQuality::Slow] {
+            for q in [
+                BuildQuality::Fast,
+                BuildQuality::Medium,
+                BuildQuality::Slow,
+                BuildQuality::VerySlow,
+            ] {
                 check_against_brute(&scene, &rays, q);
             }
         }
