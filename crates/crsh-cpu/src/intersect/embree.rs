@@ -16,11 +16,11 @@
 //!
 //! # Hits
 //!
-//! Closest hits map to crsh's [`Hit`] unchanged: `primID` is the scene triangle id (one
+//! Closest hits map to crsh's [`Hit`](crsh_core::Hit) unchanged: `primID` is the scene triangle id (one
 //! geometry, triangles in scene order), `tfar` is `t`, Embree's `u`, `v` are the weights of
-//! vertices `b` and `c`, as crsh's. They merge into the stored hits with [`Hit::closer_than`].
+//! vertices `b` and `c`, as crsh's. They merge into the stored hits with [`Hit::closer_than`](crsh_core::Hit::closer_than).
 //! Any-hit queries (`rtcOccluded*`) report only that something lies in the segment: the hit
-//! stored is [`Hit::occluded`] (the segment's end as `t`, the triangle unknown), which
+//! stored is [`Hit::occluded`](crsh_core::Hit::occluded) (the segment's end as `t`, the triangle unknown), which
 //! shading and accuracy read as a hit.
 //!
 //! Embree's ray-triangle test is its own (Plücker-style with a watertight edge test in
@@ -32,7 +32,7 @@
 //! # Counting
 //!
 //! Embree does not count its box and triangle tests, so this variant reports them as
-//! unknown ([`Stats::mark_tests_uncounted`]): `null` in the stats JSON, "—" in tables,
+//! unknown ([`Stats::mark_tests_uncounted`](crsh_core::Stats::mark_tests_uncounted)): `null` in the stats JSON, "—" in tables,
 //! never 0. Rays and stage times are counted by the frame driver as for every variant.
 //!
 //! Rays are traced in parallel with rayon in tasks of [`TASK`] rays (whole packets), each
