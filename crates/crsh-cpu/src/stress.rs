@@ -148,6 +148,22 @@ pub fn intersect_tests(registry: &Registry<Cpu>) -> Vec<String> {
     choices(registry, StageKind::Intersect, "brute", "test")
 }
 
+/// The presets the suite's expectations are for: those this build can construct whose
+/// intersector runs one of crsh's ray-triangle tests (it takes the `intersect.test`
+/// parameter). Embree's own test is checked against brute force in its unit tests instead,
+/// where the rays it answers differently (in a triangle's plane) are asserted by kind.
+pub fn suite_presets(registry: &Registry<Cpu>) -> Vec<String> {
+    registry
+        .available_presets()
+        .filter(|p| {
+            registry
+                .variant(StageKind::Intersect, &p.config.intersect.kind)
+                .is_some_and(|v| v.params.iter().any(|q| q.name == "test"))
+        })
+        .map(|p| p.name.clone())
+        .collect()
+}
+
 /// The origin-offset policies `registry` offers (choices of `raygen.offset` on `whitted`);
 /// empty in a registry without that parameter.
 pub fn offset_policies(registry: &Registry<Cpu>) -> Vec<String> {

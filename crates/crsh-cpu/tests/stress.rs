@@ -6,7 +6,9 @@ use std::collections::BTreeMap;
 use std::sync::OnceLock;
 
 use crsh_core::Registry;
-use crsh_cpu::stress::{intersect_tests, offset_policies, run_suite, variants, StressRow};
+use crsh_cpu::stress::{
+    intersect_tests, offset_policies, run_suite, suite_presets, variants, StressRow,
+};
 use crsh_cpu::Cpu;
 use crsh_scene::stress::cases;
 
@@ -15,10 +17,7 @@ fn table() -> &'static [StressRow] {
     static ROWS: OnceLock<Vec<StressRow>> = OnceLock::new();
     ROWS.get_or_init(|| {
         let registry = Registry::<Cpu>::builtin();
-        let pipelines: Vec<String> = registry
-            .available_presets()
-            .map(|p| p.name.clone())
-            .collect();
+        let pipelines = suite_presets(&registry);
         let vs = variants(
             &pipelines,
             &intersect_tests(&registry),
@@ -214,7 +213,7 @@ fn default_offset_has_no_acne_on_a_plane_lit_at_1_to_89_degrees() {
         .collect();
     assert!(
         rows.len()
-            >= 8 * Registry::<Cpu>::builtin().available_presets().count()
+            >= 8 * suite_presets(&Registry::<Cpu>::builtin()).len()
                 * intersect_tests(&Registry::<Cpu>::builtin()).len().max(1)
     );
     for r in rows {
