@@ -600,9 +600,7 @@ pub(crate) fn start_trace<T: TriangleTest>(
     mode: HitMode,
     best: &Hit,
 ) -> Option<(T::Ray, NodeRay, f32, f32)> {
-    if (mode == HitMode::Any && best.is_hit())
-        || ray.t_min.partial_cmp(&ray.t_max) != Some(std::cmp::Ordering::Less)
-    {
+    if crate::intersect::nothing_to_trace(ray, mode, best) {
         return None;
     }
     Some((

@@ -180,9 +180,7 @@ impl<'t, T: TriangleTest> GroupState<'t, T> {
             .iter()
             .zip(&best)
             .map(|(r, b)| {
-                let skip = (mode == HitMode::Any && b.is_hit())
-                    || r.t_min.partial_cmp(&r.t_max) != Some(std::cmp::Ordering::Less)
-                    || tree.nodes.is_empty();
+                let skip = crate::intersect::nothing_to_trace(r, mode, b) || tree.nodes.is_empty();
                 if skip {
                     None
                 } else {

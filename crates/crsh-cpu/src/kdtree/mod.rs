@@ -476,9 +476,7 @@ pub fn trace_single<T: TriangleTest>(
     stack: &mut Vec<Entry>,
 ) -> KdCounts {
     let mut n = KdCounts::default();
-    if (mode == HitMode::Any && best.is_hit())
-        || ray.t_min.partial_cmp(&ray.t_max) != Some(std::cmp::Ordering::Less)
-    {
+    if crate::intersect::nothing_to_trace(ray, mode, best) {
         return n;
     }
     let r = T::ray_of(ray);

@@ -6,14 +6,15 @@ use std::time::{Duration, Instant};
 use crsh_core::{CoreError, Hit, HitMode, Intersector, Query, Ray, Result, Stats};
 use crsh_scene::Scene;
 use embree3::{
-    BufferUsage, BuildQuality, Device, Format, GeometryKind, IntersectContext, SceneFlags,
-    ValidMask, ValidMaskN, INVALID_ID,
+    BufferUsage, BuildQuality, Device, Format, GeometryKind, IntersectContext, RayHit16, RayHit4,
+    RayHit8, SceneFlags, ValidMask, ValidMaskN, INVALID_ID,
 };
 use rayon::prelude::*;
 
 use super::{Mode, Quality, TASK};
 use crate::backend::Cpu;
 use crate::intersect::brute::check_batch;
+use crate::intersect::nothing_to_trace;
 
 /// The `embree` intersector: one committed Embree scene over the scene's triangles.
 pub struct Embree {
@@ -137,7 +138,7 @@ impl Embree {
         match self.mode {
             Mode::Single => {
                 for (ray, hit) in rays.iter().zip(hits.iter_mut()) {
-                    if needs_query(ray, mode, hit) {
+                    if !nothing_to_trace(ray, mode, hit) {
                         self.single(&mut ctx, ray, mode, hit);
                     }
                 }
@@ -178,13 +179,6 @@ impl Embree {
     }
 }
 
-/// Whether `ray` needs a query: a non-empty interval, and for any hit no hit stored yet.
-#[inline]
-fn needs_query(ray: &Ray, mode: HitMode, hit: &Hit) -> bool {
-    !(mode == HitMode::Any && hit.is_hit())
-        && ray.t_min.partial_cmp(&ray.t_max) == Some(std::cmp::Ordering::Less)
-}
-
 /// Keeps the closer of `best` and `h` ([`Hit::closer_than`]).
 #[inline]
 fn merge(best: &mut Hit, h: Hit) {
@@ -196,7 +190,7 @@ fn merge(best: &mut Hit, h: Hit) {
 /// `packetsN`: the rays in consecutive packets of `N` through `rtcIntersectN` /
 /// `rtcOccludedN`, lanes past the end or needing no query invalid.
 macro_rules! packets {
-    ($fn:ident, $n:literal, $ray:ty, $rayhit:ty, $hit:ty, $isect:ident, $occl:ident) => {
+    ($fn:ident, $n:literal, $ray:ty, $rayhit:ident, $hit:ty, $isect:ident, $occl:ident) => {
         impl Embree {
             fn $fn(
                 &self,
@@ -210,7 +204,7 @@ macro_rules! packets {
                     let mut packet = <$ray>::empty();
                     let mut any = false;
                     for (i, (ray, hit)) in rs.iter().zip(hs.iter()).enumerate() {
-                        if !needs_query(ray, mode, hit) {
+                        if nothing_to_trace(ray, mode, hit) {
                             continue;
                         }
                         any = true;
@@ -237,7 +231,10 @@ macro_rules! packets {
                             }
                         }
                     } else {
-                        let mut rh = <$rayhit>::from_parts(packet, <$hit>::new());
+                        let mut rh = $rayhit {
+                            ray: packet,
+                            hit: <$hit>::new(),
+                        };
                         self.scene.$isect(ctx, &mut rh, &valid);
                         for (i, hit) in hs.iter_mut().enumerate() {
                             if valid.lanes_mut()[i] == ValidMask::Valid
@@ -261,32 +258,11 @@ macro_rules! packets {
     };
 }
 
-/// Assembling a ray-hit packet from its parts.
-trait FromParts<R, H> {
-    fn from_parts(ray: R, hit: H) -> Self;
-}
-
-macro_rules! from_parts {
-    ($($rayhit:ty, $ray:ty, $hit:ty);*) => {
-        $(impl FromParts<$ray, $hit> for $rayhit {
-            fn from_parts(ray: $ray, hit: $hit) -> Self {
-                Self { ray, hit }
-            }
-        })*
-    };
-}
-
-from_parts!(
-    embree3::RayHit4, embree3::Ray4, embree3::Hit4;
-    embree3::RayHit8, embree3::Ray8, embree3::Hit8;
-    embree3::RayHit16, embree3::Ray16, embree3::Hit16
-);
-
 packets!(
     packets4,
     4,
     embree3::Ray4,
-    embree3::RayHit4,
+    RayHit4,
     embree3::Hit4,
     intersect4,
     occluded4
@@ -295,7 +271,7 @@ packets!(
     packets8,
     8,
     embree3::Ray8,
-    embree3::RayHit8,
+    RayHit8,
     embree3::Hit8,
     intersect8,
     occluded8
@@ -304,7 +280,7 @@ packets!(
     packets16,
     16,
     embree3::Ray16,
-    embree3::RayHit16,
+    RayHit16,
     embree3::Hit16,
     intersect16,
     occluded16
