@@ -105,6 +105,19 @@ pub struct TestCounts {
     pub uncounted: bool,
 }
 
+impl TestCounts {
+    /// Adds the counts `o` (of another frame or batch) to these; unknown if either is.
+    pub fn add(&mut self, o: &TestCounts) {
+        self.bounds += o.bounds;
+        self.ray_triangle += o.ray_triangle;
+        self.total += o.total;
+        self.brute_force += o.brute_force;
+        self.inner_nodes += o.inner_nodes;
+        self.leaves += o.leaves;
+        self.uncounted |= o.uncounted;
+    }
+}
+
 /// Per hierarchy level counters (tables 4.1-4.24 of seed 000).
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct LevelStats {

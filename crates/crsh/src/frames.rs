@@ -26,7 +26,7 @@ use std::fmt::Write as _;
 use std::sync::Arc;
 use std::time::Instant;
 
-use crsh_core::{FrameOptions, PipelineConfig, Progress, StageBuild, StageKind, TestCounts};
+use crsh_core::{FrameOptions, PipelineConfig, Progress, StageBuild, StageKind};
 use crsh_scene::{AnimatedScene, Scene};
 use crsh_wgpu::Wgpu;
 use serde::{Deserialize, Serialize};
@@ -456,17 +456,8 @@ impl FramesReport {
         t.frame_ms += row.frame_ms;
         t.mean_frame_ms = t.frame_ms / t.frames as f64;
         t.traced_rays += row.traced_rays;
-        let (a, b) = (t.tests.counts(), &r.stats.tests);
-        let sum = TestCounts {
-            bounds: a.bounds + b.bounds,
-            ray_triangle: a.ray_triangle + b.ray_triangle,
-            total: a.total + b.total,
-            brute_force: a.brute_force + b.brute_force,
-            inner_nodes: a.inner_nodes + b.inner_nodes,
-            leaves: a.leaves + b.leaves,
-            // Before the first frame the totals hold no counts (and read as uncounted).
-            uncounted: (t.frames > 1 && a.uncounted) || b.uncounted,
-        };
+        let mut sum = t.tests.counts();
+        sum.add(&r.stats.tests);
         t.tests = TestsReport::new(&sum, t.traced_rays);
         if let Some(a) = &r.accuracy {
             t.frames_checked += 1;

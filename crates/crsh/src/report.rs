@@ -77,8 +77,8 @@ pub struct RaysReport {
 
 /// Intersection tests, plus derived ratios. The counted fields are `None` (`null` in JSON,
 /// "—" in the summary) when a stage that ran does not count its tests
-/// ([`TestCounts::uncounted`]: Embree), never 0.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+/// ([`TestCounts::uncounted`]: Embree), never 0. The default is the report of no tests.
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct TestsReport {
     /// Bounding-volume tests (BVH node boxes, hierarchy nodes vs spheres).
     pub bounds: Option<u64>,
@@ -101,6 +101,12 @@ pub struct TestsReport {
     pub inner_nodes_per_ray: Option<f64>,
     /// `leaves / rays.traced`.
     pub leaves_per_ray: Option<f64>,
+}
+
+impl Default for TestsReport {
+    fn default() -> Self {
+        TestsReport::new(&TestCounts::default(), 0)
+    }
 }
 
 impl TestsReport {

@@ -493,13 +493,7 @@ fn add_stats(sum: &mut Stats, s: &Stats) {
     for kind in RayKind::ALL {
         sum.rays.add(kind, s.rays.get(kind));
     }
-    sum.tests.inner_nodes += s.tests.inner_nodes;
-    sum.tests.leaves += s.tests.leaves;
-    sum.tests.bounds += s.tests.bounds;
-    sum.tests.ray_triangle += s.tests.ray_triangle;
-    sum.tests.total += s.tests.total;
-    sum.tests.brute_force += s.tests.brute_force;
-    sum.tests.uncounted |= s.tests.uncounted;
+    sum.tests.add(&s.tests);
     sum.traced_rays += s.traced_rays;
     for (kind, k) in &s.per_kind {
         let e = sum.per_kind.entry(kind.clone()).or_default();
