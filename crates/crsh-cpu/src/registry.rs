@@ -114,14 +114,14 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
             "Intel Embree 3, single rays (rtcIntersect1/rtcOccluded1) over its high-quality \
              (spatial-split) BVH: the tracer CPU renderers use, the anchor to beat (needs the \
              `embree` feature; CPU only)",
-            embree_pipeline("single", false),
+            embree_pipeline("embree", "single", false),
         ),
         (
             "embree_packets",
             "Intel Embree 3, 16-wide packets of consecutive rays (rtcIntersect16/rtcOccluded16) \
              with the coherent flag, high-quality BVH: Embree's fastest mode on coherent rays \
              (needs the `embree` feature; CPU only)",
-            embree_pipeline("packet16", true),
+            embree_pipeline("embree_packets", "packet16", true),
         ),
         (
             "grid",
@@ -193,11 +193,10 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
     ]
 }
 
-/// A Whitted pipeline on the `embree` intersector with query `mode` and coherent flag
-/// `coherent` (build quality `high`).
-fn embree_pipeline(mode: &str, coherent: bool) -> PipelineConfig {
-    let mut cfg =
-        PipelineConfig::whitted(if coherent { "embree_packets" } else { "embree" }, "embree");
+/// A Whitted pipeline `name` on the `embree` intersector with query `mode` and coherent
+/// flag `coherent` (build quality `high`).
+fn embree_pipeline(name: &str, mode: &str, coherent: bool) -> PipelineConfig {
+    let mut cfg = PipelineConfig::whitted(name, "embree");
     cfg.intersect
         .params
         .insert("mode".into(), ParamValue::Str(mode.into()));
