@@ -46,6 +46,36 @@ pub trait Backend: Send + Sync + 'static {
     /// The buffers' contents one after the other, in order.
     fn concat<T: Pod + Send + Sync>(&self, parts: Vec<Self::Buffer<T>>) -> Result<Self::Buffer<T>>;
 
+    /// `buf` in the order `order`: element `i` of the result is `buf[order[i]]`. The default
+    /// goes through host memory; `order` must index `buf`.
+    ///
+    /// # Errors
+    /// [`crate::CoreError::InvalidInput`] when an index of `order` is outside `buf`.
+    fn gather<T: Pod + Send + Sync>(
+        &self,
+        buf: &Self::Buffer<T>,
+        order: &Self::Buffer<u32>,
+    ) -> Result<Self::Buffer<T>> {
+        let data = self.download(buf)?;
+        let order = self.download(order)?;
+        self.upload(&crate::order::gather(&data, &order)?)
+    }
+
+    /// The inverse of [`Backend::gather`]: element `order[i]` of the result is `buf[i]`, for
+    /// `order` a permutation of `0..len(buf)`.
+    ///
+    /// # Errors
+    /// [`crate::CoreError::InvalidInput`] when `order` is not such a permutation.
+    fn scatter<T: Pod + Send + Sync>(
+        &self,
+        buf: &Self::Buffer<T>,
+        order: &Self::Buffer<u32>,
+    ) -> Result<Self::Buffer<T>> {
+        let data = self.download(buf)?;
+        let order = self.download(order)?;
+        self.upload(&crate::order::scatter(&data, &order)?)
+    }
+
     /// Blocks until all work submitted so far has finished (for wall-clock stage timings).
     fn sync(&self) -> Result<()> {
         Ok(())

@@ -675,9 +675,10 @@ impl PipelineConfig {
     }
 
     /// Checks that the filled slots fit together, naming the slots when they do not
-    /// ([`CoreError::Incompatible`]): `hash` and `sort` come together, they order the rays of
-    /// a `hierarchy`, which comes with a `traverse` stage, and the intersector of a pipeline
-    /// with a hierarchy answers candidate queries (its catalogue entry is not
+    /// ([`CoreError::Incompatible`]): `hash` and `sort` come together (without a `hierarchy`
+    /// they put each batch in sorted order for the whole-scene intersector), a `hierarchy`
+    /// comes with a `traverse` stage, and the intersector of a pipeline with a hierarchy
+    /// answers candidate queries (its catalogue entry is not
     /// [`StageVariantInfo::scene_only`]).
     pub fn check_slots(&self, catalogue: &[StageVariantInfo]) -> Result<()> {
         fn kind(s: &Option<StageSpec>) -> Option<&str> {
@@ -716,12 +717,6 @@ impl PipelineConfig {
                 ))
             }
             _ => {}
-        }
-        if let (Some(h), None) = (kind(&self.hash), kind(&self.hierarchy)) {
-            return Err(incompatible(
-                "hash, sort, hierarchy",
-                format!("hash `{h}` and its sorter order the rays of a ray-space hierarchy, and `hierarchy` is off; add one or set hash=off and sort=off"),
-            ));
         }
         if let Some(h) = kind(&self.hierarchy) {
             let scene_only = catalogue.iter().any(|v| {
@@ -917,7 +912,6 @@ mod tests {
             (&["hash=off"], "hash, sort"),
             (&["traverse=off"], "hierarchy, traverse"),
             (&["hierarchy=off"], "hierarchy, traverse"),
-            (&["hierarchy=off", "traverse=off"], "hash, sort, hierarchy"),
             (&["intersect.kind=bvh"], "hierarchy, intersect"),
         ] {
             let e = hierarchy_pipeline(sets).resolve(&catalogue()).unwrap_err();
@@ -926,9 +920,12 @@ mod tests {
                 other => panic!("{sets:?}: {other}"),
             }
         }
-        // Without a hierarchy a whole-scene intersector is fine.
+        // Without a hierarchy a whole-scene intersector is fine, sorted or not.
         let mut plain = PipelineConfig::whitted("x", "bvh");
         plain.resolve(&catalogue()).unwrap();
+        hierarchy_pipeline(&["hierarchy=off", "traverse=off", "intersect.kind=bvh"])
+            .resolve(&catalogue())
+            .unwrap();
     }
 
     #[test]

@@ -44,6 +44,7 @@ pub mod config;
 pub mod edge_width;
 pub mod error;
 pub mod metrics;
+pub mod order;
 pub mod pipeline;
 pub mod quantize;
 pub mod ray;
@@ -56,6 +57,7 @@ pub use backend::{Backend, StageScene};
 pub use bounds::{f32_down, f32_up, Aabb, Cone, Sphere, SphereCone};
 pub use config::{ParamInfo, ParamValue, PipelineConfig, StageKind, StageSpec, StageVariantInfo};
 pub use error::{panic_message, CoreError, Result};
+pub use order::RayOrder;
 pub use pipeline::{
     count_self_hits, render_frame, timed, trace_batch, Frame, FrameOptions, FrameSize, Pipeline,
     Progress, StageBuild, Stages, MAX_DEPTH, MAX_IMAGE_SIDE,

@@ -19,6 +19,7 @@ use serde::{Deserialize, Serialize};
 use crate::backend::Backend;
 use crate::config::{PipelineConfig, StageKind};
 use crate::error::{CoreError, Result};
+use crate::order::RayOrder;
 use crate::ray::{Hit, HitMode, Ray, RayKind, Surface};
 use crate::stage::{
     Hasher, HierarchyBuilder, Intersector, PrimaryVisibility, Query, RayGen, Shader, Sorter,
@@ -48,13 +49,17 @@ pub struct Stages<B: Backend> {
     pub intersector: Box<dyn Intersector<B>>,
     /// Shading.
     pub shader: Box<dyn Shader<B>>,
+    /// The order [`render_frame`] traces each batch in (`raygen.order`); hits are put back in
+    /// generation order before shading either way.
+    pub order: RayOrder,
 }
 
 impl<B: Backend> Stages<B> {
     /// Checks that the stage objects fit together, naming the slots when they do not
-    /// ([`CoreError::Incompatible`]): a hasher comes with a sorter, both order the rays of a
-    /// hierarchy, a hierarchy comes with a traverser, and its intersector answers candidate
-    /// queries ([`Intersector::supports_candidates`]).
+    /// ([`CoreError::Incompatible`]): a hasher comes with a sorter, a hierarchy with a
+    /// traverser, and the intersector of a hierarchy answers candidate queries
+    /// ([`Intersector::supports_candidates`]). A hasher and sorter without a hierarchy put
+    /// each batch in sorted order for the whole-scene intersector.
     pub fn check(&self) -> Result<()> {
         let incompatible = |slots: &str, reason: String| CoreError::Incompatible {
             slots: slots.to_string(),
@@ -70,12 +75,6 @@ impl<B: Backend> Stages<B> {
             return Err(incompatible(
                 "hierarchy, traverse",
                 "a ray-space hierarchy needs a traverser and a traverser a hierarchy".into(),
-            ));
-        }
-        if self.hasher.is_some() && self.hierarchy.is_none() {
-            return Err(incompatible(
-                "hash, sort, hierarchy",
-                "hashing and sorting order the rays of a ray-space hierarchy; add one".into(),
             ));
         }
         let visibility = self.raygen.visibility_kind();
@@ -518,6 +517,21 @@ impl<B: Backend> Driver<'_, B> {
     ) -> Result<B::Buffer<Hit>> {
         let backend = self.backend;
         let n = backend.len(rays);
+        // `raygen.order = shuffled`: trace the batch permuted, hand the hits back in
+        // generation order. The permutation is how the rays are posed, not a stage of the
+        // pipeline, so it is left out of the frame's time like the reference pass.
+        let t = Instant::now();
+        let shuffle = match self.stages.order.permutation(n, kind, generation) {
+            Some(perm) => {
+                let perm = backend.upload(&perm)?;
+                let shuffled = backend.gather(rays, &perm)?;
+                backend.sync()?;
+                Some((perm, shuffled))
+            }
+            None => None,
+        };
+        self.untimed_ms += t.elapsed().as_secs_f64() * 1e3;
+        let rays = shuffle.as_ref().map_or(rays, |(_, r)| r);
         let tests_before = self.stats.tests;
         let t0 = Instant::now();
         let (hits, histogram_ms) = trace_batch_in(
@@ -572,13 +586,24 @@ impl<B: Backend> Driver<'_, B> {
             acc.self_hits += count_self_hits(&rays, &got, &surfaces);
             self.stats.add_time("reference", t.elapsed());
         }
-        Ok(hits)
+        match shuffle {
+            Some((perm, _)) => {
+                let t = Instant::now();
+                let hits = backend.scatter(&hits, &perm)?;
+                backend.sync()?;
+                self.untimed_ms += t.elapsed().as_secs_f64() * 1e3;
+                Ok(hits)
+            }
+            None => Ok(hits),
+        }
     }
 }
 
 /// Traces one batch of rays of `kind` with the tracing stages of `stages`: hash, sort, build the
 /// ray-space hierarchy and traverse it, with the intersector's final tests on the candidates
-/// (when the pipeline has a hierarchy), or the intersector on the whole scene. Returns one hit
+/// (when the pipeline has a hierarchy), or the intersector on the whole scene, on the batch in
+/// sorted order when the pipeline hashes and sorts without a hierarchy (`reordering` times
+/// the gather and the scatter of the hits back). Returns one hit
 /// per ray (any hit for shadow rays, the nearest for the others). Adds the counters and the
 /// stage times (`hashing`, `sorting`, `hierarchy_creation`, `traversal`, `final_tests` or
 /// `intersection`) to `stats`, but not the per-kind ray counts, which [`render_frame`] keeps.
@@ -692,6 +717,27 @@ fn trace_batch_in<B: Backend>(
         add_device_times(stats, device?);
         stats.add_time("traversal", t_trav.elapsed().saturating_sub(final_tests));
         stats.add_time("final_tests", final_tests);
+    } else if let (Some(hasher), Some(sorter)) = (&stages.hasher, &stages.sorter) {
+        // Sorted whole-scene tracing: the intersector sees the batch in key order (coherent
+        // packets for a packet tracer), and the hits go back to the batch's order.
+        let keys = timed(backend, stats, "hashing", |s| {
+            hasher.hash(backend, rays, kind, s)
+        })?;
+        let order = timed(backend, stats, "sorting", |s| {
+            sorter.sort(backend, &keys, hasher.key_bits(), s)
+        })?;
+        let sorted = timed(backend, stats, "reordering", |_| {
+            backend.gather(rays, &order)
+        })?;
+        let mut sorted_hits = backend.filled(n, Hit::MISS)?;
+        timed(backend, stats, "intersection", |s| {
+            stages
+                .intersector
+                .intersect(backend, &sorted, Query::Scene, mode, &mut sorted_hits, s)
+        })?;
+        hits = timed(backend, stats, "reordering", |_| {
+            backend.scatter(&sorted_hits, &order)
+        })?;
     } else {
         timed(backend, stats, "intersection", |s| {
             stages

@@ -273,6 +273,12 @@ impl<B: Backend> Registry<B> {
                 info.name
             )));
         }
+        // Every generator can be traced in either order (`crate::order`).
+        let info = if slot == StageKind::Raygen {
+            crate::order::order_params(info)
+        } else {
+            info
+        };
         info.validate()?;
         if self.variant(slot, info.name).is_some() {
             return Err(CoreError::InvalidInput(format!(
@@ -516,6 +522,7 @@ impl<B: Backend> Registry<B> {
             traverser,
             intersector,
             shader,
+            order: crate::order::RayOrder::from_spec(&cfg.raygen)?,
         };
         stages.check()?;
         Ok(Pipeline {

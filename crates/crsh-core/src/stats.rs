@@ -8,8 +8,9 @@ use serde::{Deserialize, Serialize};
 use crate::ray::RayKind;
 
 /// The stage timing keys of [`Stats::timings_ms`] in pipeline order (seed 000 table 4.25's
-/// rows, plus primary visibility, whole-scene intersection and shading).
-pub const STAGE_TIMINGS: [&str; 12] = [
+/// rows, plus primary visibility, whole-scene intersection, shading, and `reordering`: putting
+/// a batch into its sorter's order for a whole-scene tracer and its hits back).
+pub const STAGE_TIMINGS: [&str; 13] = [
     "primary",
     "ray_creation",
     "trimming",
@@ -17,6 +18,7 @@ pub const STAGE_TIMINGS: [&str; 12] = [
     "compression",
     "sorting",
     "decompression",
+    "reordering",
     "hierarchy_creation",
     "traversal",
     "final_tests",

@@ -2,6 +2,7 @@
 
 use bytemuck::Pod;
 use crsh_core::{Backend, Result};
+use rayon::prelude::*;
 
 /// The CPU backend. Stage buffers are `Vec<T>`; stages parallelise with rayon and produce the
 /// same output whatever the thread count.
@@ -22,6 +23,23 @@ impl Backend for Cpu {
 
     fn download<T: Pod + Send + Sync>(&self, buf: &Vec<T>) -> Result<Vec<T>> {
         Ok(buf.clone())
+    }
+
+    fn gather<T: Pod + Send + Sync>(&self, buf: &Vec<T>, order: &Vec<u32>) -> Result<Vec<T>> {
+        // In parallel: a sorted order reads the batch nearly at random, so the gather is
+        // bound by memory latency, which more threads hide.
+        if let Some(&i) = order.iter().find(|&&i| i as usize >= buf.len()) {
+            return Err(crsh_core::CoreError::InvalidInput(format!(
+                "ray order index {i} is outside a batch of {}",
+                buf.len()
+            )));
+        }
+        Ok(order.par_iter().map(|&i| buf[i as usize]).collect())
+    }
+
+    fn scatter<T: Pod + Send + Sync>(&self, buf: &Vec<T>, order: &Vec<u32>) -> Result<Vec<T>> {
+        let inverse = crsh_core::order::inverse(order, buf.len())?;
+        self.gather(buf, &inverse)
     }
 
     fn len<T: Pod + Send + Sync>(&self, buf: &Vec<T>) -> usize {

@@ -753,7 +753,7 @@ impl AccuracyReport {
 
 /// Stage timings in pipeline order, then any others, then `reference` and `total`.
 fn timing_line(t: &BTreeMap<String, f64>) -> String {
-    const ORDER: [&str; 12] = crsh_core::STAGE_TIMINGS;
+    const ORDER: [&str; 13] = crsh_core::STAGE_TIMINGS;
     let mut keys: Vec<&str> = ORDER
         .iter()
         .copied()
