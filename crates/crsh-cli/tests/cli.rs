@@ -432,14 +432,18 @@ fn expect_error(dir: &Path, args: &[&str], code: i32, needle: &str) {
     );
 }
 
-/// `--pipeline embree` and `embree_packets`: with the `embree` feature they render
+/// `--pipeline embree`, `embree_packets` and `embree_sorted`: with the `embree` feature they render
 /// office-boxes with `bvh`'s hits (agreement ≥ 0.9999), name the variant and its mode, and
 /// report their tests as absent (`null`), never 0; without it the command fails with one
 /// line naming the feature and the package to install.
 #[test]
 fn embree_renders_with_the_feature_and_is_named_without() {
     let dir = scratch("embree");
-    for (preset, mode) in [("embree", "single"), ("embree_packets", "packet16")] {
+    for (preset, mode) in [
+        ("embree", "single"),
+        ("embree_packets", "packet16"),
+        ("embree_sorted", "packet16"),
+    ] {
         let args = [
             "--pipeline",
             preset,
@@ -467,6 +471,12 @@ fn embree_renders_with_the_feature_and_is_named_without() {
         assert!(u(&s, "/per_kind/shadow/rays") > 0);
         let agreement = f(&s, "/accuracy/hit_agreement");
         assert!(agreement >= 0.9999, "{preset}: hit agreement {agreement}");
+        // The sorted preset reorders each batch for Embree and times it.
+        assert_eq!(
+            s["timings_ms"].get("reordering").is_some(),
+            preset == "embree_sorted",
+            "{preset}"
+        );
         assert!(
             stdout(&o).contains("tests     bounds — |"),
             "{}",

@@ -63,13 +63,15 @@ pub fn add_presets<B: crsh_core::Backend>(registry: &mut Registry<B>) -> Result<
 }
 
 /// The presets with a setting the wgpu backend lacks (`dual_inline`, `dual_screen`,
-/// `dual_screen_bvh`: inline final tests; `embree`, `embree_packets`: a CPU library).
-pub const CPU_ONLY_PRESETS: [&str; 5] = [
+/// `dual_screen_bvh`: inline final tests; `embree`, `embree_packets`, `embree_sorted`: a CPU
+/// library).
+pub const CPU_ONLY_PRESETS: [&str; 6] = [
     "dual_inline",
     "dual_screen",
     "dual_screen_bvh",
     "embree",
     "embree_packets",
+    "embree_sorted",
 ];
 
 /// [`add_presets`] less [`CPU_ONLY_PRESETS`]: the wgpu backend's presets.
@@ -122,6 +124,14 @@ fn presets() -> Vec<(&'static str, &'static str, PipelineConfig)> {
              with the coherent flag, high-quality BVH: Embree's fastest mode on coherent rays \
              (needs the `embree` feature; CPU only)",
             embree_pipeline("embree_packets", "packet16", true),
+        ),
+        (
+            "embree_sorted",
+            "the `embree_packets` preset fed by crsh's ray sorting: each batch hashed \
+             (thesis hashes) and radix-sorted, traced in key order in 16-wide coherent \
+             packets, the hits put back in the batch's order (needs the `embree` feature; \
+             CPU only)",
+            embree_sorted_pipeline(),
         ),
         (
             "grid",
@@ -203,6 +213,16 @@ fn embree_pipeline(name: &str, mode: &str, coherent: bool) -> PipelineConfig {
     cfg.intersect
         .params
         .insert("coherent".into(), ParamValue::Bool(coherent));
+    cfg
+}
+
+/// The `embree_sorted` preset's pipeline: [`embree_pipeline`] in 16-wide coherent packets
+/// behind the `thesis` hash and the `radix` sort, with no ray hierarchy, so Embree's packets
+/// are filled from rays of neighbouring keys instead of neighbouring generation indices.
+fn embree_sorted_pipeline() -> PipelineConfig {
+    let mut cfg = embree_pipeline("embree_sorted", "packet16", true);
+    cfg.hash = Some(StageSpec::new("thesis"));
+    cfg.sort = Some(StageSpec::new("radix"));
     cfg
 }
 
@@ -329,6 +349,7 @@ mod tests {
                 "bvh",
                 "embree",
                 "embree_packets",
+                "embree_sorted",
                 "grid",
                 "kdtree",
                 "crsh",
@@ -363,6 +384,7 @@ mod tests {
             ];
             assert_eq!(cfg.hierarchy.is_some(), hierarchies.contains(&name));
             let hashed = [
+                "embree_sorted",
                 "crsh",
                 "tile_cone",
                 "dual",
@@ -382,7 +404,7 @@ mod tests {
             .available_presets()
             .map(|p| p.name.as_str())
             .collect();
-        for name in ["embree", "embree_packets"] {
+        for name in ["embree", "embree_packets", "embree_sorted"] {
             let cfg = registry.preset(name).unwrap();
             assert_eq!(
                 available.contains(&name),
@@ -396,7 +418,7 @@ mod tests {
             );
         }
         assert_eq!(
-            available.len() + 2 * usize::from(!crate::intersect::embree::AVAILABLE),
+            available.len() + 3 * usize::from(!crate::intersect::embree::AVAILABLE),
             names.len()
         );
     }
