@@ -698,8 +698,9 @@ impl Counts {
     #[inline(always)]
     fn visit(&mut self, node: &CwBvhNode) -> u32 {
         self.inner += 1;
-        self.bounds += node.child_meta.iter().filter(|&&m| m != 0).count() as u64;
-        leaf_top_bits(node)
+        let children = child_mask(node);
+        self.bounds += u64::from(children.count_ones());
+        leaf_top_bits(node, children)
     }
 
     /// Counts the test of the primitive at slot `rel` (relative to the primitive base of the
@@ -855,18 +856,31 @@ pub(crate) fn intersect_scene<X: LeafTracer>(
     Ok(())
 }
 
+/// Bit `c` set for each non-empty child `c` of `node` (a non-zero `child_meta` byte), without
+/// a loop: the high bit of each byte of `(meta & 0x7f..) + 0x7f.. | meta` says whether the
+/// byte is non-zero, and the multiply gathers those eight bits into one byte.
+#[inline(always)]
+fn child_mask(node: &CwBvhNode) -> u32 {
+    const LOW7: u64 = 0x7f7f_7f7f_7f7f_7f7f;
+    let meta = u64::from_le_bytes(node.child_meta);
+    let high = (((meta & LOW7) + LOW7) | meta) & !LOW7;
+    ((high >> 7).wrapping_mul(0x0102_0408_1020_4080) >> 56) as u32
+}
+
 /// Bit `first + count - 1` (relative to the node's `primitive_base_idx`) for each leaf child
 /// of `node` holding primitives `first .. first + count`: the primitive of that leaf that
-/// `traverse!` tests first (it tests the hit mask's highest bit first).
+/// `traverse!` tests first (it tests the hit mask's highest bit first). `children` is
+/// [`child_mask`]`(node)`.
 #[inline(always)]
-fn leaf_top_bits(node: &CwBvhNode) -> u32 {
+fn leaf_top_bits(node: &CwBvhNode, children: u32) -> u32 {
+    let mut leaves = children & !u32::from(node.imask);
     let mut tops = 0u32;
-    for (c, &m) in node.child_meta.iter().enumerate() {
-        if m != 0 && node.is_leaf(c) {
-            let first = u32::from(m & 0b1_1111);
-            let count = (m >> 5).count_ones();
-            tops |= 1 << (first + count - 1);
-        }
+    while leaves != 0 {
+        let m = node.child_meta[leaves.trailing_zeros() as usize];
+        leaves &= leaves - 1;
+        let first = u32::from(m & 0b1_1111);
+        let count = (m >> 5).count_ones();
+        tops |= 1 << (first + count - 1);
     }
     tops
 }
@@ -913,8 +927,136 @@ impl NodeRay {
 
 /// The children of `node` whose (quantized, rounding-widened) boxes the ray overlaps within
 /// `[t_lo, t_hi]`, as the CWBVH hit mask the `traverse!` macro expects.
+///
+/// On x86-64 four children at a time in SSE (what obvhs's own node test does), with the same
+/// operations in the same order as [`child_hits_scalar`], so the mask is the same bit for bit;
+/// the scalar form runs where an operand could overflow (a plane term beyond `1e30`), where
+/// SSE's `min`/`max` would treat a NaN differently.
 #[inline(always)]
 pub fn child_hits(node: &CwBvhNode, nr: &NodeRay, oct_inv4: u32, t_lo: f32, t_hi: f32) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let a = node.compute_extent() * nr.inv_dir;
+        let orig = (Vec3A::from(node.p) - nr.origin) * nr.inv_dir;
+        if a.abs().max(orig.abs()).cmplt(Vec3A::splat(1e30)).all() {
+            // SAFETY: SSE and SSE2 are part of the x86-64 baseline.
+            return unsafe { child_hits_sse(node, nr, a, orig, oct_inv4, t_lo, t_hi) };
+        }
+    }
+    child_hits_scalar(node, nr, oct_inv4, t_lo, t_hi)
+}
+
+/// [`child_hits`] four children at a time; `a` and `orig` are its per-node plane terms.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn child_hits_sse(
+    node: &CwBvhNode,
+    nr: &NodeRay,
+    a: Vec3A,
+    orig: Vec3A,
+    oct_inv4: u32,
+    t_lo: f32,
+    t_hi: f32,
+) -> u32 {
+    use std::arch::x86_64::*;
+    let slack = (a.abs() * 255.0 + orig.abs()) * SLAB_SLACK;
+    let lo = orig - slack;
+    let hi = orig + slack;
+    #[inline(always)]
+    unsafe fn q(v: &[u8; 8], i: usize) -> __m128 {
+        _mm_set_ps(
+            *v.get_unchecked(i * 4 + 3) as f32,
+            *v.get_unchecked(i * 4 + 2) as f32,
+            *v.get_unchecked(i * 4 + 1) as f32,
+            *v.get_unchecked(i * 4) as f32,
+        )
+    }
+    let [neg_x, neg_y, neg_z] = nr.negative;
+    let (ax, ay, az) = (_mm_set1_ps(a.x), _mm_set1_ps(a.y), _mm_set1_ps(a.z));
+    let (lx, ly, lz) = (_mm_set1_ps(lo.x), _mm_set1_ps(lo.y), _mm_set1_ps(lo.z));
+    let (hx, hy, hz) = (_mm_set1_ps(hi.x), _mm_set1_ps(hi.y), _mm_set1_ps(hi.z));
+    let (tl, th) = (_mm_set1_ps(t_lo), _mm_set1_ps(t_hi));
+    let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
+    let mut mask = 0u32;
+    for i in 0..2 {
+        // Near and far planes per axis (swapped for a negative direction component), then
+        // the scalar order: max(max(max(x, y), z), t_lo) and min(min(min(x, y), z), t_hi).
+        let (min_x, max_x) = (q(&node.child_min_x, i), q(&node.child_max_x, i));
+        let (near_x, far_x) = if neg_x {
+            (max_x, min_x)
+        } else {
+            (min_x, max_x)
+        };
+        let (min_y, max_y) = (q(&node.child_min_y, i), q(&node.child_max_y, i));
+        let (near_y, far_y) = if neg_y {
+            (max_y, min_y)
+        } else {
+            (min_y, max_y)
+        };
+        let (min_z, max_z) = (q(&node.child_min_z, i), q(&node.child_max_z, i));
+        let (near_z, far_z) = if neg_z {
+            (max_z, min_z)
+        } else {
+            (min_z, max_z)
+        };
+        let t0 = _mm_max_ps(
+            _mm_max_ps(
+                _mm_max_ps(
+                    _mm_add_ps(_mm_mul_ps(near_x, ax), lx),
+                    _mm_add_ps(_mm_mul_ps(near_y, ay), ly),
+                ),
+                _mm_add_ps(_mm_mul_ps(near_z, az), lz),
+            ),
+            tl,
+        );
+        let t1 = _mm_min_ps(
+            _mm_min_ps(
+                _mm_min_ps(
+                    _mm_add_ps(_mm_mul_ps(far_x, ax), hx),
+                    _mm_add_ps(_mm_mul_ps(far_y, ay), hy),
+                ),
+                _mm_add_ps(_mm_mul_ps(far_z, az), hz),
+            ),
+            th,
+        );
+        let hits = _mm_movemask_ps(_mm_cmple_ps(t0, t1));
+        for j in 0..4 {
+            if hits & (1 << j) != 0 {
+                let c = i * 4 + j;
+                let child_bits = ((child_bits8 >> (c * 8)) & 0xff) as u32;
+                let bit_index = ((bit_index8 >> (c * 8)) & 0xff) as u32;
+                mask |= child_bits << bit_index;
+            }
+        }
+    }
+    mask
+}
+
+/// The CWBVH hit mask of `node` for the children whose bit is set in `hits`.
+#[inline(always)]
+fn hit_mask(node: &CwBvhNode, oct_inv4: u32, mut hits: u32) -> u32 {
+    let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
+    let mut mask = 0u32;
+    while hits != 0 {
+        let c = hits.trailing_zeros() as usize;
+        hits &= hits - 1;
+        let child_bits = ((child_bits8 >> (c * 8)) & 0xff) as u32;
+        let bit_index = ((bit_index8 >> (c * 8)) & 0xff) as u32;
+        mask |= child_bits << bit_index;
+    }
+    mask
+}
+
+/// [`child_hits`] one child at a time, in plain `f32` arithmetic: the definition the SSE form
+/// must match, and the form that runs off x86-64.
+#[inline(always)]
+pub fn child_hits_scalar(
+    node: &CwBvhNode,
+    nr: &NodeRay,
+    oct_inv4: u32,
+    t_lo: f32,
+    t_hi: f32,
+) -> u32 {
     let e = node.compute_extent();
     let a = e * nr.inv_dir;
     let orig = (Vec3A::from(node.p) - nr.origin) * nr.inv_dir;
@@ -938,16 +1080,11 @@ pub fn child_hits(node: &CwBvhNode, nr: &NodeRay, oct_inv4: u32, t_lo: f32, t_hi
             .min(t_hi);
         hit[c] = t0 <= t1;
     }
-    let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
-    let mut mask = 0u32;
-    for (c, &h) in hit.iter().enumerate() {
-        if h {
-            let child_bits = ((child_bits8 >> (c * 8)) & 0xff) as u32;
-            let bit_index = ((bit_index8 >> (c * 8)) & 0xff) as u32;
-            mask |= child_bits << bit_index;
-        }
-    }
-    mask
+    let hits = hit
+        .iter()
+        .enumerate()
+        .fold(0u32, |m, (c, &h)| m | (u32::from(h) << c));
+    hit_mask(node, oct_inv4, hits)
 }
 
 /// `impl Intersector<Cpu>` for the obvhs tree `$tree` (a [`LeafTracer`] with a method

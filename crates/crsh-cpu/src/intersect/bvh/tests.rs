@@ -512,3 +512,75 @@ fn leaf_visits_are_the_hit_leaf_children() {
         (1, 0, 0, root)
     );
 }
+
+/// The SSE node test is the scalar one bit for bit: every node of a random tree against rays
+/// of every octant, axis-parallel rays (zero direction components), rays from inside and far
+/// outside, with open, empty and ordinary intervals.
+#[test]
+fn simd_node_test_is_the_scalar_one() {
+    let scene = soup(91, 400);
+    let bvh = CwBvh::build(&scene, BuildQuality::Medium);
+    let mut rays = random_rays(&scene, 92, 300);
+    for dir in [Vec3::X, -Vec3::Y, Vec3::Z, Vec3::new(1.0, 1e-30, 0.0)] {
+        rays.push(test_ray(Vec3::splat(0.3), dir, 0.0, f32::INFINITY, 0));
+        rays.push(test_ray(Vec3::splat(-1e6), dir, 1e-3, 1e7, 0));
+    }
+    let mut compared = 0;
+    for ray in &rays {
+        let nr = NodeRay::new(ray.origin, ray.dir);
+        let oct = bvh.bvh.new_traversal(Vec3A::from(ray.dir)).oct_inv4;
+        for node in bvh.nodes() {
+            for (t_lo, t_hi) in [
+                (entry_bound(ray.t_min), cull_distance(ray.t_max)),
+                (0.0, f32::INFINITY),
+                (0.5, 0.25),
+                (-1.0, 1.0),
+            ] {
+                assert_eq!(
+                    child_hits(node, &nr, oct, t_lo, t_hi),
+                    child_hits_scalar(node, &nr, oct, t_lo, t_hi),
+                    "{ray:?} [{t_lo}, {t_hi}]"
+                );
+                compared += 1;
+            }
+        }
+    }
+    assert!(compared > 10_000, "{compared}");
+}
+
+/// The loop-free child and leaf masks are the per-child definitions on every node of a tree.
+#[test]
+fn child_masks_are_the_per_child_definitions() {
+    let scene = soup(93, 500);
+    let bvh = CwBvh::build(&scene, BuildQuality::Medium);
+    for node in bvh.nodes() {
+        let mut children = 0u32;
+        let mut tops = 0u32;
+        for (c, &m) in node.child_meta.iter().enumerate() {
+            if m != 0 {
+                children |= 1 << c;
+                if node.is_leaf(c) {
+                    tops |= 1 << (u32::from(m & 0x1f) + (m >> 5).count_ones() - 1);
+                }
+            }
+        }
+        assert_eq!(child_mask(node), children, "{node:?}");
+        assert_eq!(leaf_top_bits(node, children), tops, "{node:?}");
+    }
+    for meta in [
+        [0u8; 8],
+        [1, 0, 0, 0, 0, 0, 0, 0x80],
+        [0xff; 8],
+        [0, 0x7f, 0, 1, 0, 0, 0, 0],
+    ] {
+        let node = CwBvhNode {
+            child_meta: meta,
+            ..bvh.nodes()[0]
+        };
+        let want = meta
+            .iter()
+            .enumerate()
+            .fold(0u32, |m, (c, &b)| m | (u32::from(b != 0) << c));
+        assert_eq!(child_mask(&node), want, "{meta:?}");
+    }
+}
