@@ -2008,3 +2008,97 @@ fn dual_plans_validate() {
         assert!(out.contains(&format!("{cells} cells")), "{plan}: {out}");
     }
 }
+
+/// The shipped anchors plan validates, and a CI-sized version (24 pixels, two built-in
+/// scenes, one run per cell) runs: with the `embree` feature every cell traces, agrees with
+/// the CWBVH, and the report opens with the table against the fastest anchor, in which every
+/// group's fastest Embree cell is 1 and no Embree cell is above it; without the feature the
+/// Embree cells fail naming the feature, the others run, and there is no such table.
+#[test]
+fn anchors_plan_puts_every_cell_against_the_fastest_embree() {
+    let dir = scratch("anchors");
+    let path = repo_root().join("plans/anchors.toml");
+    let o = crsh(
+        &dir,
+        &["ablate", "--plan", path.to_str().unwrap(), "--dry-run"],
+    );
+    assert_ok(&o);
+    let shipped = std::fs::read_to_string(&path).unwrap();
+    for needle in [
+        "width = 256",
+        "repeat = 3",
+        "warmup = 1",
+        "\"raygen.order\" = [\"generation\", \"shuffled\"]",
+        "pipeline = \"embree_sorted\"",
+        "\"raygen.ao_length\" = 0.05",
+        "\"raygen.shadow_samples\" = 16",
+    ] {
+        assert!(shipped.contains(needle), "anchors.toml changed: {needle}");
+    }
+    let small = with_scenes(&shipped, &["office-boxes", "cornell-mirrors"])
+        .replace("width = 256", "width = 24")
+        .replace("repeat = 3", "repeat = 1")
+        .replace("warmup = 1", "warmup = 0");
+    let plan = dir.join("anchors-small.toml");
+    std::fs::write(&plan, small).unwrap();
+    let o = crsh(
+        &dir,
+        &["ablate", "--plan", plan.to_str().unwrap(), "--out", "out"],
+    );
+    let v = read_json(&dir.join("out/results.json"));
+    let cs = cells(&v);
+    // 2 scenes × 4 ray settings × 6 pipelines × 2 orders.
+    assert_eq!(cs.len(), 96);
+    let stdout = String::from_utf8_lossy(&o.stdout).to_string();
+    let report = std::fs::read_to_string(dir.join("out/report.html")).unwrap();
+    let embree = |c: &Value| c["pipeline"].as_str().unwrap().starts_with("embree");
+    if !cfg!(feature = "embree") {
+        for c in cs {
+            if embree(c) {
+                assert_eq!(c["status"], "failed", "{c:#}");
+                assert!(c["reason"].as_str().unwrap().contains("embree"), "{c:#}");
+            } else {
+                assert_eq!(c["status"], "ok", "{c:#}");
+            }
+        }
+        assert!(!stdout.contains("Against the fastest anchor"), "{stdout}");
+        return;
+    }
+    assert_ok(&o);
+    for c in cs {
+        assert_eq!(c["status"], "ok", "{c:#}");
+        let agreement = c["measures"]["accuracy"]["hit_agreement"].as_f64().unwrap();
+        assert!(agreement >= 0.9999, "{agreement}: {c:#}");
+    }
+    assert!(stdout.contains("Against the fastest anchor"), "{stdout}");
+    assert!(report.contains("Against the fastest anchor"));
+    // Rows: | scene | rays | order | kind | cell | Mrays/s | × anchor | agreement |.
+    let mut groups: std::collections::BTreeMap<String, Vec<(String, f64)>> = Default::default();
+    for line in stdout
+        .lines()
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| scene"))
+    {
+        let f: Vec<&str> = line.split('|').map(str::trim).collect();
+        if f.len() < 9 {
+            continue;
+        }
+        let key = format!("{} {} {} {}", f[1], f[2], f[3], f[4]);
+        groups
+            .entry(key)
+            .or_default()
+            .push((f[5].to_string(), f[7].parse().unwrap()));
+    }
+    // Every ray setting traces shadow or AO rays on both scenes in both orders.
+    assert!(groups.len() >= 2 * 4 * 2, "{groups:?}");
+    for (key, rows) in &groups {
+        assert_eq!(rows.len(), 6, "{key}: {rows:?}");
+        let anchors: Vec<f64> = rows
+            .iter()
+            .filter(|(cell, _)| cell.starts_with("embree"))
+            .map(|r| r.1)
+            .collect();
+        assert_eq!(anchors.len(), 3, "{key}");
+        assert!(anchors.contains(&1.0), "{key}: {rows:?}");
+        assert!(anchors.iter().all(|&r| r <= 1.0), "{key}: {rows:?}");
+    }
+}

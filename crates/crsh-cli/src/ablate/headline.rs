@@ -28,9 +28,12 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-/// The headline text, one block per scene.
+/// The headline text: the table against the fastest anchor when the plan has Embree cells
+/// ([`super::anchors`]), then one block per scene.
 pub fn headline(results: &Results) -> String {
-    let mut out = String::new();
+    let mut out = super::anchors::anchor_table(results)
+        .map(|t| t + "\n")
+        .unwrap_or_default();
     for scene in results.scenes() {
         let cells: Vec<&CellResult> = results.ok_cells(&scene);
         let failed = results

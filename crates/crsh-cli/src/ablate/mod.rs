@@ -26,7 +26,9 @@
 //! - [`headline`] — the per-scene headline numbers printed at the end;
 //! - [`compare`] — `--compare`;
 //! - [`baseline`] — the cells against their baseline cells.
+//! - [`anchors`] — every cell against the fastest Embree cell on the same rays.
 
+pub mod anchors;
 pub mod baseline;
 pub mod charts;
 pub mod compare;
