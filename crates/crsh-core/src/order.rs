@@ -50,7 +50,7 @@ impl RayOrder {
             }
             other => Err(CoreError::InvalidParam {
                 key: "raygen.order".into(),
-                reason: format!("`{other}` is not one of generation, shuffled"),
+                reason: format!("`{other}` is not one of {}", RayOrder::NAMES.join(", ")),
             }),
         }
     }
@@ -88,17 +88,21 @@ impl RayOrder {
 /// # Errors
 /// [`CoreError::InvalidInput`] when an index is outside `data`.
 pub fn gather<T: Copy>(data: &[T], order: &[u32]) -> Result<Vec<T>> {
-    order
-        .iter()
-        .map(|&i| {
-            data.get(i as usize).copied().ok_or_else(|| {
-                CoreError::InvalidInput(format!(
-                    "ray order index {i} is outside a batch of {}",
-                    data.len()
-                ))
-            })
-        })
-        .collect()
+    check_indices(order, data.len())?;
+    Ok(order.iter().map(|&i| data[i as usize]).collect())
+}
+
+/// Checks that every index of `order` is inside a batch of `n`, as [`gather`] needs.
+///
+/// # Errors
+/// [`CoreError::InvalidInput`] naming the first index outside.
+pub fn check_indices(order: &[u32], n: usize) -> Result<()> {
+    match order.iter().find(|&&i| i as usize >= n) {
+        Some(i) => Err(CoreError::InvalidInput(format!(
+            "ray order index {i} is outside a batch of {n}"
+        ))),
+        None => Ok(()),
+    }
 }
 
 /// The inverse of [`gather`] (`out[order[i]] = data[i]`), the host half of

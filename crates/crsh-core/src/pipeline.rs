@@ -641,16 +641,9 @@ fn trace_batch_in<B: Backend>(
         return Ok((hits, histogram_ms));
     }
     if let (Some(builder), Some(traverser)) = (&stages.hierarchy, &stages.traverser) {
-        let order = match (&stages.hasher, &stages.sorter) {
-            (Some(hasher), Some(sorter)) => {
-                let keys = timed(backend, stats, "hashing", |s| {
-                    hasher.hash(backend, rays, kind, s)
-                })?;
-                timed(backend, stats, "sorting", |s| {
-                    sorter.sort(backend, &keys, hasher.key_bits(), s)
-                })?
-            }
-            _ => backend.upload(&(0..n as u32).collect::<Vec<u32>>())?,
+        let order = match sorted_order(backend, stages, kind, rays, stats)? {
+            Some(order) => order,
+            None => backend.upload(&(0..n as u32).collect::<Vec<u32>>())?,
         };
         let hierarchy = timed(backend, stats, "hierarchy_creation", |s| {
             builder.build(backend, rays, order, s)
@@ -717,15 +710,9 @@ fn trace_batch_in<B: Backend>(
         add_device_times(stats, device?);
         stats.add_time("traversal", t_trav.elapsed().saturating_sub(final_tests));
         stats.add_time("final_tests", final_tests);
-    } else if let (Some(hasher), Some(sorter)) = (&stages.hasher, &stages.sorter) {
+    } else if let Some(order) = sorted_order(backend, stages, kind, rays, stats)? {
         // Sorted whole-scene tracing: the intersector sees the batch in key order (coherent
         // packets for a packet tracer), and the hits go back to the batch's order.
-        let keys = timed(backend, stats, "hashing", |s| {
-            hasher.hash(backend, rays, kind, s)
-        })?;
-        let order = timed(backend, stats, "sorting", |s| {
-            sorter.sort(backend, &keys, hasher.key_bits(), s)
-        })?;
         let sorted = timed(backend, stats, "reordering", |_| {
             backend.gather(rays, &order)
         })?;
@@ -746,6 +733,27 @@ fn trace_batch_in<B: Backend>(
         })?;
     }
     Ok((hits, histogram_ms))
+}
+
+/// The batch's order by the keys of the pipeline's hasher and sorter (stages `hashing` and
+/// `sorting`), or `None` when it has neither.
+fn sorted_order<B: Backend>(
+    backend: &B,
+    stages: &Stages<B>,
+    kind: RayKind,
+    rays: &B::Buffer<Ray>,
+    stats: &mut Stats,
+) -> Result<Option<B::Buffer<u32>>> {
+    let (Some(hasher), Some(sorter)) = (&stages.hasher, &stages.sorter) else {
+        return Ok(None);
+    };
+    let keys = timed(backend, stats, "hashing", |s| {
+        hasher.hash(backend, rays, kind, s)
+    })?;
+    timed(backend, stats, "sorting", |s| {
+        sorter.sort(backend, &keys, hasher.key_bits(), s)
+    })
+    .map(Some)
 }
 
 /// Runs `f` as stage `key`: adds its wall time (after a backend sync) to `stats.timings_ms[key]`,

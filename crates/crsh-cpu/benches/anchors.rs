@@ -22,7 +22,6 @@
 //! Run with `cargo bench -p crsh-cpu --bench anchors` (add `--features embree` for Embree,
 //! `-- --quick` for a short run).
 
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -39,17 +38,8 @@ use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use obvhs::triangle::Triangle;
 use rayon::prelude::*;
 
-/// The shared scene manifest `manifest` under `CRSH_SCENES`, else `../shared/scenes` next to
-/// the workspace, if it is there.
-fn shared_scene(manifest: &str) -> Option<PathBuf> {
-    let dir = std::env::var_os("CRSH_SCENES")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes")
-        });
-    let path = dir.join(manifest);
-    path.is_file().then_some(path)
-}
+mod common;
+use common::shared_scene;
 
 /// obvhs called directly: its own CWBVH builder and traversal, its own triangle test.
 struct ObvhsDirect {
@@ -78,6 +68,18 @@ impl ObvhsDirect {
         ObvhsDirect { bvh, tris }
     }
 
+    /// The `t` of `ray`'s hit on leaf triangle `id` inside `(tmin, tmax]`, else infinity:
+    /// what `ray_traverse_miss` asks of its closure.
+    #[inline(always)]
+    fn hit_t(&self, ray: &obvhs::ray::Ray, id: usize) -> f32 {
+        let t = self.tris[id].intersect(ray);
+        if t > ray.tmin {
+            t
+        } else {
+            f32::INFINITY
+        }
+    }
+
     /// Triangle tests of [`ObvhsDirect::occluded`] on `rays` (untimed, for the printout).
     fn tests(&self, rays: &[Ray]) -> u64 {
         use std::sync::atomic::{AtomicU64, Ordering};
@@ -87,12 +89,7 @@ impl ObvhsDirect {
             let mut k = 0;
             self.bvh.ray_traverse_miss(ray, |ray, id| {
                 k += 1;
-                let t = self.tris[id].intersect(ray);
-                if t > ray.tmin {
-                    t
-                } else {
-                    f32::INFINITY
-                }
+                self.hit_t(ray, id)
             });
             n.fetch_add(k, Ordering::Relaxed);
         });
@@ -110,14 +107,9 @@ impl ObvhsDirect {
                         r.t_min,
                         r.t_max,
                     );
-                    !self.bvh.ray_traverse_miss(ray, |ray, id| {
-                        let t = self.tris[id].intersect(ray);
-                        if t > ray.tmin {
-                            t
-                        } else {
-                            f32::INFINITY
-                        }
-                    })
+                    !self
+                        .bvh
+                        .ray_traverse_miss(ray, |ray, id| self.hit_t(ray, id))
                 })
             })
             .collect()

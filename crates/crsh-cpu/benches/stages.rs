@@ -34,7 +34,6 @@
 //! Run with `cargo bench -p crsh-cpu --bench stages` (add `-- --quick` for a short run, or a
 //! group name to filter).
 
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -46,6 +45,9 @@ use crsh_core::{
 use crsh_cpu::triangle::TEST_NAMES;
 use crsh_cpu::Cpu;
 use crsh_scene::Scene;
+
+mod common;
+use common::shared_scene;
 
 /// G-buffer size of the batch.
 const SIZE: u32 = 256;
@@ -68,18 +70,6 @@ struct Batch {
     hierarchy: RayHierarchy<Cpu>,
     /// The candidate batches of the `crsh` traversal of `hierarchy`.
     candidates: Vec<CandidateBatch<Cpu>>,
-}
-
-/// The shared scene manifest `manifest` (`sponza/sponza.toml`) under `CRSH_SCENES`, else
-/// `../shared/scenes` next to the workspace, if it is there.
-fn shared_scene(manifest: &str) -> Option<PathBuf> {
-    let dir = std::env::var_os("CRSH_SCENES")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes")
-        });
-    let path = dir.join(manifest);
-    path.is_file().then_some(path)
 }
 
 /// The stage context of the batch: `scene` at `SIZE × SIZE`.
@@ -581,8 +571,8 @@ fn config() -> Criterion {
 fn object_update_benches(c: &mut Criterion) {
     use crsh_core::{ParamValue, StageSpec};
     use crsh_cpu::traverse::dual::{info, Dual};
-    let manifest =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scenes/sponza-animated.toml");
+    let manifest = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenes/sponza-animated.toml");
     let (tag, anim) = match shared_scene("sponza/sponza.toml")
         .and_then(|_| crsh_scene::load_animated(manifest.to_str()?).ok())
     {

@@ -28,12 +28,7 @@ impl Backend for Cpu {
     fn gather<T: Pod + Send + Sync>(&self, buf: &Vec<T>, order: &Vec<u32>) -> Result<Vec<T>> {
         // In parallel: a sorted order reads the batch nearly at random, so the gather is
         // bound by memory latency, which more threads hide.
-        if let Some(&i) = order.iter().find(|&&i| i as usize >= buf.len()) {
-            return Err(crsh_core::CoreError::InvalidInput(format!(
-                "ray order index {i} is outside a batch of {}",
-                buf.len()
-            )));
-        }
+        crsh_core::order::check_indices(order, buf.len())?;
         Ok(order.par_iter().map(|&i| buf[i as usize]).collect())
     }
 

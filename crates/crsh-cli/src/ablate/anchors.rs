@@ -80,27 +80,38 @@ pub struct AnchorRow {
     pub hit_agreement: Option<f64>,
 }
 
+/// The throughput per ray kind of an ok cell.
+fn mrays(c: &CellResult) -> &BTreeMap<String, f64> {
+    &c.measures
+        .as_ref()
+        .expect("ok cells have measures")
+        .mrays_per_s
+}
+
 /// The rows, grouped by scene, rays, order and kind, fastest first.
 pub fn anchor_rows(results: &Results) -> Vec<AnchorRow> {
-    let ok: Vec<&CellResult> = results.cells.iter().filter(|c| c.ok()).collect();
+    // Each ok cell with its workload key, the workload's name and its order, computed once.
+    let ok: Vec<(&CellResult, String, String, String)> = results
+        .cells
+        .iter()
+        .filter(|c| c.ok())
+        .map(|c| {
+            let (key, name) = workload(c);
+            (c, key, name, order(c))
+        })
+        .collect();
     // Fastest anchor per (workload, order, kind).
     let mut best: BTreeMap<(String, String, String), (f64, String)> = BTreeMap::new();
-    for c in &ok {
+    for (c, key, _, order) in &ok {
         if c.config.intersect.kind != ANCHOR_INTERSECTOR {
             continue;
         }
-        let (key, _) = workload(c);
-        for (kind, &m) in &c
-            .measures
-            .as_ref()
-            .expect("ok cells have measures")
-            .mrays_per_s
-        {
+        for (kind, &m) in mrays(c) {
             if kind == "overall" || m.is_nan() || m <= 0.0 {
                 continue;
             }
             let slot = best
-                .entry((key.clone(), order(c), kind.clone()))
+                .entry((key.clone(), order.clone(), kind.clone()))
                 .or_insert((0.0, String::new()));
             if m > slot.0 {
                 *slot = (m, c.label.clone());
@@ -108,27 +119,30 @@ pub fn anchor_rows(results: &Results) -> Vec<AnchorRow> {
         }
     }
     let mut rows = Vec::new();
-    for c in &ok {
-        let (key, name) = workload(c);
-        let m = c.measures.as_ref().expect("ok cells have measures");
-        for (kind, &mrays) in &m.mrays_per_s {
+    for (c, key, name, order) in &ok {
+        for (kind, &m) in mrays(c) {
             if kind == "overall" {
                 continue;
             }
-            let Some((anchor, anchor_label)) = best.get(&(key.clone(), order(c), kind.clone()))
+            let Some((anchor, anchor_label)) =
+                best.get(&(key.clone(), order.clone(), kind.clone()))
             else {
                 continue;
             };
             rows.push(AnchorRow {
                 scene: c.scene.clone(),
                 rays: name.clone(),
-                order: order(c),
+                order: order.clone(),
                 kind: kind.clone(),
                 cell: c.label.clone(),
-                mrays_per_s: mrays,
-                ratio: mrays / anchor,
+                mrays_per_s: m,
+                ratio: m / anchor,
                 anchor: anchor_label.clone(),
-                hit_agreement: m.accuracy.as_ref().map(|a| a.hit_agreement),
+                hit_agreement: c
+                    .measures
+                    .as_ref()
+                    .and_then(|m| m.accuracy.as_ref())
+                    .map(|a| a.hit_agreement),
             });
         }
     }
