@@ -542,7 +542,6 @@ impl LeafTracer for CwBvh {
         let Some((r, nr, t_lo, t_hi)) = start_trace::<T>(ray, HitMode::Closest, &Hit::MISS) else {
             return n;
         };
-        let mut leaf_tops = 0u32;
         let bvh = &self.bvh;
         let mut state = bvh.new_traversal(Vec3A::from(ray.dir));
         let mut node: &CwBvhNode;
@@ -551,12 +550,13 @@ impl LeafTracer for CwBvh {
             node,
             state,
             {
-                leaf_tops = n.visit(node);
-                child_hits(node, &nr, state.oct_inv4, t_lo, t_hi)
+                let (mask, hit) = child_test(node, &nr, state.oct_inv4, t_lo, t_hi);
+                n.visit(node, hit);
+                mask
             },
             {
                 let slot = state.primitive_id as usize;
-                n.test_prim(leaf_tops, state.primitive_id - state.primitive_group.x);
+                n.prims += 1;
                 let id = self.leaves.ids[slot];
                 if let Some(h) = T::hit(&leaf_tris[slot], &r, ray.t_min, ray.t_max, id) {
                     out.push(Crossing { t: h.t, tri: id });
@@ -634,27 +634,25 @@ pub(crate) fn trace_cwbvh<'t, T: TriangleTest + 't, const TALLY: bool>(
     let Some((r, nr, t_lo, mut t_hi)) = start_trace::<T>(ray, mode, best) else {
         return n;
     };
-    // The last primitive slot (relative to the node's primitive base) of each leaf child
-    // of the node visited last: the first one `traverse!` tests (highest bit first).
-    let mut leaf_tops = 0u32;
     let mut state = bvh.new_traversal(Vec3A::from(ray.dir));
-    let mut node: &CwBvhNode;
+    // The node whose primitive group is being tested (the root until `traverse!` assigns it).
+    let mut node: &CwBvhNode = &bvh.nodes[0];
     'trace: {
         obvhs::traverse!(
             bvh,
             node,
             state,
             {
-                leaf_tops = n.visit(node);
-                let hit = child_hits(node, &nr, state.oct_inv4, t_lo, t_hi);
+                let (mask, hit) = child_test(node, &nr, state.oct_inv4, t_lo, t_hi);
+                n.visit(node, hit);
                 if TALLY {
-                    n.bounds_passed += u64::from(hit.count_ones());
+                    n.bounds_passed += u64::from(mask.count_ones());
                 }
-                hit
+                mask
             },
             {
                 let slot = state.primitive_id as usize;
-                n.test_prim(leaf_tops, state.primitive_id - state.primitive_group.x);
+                n.prims += 1;
                 let (tri, id) = leaf(slot);
                 if let Some(h) = T::hit(tri, &r, ray.t_min, ray.t_max, id) {
                     if TALLY {
@@ -662,6 +660,7 @@ pub(crate) fn trace_cwbvh<'t, T: TriangleTest + 't, const TALLY: bool>(
                     }
                     if mode == HitMode::Any {
                         *best = h;
+                        n.stop(node, state.primitive_group.y);
                         break 'trace;
                     }
                     if h.closer_than(best) {
@@ -693,23 +692,27 @@ pub(crate) struct Counts {
 }
 
 impl Counts {
-    /// Counts a visit of `node`: its non-empty children's boxes are tested. Returns its
-    /// [`leaf_top_bits`], for [`Counts::test_prim`].
+    /// Counts a visit of `node` whose children `hit` (bit `c` for child `c`, [`child_test`])
+    /// passed the node test: its non-empty children's boxes are tested, and the leaf children
+    /// that passed will have their primitives tested (`traverse!` tests a node's whole
+    /// primitive group before it visits another node; an any-hit ray that stops inside the
+    /// group takes back the leaves it did not reach with [`Counts::stop`]).
     #[inline(always)]
-    fn visit(&mut self, node: &CwBvhNode) -> u32 {
+    fn visit(&mut self, node: &CwBvhNode, hit: u32) {
         self.inner += 1;
         let children = child_mask(node);
         self.bounds += u64::from(children.count_ones());
-        leaf_top_bits(node, children)
+        self.leaves += u64::from((hit & children & !u32::from(node.imask)).count_ones());
     }
 
-    /// Counts the test of the primitive at slot `rel` (relative to the primitive base of the
-    /// node visited last, whose [`Counts::visit`] gave `leaf_tops`), and its leaf when it is
-    /// the leaf's first.
+    /// Takes back the leaves of `node` (the node visited last) that a ray stopping with the
+    /// primitive bits `remaining` still untested did not start: those whose first-tested
+    /// primitive ([`leaf_top_bits`]) is among them. Once per stopping ray, so the per-node
+    /// count stays one popcount.
     #[inline(always)]
-    fn test_prim(&mut self, leaf_tops: u32, rel: u32) {
-        self.prims += 1;
-        self.leaves += u64::from((leaf_tops >> rel) & 1);
+    fn stop(&mut self, node: &CwBvhNode, remaining: u32) {
+        let tops = leaf_top_bits(node, child_mask(node));
+        self.leaves -= u64::from((remaining & tops).count_ones());
     }
 
     /// The sum of two counts.
@@ -934,6 +937,19 @@ impl NodeRay {
 /// SSE's `min`/`max` would treat a NaN differently.
 #[inline(always)]
 pub fn child_hits(node: &CwBvhNode, nr: &NodeRay, oct_inv4: u32, t_lo: f32, t_hi: f32) -> u32 {
+    child_test(node, nr, oct_inv4, t_lo, t_hi).0
+}
+
+/// [`child_hits`] and the children that passed (bit `c` for child `c`, empty children
+/// included), for the counters.
+#[inline(always)]
+pub(crate) fn child_test(
+    node: &CwBvhNode,
+    nr: &NodeRay,
+    oct_inv4: u32,
+    t_lo: f32,
+    t_hi: f32,
+) -> (u32, u32) {
     #[cfg(target_arch = "x86_64")]
     {
         let a = node.compute_extent() * nr.inv_dir;
@@ -943,10 +959,10 @@ pub fn child_hits(node: &CwBvhNode, nr: &NodeRay, oct_inv4: u32, t_lo: f32, t_hi
             return unsafe { child_hits_sse(node, nr, a, orig, oct_inv4, t_lo, t_hi) };
         }
     }
-    child_hits_scalar(node, nr, oct_inv4, t_lo, t_hi)
+    child_test_scalar(node, nr, oct_inv4, t_lo, t_hi)
 }
 
-/// [`child_hits`] four children at a time; `a` and `orig` are its per-node plane terms.
+/// [`child_test`] four children at a time; `a` and `orig` are its per-node plane terms.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 unsafe fn child_hits_sse(
@@ -957,7 +973,7 @@ unsafe fn child_hits_sse(
     oct_inv4: u32,
     t_lo: f32,
     t_hi: f32,
-) -> u32 {
+) -> (u32, u32) {
     use std::arch::x86_64::*;
     let slack = (a.abs() * 255.0 + orig.abs()) * SLAB_SLACK;
     let lo = orig - slack;
@@ -978,6 +994,7 @@ unsafe fn child_hits_sse(
     let (tl, th) = (_mm_set1_ps(t_lo), _mm_set1_ps(t_hi));
     let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
     let mut mask = 0u32;
+    let mut passed = 0u32;
     for i in 0..2 {
         // Near and far planes per axis (swapped for a negative direction component), then
         // the scalar order: max(max(max(x, y), z), t_lo) and min(min(min(x, y), z), t_hi).
@@ -1020,6 +1037,7 @@ unsafe fn child_hits_sse(
             th,
         );
         let hits = _mm_movemask_ps(_mm_cmple_ps(t0, t1));
+        passed |= (hits as u32) << (i * 4);
         for j in 0..4 {
             if hits & (1 << j) != 0 {
                 let c = i * 4 + j;
@@ -1029,7 +1047,7 @@ unsafe fn child_hits_sse(
             }
         }
     }
-    mask
+    (mask, passed)
 }
 
 /// The CWBVH hit mask of `node` for the children whose bit is set in `hits`.
@@ -1057,6 +1075,18 @@ pub fn child_hits_scalar(
     t_lo: f32,
     t_hi: f32,
 ) -> u32 {
+    child_test_scalar(node, nr, oct_inv4, t_lo, t_hi).0
+}
+
+/// [`child_hits_scalar`] and the children that passed, as [`child_test`].
+#[inline(always)]
+fn child_test_scalar(
+    node: &CwBvhNode,
+    nr: &NodeRay,
+    oct_inv4: u32,
+    t_lo: f32,
+    t_hi: f32,
+) -> (u32, u32) {
     let e = node.compute_extent();
     let a = e * nr.inv_dir;
     let orig = (Vec3A::from(node.p) - nr.origin) * nr.inv_dir;
@@ -1084,7 +1114,7 @@ pub fn child_hits_scalar(
         .iter()
         .enumerate()
         .fold(0u32, |m, (c, &h)| m | (u32::from(h) << c));
-    hit_mask(node, oct_inv4, hits)
+    (hit_mask(node, oct_inv4, hits), hits)
 }
 
 /// `impl Intersector<Cpu>` for the obvhs tree `$tree` (a [`LeafTracer`] with a method

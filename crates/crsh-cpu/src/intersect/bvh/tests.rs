@@ -513,6 +513,73 @@ fn leaf_visits_are_the_hit_leaf_children() {
     );
 }
 
+/// Any hit: a leaf is counted when its first-tested primitive is tested, so the leaves of
+/// the last node that a stopping ray never reached are not (an independent recount that
+/// marks each primitive that starts its leaf from the per-child definition).
+#[test]
+fn any_hit_leaf_visits_stop_where_the_ray_stops() {
+    let scene = soup(83, 400);
+    let bvh = CwBvh::build(&scene, BuildQuality::VerySlow);
+    let leaf_tris = bvh.leaf_triangles_mt().unwrap();
+    let rays = random_rays(&scene, 84, 600);
+    let mut stopped_early = 0;
+    for (i, ray) in rays.iter().enumerate() {
+        let (hit, c) = one(&bvh, ray, HitMode::Any);
+        let r = MollerTrumbore::ray_of(ray);
+        let nr = NodeRay::new(ray.origin, ray.dir);
+        let (t_lo, t_hi) = (entry_bound(ray.t_min), cull_distance(ray.t_max));
+        let (mut inner, mut leaves, mut prims) = (0u64, 0u64, 0u64);
+        let mut tops = 0u32;
+        let mut found = Hit::MISS;
+        let tree = &bvh.bvh;
+        let mut state = tree.new_traversal(Vec3A::from(ray.dir));
+        let mut node: &CwBvhNode;
+        'trace: {
+            obvhs::traverse!(
+                tree,
+                node,
+                state,
+                {
+                    inner += 1;
+                    tops = 0;
+                    for (c, &m) in node.child_meta.iter().enumerate() {
+                        if m != 0 && node.is_leaf(c) {
+                            tops |= 1 << (u32::from(m & 0x1f) + (m >> 5).count_ones() - 1);
+                        }
+                    }
+                    child_hits(node, &nr, state.oct_inv4, t_lo, t_hi)
+                },
+                {
+                    let slot = state.primitive_id as usize;
+                    let rel = state.primitive_id - state.primitive_group.x;
+                    prims += 1;
+                    leaves += u64::from((tops >> rel) & 1);
+                    let id = bvh.leaf_ids()[slot];
+                    if let Some(h) =
+                        MollerTrumbore::hit(&leaf_tris[slot], &r, ray.t_min, ray.t_max, id)
+                    {
+                        found = h;
+                        if state.primitive_group.y & tops != 0 {
+                            stopped_early += 1;
+                        }
+                        break 'trace;
+                    }
+                }
+            );
+        }
+        assert_eq!(found, hit, "ray {i}");
+        assert_eq!(
+            (c.inner_nodes, c.leaves, c.ray_triangle),
+            (inner, leaves, prims),
+            "ray {i}"
+        );
+    }
+    assert!(
+        stopped_early > 0,
+        "no ray stopped before a leaf of its last node"
+    );
+}
+
 /// The SSE node test is the scalar one bit for bit: every node of a random tree against rays
 /// of every octant, axis-parallel rays (zero direction components), rays from inside and far
 /// outside, with open, empty and ordinary intervals.
@@ -537,8 +604,8 @@ fn simd_node_test_is_the_scalar_one() {
                 (-1.0, 1.0),
             ] {
                 assert_eq!(
-                    child_hits(node, &nr, oct, t_lo, t_hi),
-                    child_hits_scalar(node, &nr, oct, t_lo, t_hi),
+                    child_test(node, &nr, oct, t_lo, t_hi),
+                    child_test_scalar(node, &nr, oct, t_lo, t_hi),
                     "{ray:?} [{t_lo}, {t_hi}]"
                 );
                 compared += 1;
