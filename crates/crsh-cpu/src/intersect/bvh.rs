@@ -932,9 +932,10 @@ impl NodeRay {
 /// `[t_lo, t_hi]`, as the CWBVH hit mask the `traverse!` macro expects.
 ///
 /// On x86-64 four children at a time in SSE (what obvhs's own node test does), with the same
-/// operations in the same order as [`child_hits_scalar`], so the mask is the same bit for bit;
-/// the scalar form runs where an operand could overflow (a plane term beyond `1e30`), where
-/// SSE's `min`/`max` would treat a NaN differently.
+/// operations in the same order as the scalar form (`child_test_scalar`, one child at a time
+/// in plain `f32`), so the mask is the same bit for bit; the scalar form runs off x86-64 and
+/// where an operand could overflow (a plane term beyond `1e30`), where SSE's `min`/`max`
+/// would treat a NaN differently.
 #[inline(always)]
 pub fn child_hits(node: &CwBvhNode, nr: &NodeRay, oct_inv4: u32, t_lo: f32, t_hi: f32) -> u32 {
     child_test(node, nr, oct_inv4, t_lo, t_hi).0
@@ -1065,20 +1066,8 @@ fn hit_mask(node: &CwBvhNode, oct_inv4: u32, mut hits: u32) -> u32 {
     mask
 }
 
-/// [`child_hits`] one child at a time, in plain `f32` arithmetic: the definition the SSE form
+/// [`child_test`] one child at a time, in plain `f32` arithmetic: the definition the SSE form
 /// must match, and the form that runs off x86-64.
-#[inline(always)]
-pub fn child_hits_scalar(
-    node: &CwBvhNode,
-    nr: &NodeRay,
-    oct_inv4: u32,
-    t_lo: f32,
-    t_hi: f32,
-) -> u32 {
-    child_test_scalar(node, nr, oct_inv4, t_lo, t_hi).0
-}
-
-/// [`child_hits_scalar`] and the children that passed, as [`child_test`].
 #[inline(always)]
 fn child_test_scalar(
     node: &CwBvhNode,

@@ -2,8 +2,8 @@
 //! rasterizer's visibility-buffer resolve.
 //!
 //! Every intersector of this crate (brute force, its candidate-pair mode, the CWBVH), when
-//! configured with this test, and the rasterizer's visibility-buffer resolve call [`mt_lane`] (or its
-//! one-triangle form [`mt_vec`], the same arithmetic) through [`PreparedTriangle`],
+//! configured with this test, and the rasterizer's visibility-buffer resolve call [`mt_lane`]
+//! (or its one-triangle form [`mt_vec`], the same arithmetic) through [`PreparedTriangle`],
 //! [`TriangleBlock`] or [`RayPacket`], with the per-ray values of [`RayPre`], so they compute
 //! the same `t`, `u`, `v` with the same floating-point operations in the same order: their
 //! hits are identical bit for bit, not merely close.
