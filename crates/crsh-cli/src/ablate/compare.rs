@@ -54,6 +54,9 @@ struct Median {
 #[derive(Clone, Debug, Deserialize)]
 struct Tests {
     total: u64,
+    /// The cell's tests are unknown (Embree): no ratio is drawn from them.
+    #[serde(default)]
+    uncounted: bool,
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -142,14 +145,17 @@ pub fn cell_key(c: &Cell) -> String {
     )
 }
 
-fn figures(c: &Cell) -> Option<(f64, f64, Option<f64>)> {
+/// A cell's median total time, its total tests (`None` when uncounted) and hit agreement.
+type Figures = (f64, Option<u64>, Option<f64>);
+
+fn figures(c: &Cell) -> Option<Figures> {
     if c.status != "ok" {
         return None;
     }
     let m = c.measures.as_ref()?;
     Some((
         m.timings_ms.total.median,
-        m.tests.total as f64,
+        (!m.tests.uncounted).then_some(m.tests.total),
         m.accuracy.as_ref().map(|a| a.hit_agreement),
     ))
 }
@@ -185,18 +191,21 @@ pub fn compare_text(old: &[Cell], new: &[Cell]) -> String {
                     (Some(a), Some(b)) => format!("{} ({a:.6} -> {b:.6})", ratio(b, a)),
                     _ => "n/a (no accuracy)".to_string(),
                 };
+                let tests = match (ox, nx) {
+                    (Some(o), Some(n)) => format!("{} ({o} -> {n})", ratio(n as f64, o as f64)),
+                    (o, n) => {
+                        let v = |x: Option<u64>| x.map_or("—".to_string(), |x| x.to_string());
+                        format!("— ({} -> {})", v(o), v(n))
+                    }
+                };
                 let _ = writeln!(
                     out,
-                    "{key}: time {} ({ot:.1} -> {nt:.1} ms) | tests {} ({} -> {}) | agreement {agreement}",
+                    "{key}: time {} ({ot:.1} -> {nt:.1} ms) | tests {tests} | agreement {agreement}",
                     ratio(nt, ot),
-                    ratio(nx, ox),
-                    ox as u64,
-                    nx as u64,
                 );
             }
             (a, b) => {
-                let st =
-                    |x: &Option<(f64, f64, Option<f64>)>| if x.is_some() { "ok" } else { "failed" };
+                let st = |x: &Option<Figures>| if x.is_some() { "ok" } else { "failed" };
                 let _ = writeln!(
                     out,
                     "{key}: not comparable (old {}, new {})",
@@ -246,6 +255,20 @@ mod tests {
             }
         }))
         .unwrap()
+    }
+
+    #[test]
+    fn uncounted_tests_draw_no_ratio() {
+        let old = vec![cell("bvh", "8", 100.0, 1000, 1.0)];
+        let mut new = cell("bvh", "8", 50.0, 0, 1.0);
+        if let Some(m) = new.measures.as_mut() {
+            m.tests.uncounted = true;
+        }
+        let t = compare_text(&old, &[new]);
+        assert!(
+            t.contains("time 0.500x (100.0 -> 50.0 ms) | tests — (1000 -> —) | agreement"),
+            "{t}"
+        );
     }
 
     #[test]

@@ -98,23 +98,32 @@ pub fn headline(results: &Results) -> String {
             let mm = m(c);
             let _ = writeln!(
                 out,
-                "  fastest {}: {} — {:.1} ms median total, {:.1} tests/ray, {:.3} Mrays/s",
+                "  fastest {}: {} — {:.1} ms median total, {} tests/ray, {:.3} Mrays/s",
                 c.pipeline,
                 c.label,
                 c.total_ms().unwrap_or(0.0),
-                mm.tests.per_ray,
+                mm.tests.per_ray_text(),
                 mm.mrays_per_s.get("overall").copied().unwrap_or(0.0),
             );
         }
         for (i, a) in best.iter().enumerate() {
             for b in &best[i + 1..] {
                 let (ma, mb) = (m(a), m(b));
+                // Test ratios only where both count their tests (Embree's are unknown).
+                let counted = !ma.tests.uncounted && !mb.tests.uncounted;
+                let tests = if counted {
+                    format!(
+                        "{:.3}x",
+                        ratio(ma.tests.total as f64, mb.tests.total as f64)
+                    )
+                } else {
+                    "—".to_string()
+                };
                 let mut line = format!(
-                    "  {} / {}: best vs best time {:.3}x, tests {:.3}x",
+                    "  {} / {}: best vs best time {:.3}x, tests {tests}",
                     a.pipeline,
                     b.pipeline,
                     ratio(a.total_ms().unwrap_or(0.0), b.total_ms().unwrap_or(0.0)),
-                    ratio(ma.tests.total as f64, mb.tests.total as f64),
                 );
                 // Configurations both ran (same swept parameters).
                 let pairs: Vec<(f64, f64)> = cells
@@ -146,7 +155,11 @@ pub fn headline(results: &Results) -> String {
                         "; over {} shared configurations time {}, tests {}",
                         pairs.len(),
                         range(&times),
-                        range(&tests)
+                        if counted {
+                            range(&tests)
+                        } else {
+                            "—".to_string()
+                        }
                     );
                 }
                 let _ = writeln!(out, "{line}");

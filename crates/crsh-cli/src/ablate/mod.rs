@@ -257,13 +257,13 @@ fn cell_line(c: &CellResult, n: usize) -> String {
                 .map(|a| format!(", agreement ≥ {a:.6} on {} frames", t.frames_checked))
                 .unwrap_or_default();
             format!(
-                "{head}: {} frames, {:.2} ms/frame (update {:.2}, structure {:.2}, render {:.2}), {:.1} tests/ray{acc}{}",
+                "{head}: {} frames, {:.2} ms/frame (update {:.2}, structure {:.2}, render {:.2}), {} tests/ray{acc}{}",
                 t.frames,
                 t.mean_frame_ms,
                 t.mean_update_ms,
                 t.mean_structure_ms,
                 t.mean_render_ms,
-                m.tests.per_ray,
+                m.tests.per_ray_text(),
                 if m.counters_equal_across_repeats {
                     ""
                 } else {
@@ -279,11 +279,11 @@ fn cell_line(c: &CellResult, n: usize) -> String {
                 .map(|a| format!(", agreement {:.6}", a.hit_agreement))
                 .unwrap_or_default();
             format!(
-                "{head}: {:.1} ms (min {:.1}, max {:.1}), {:.1} tests/ray, {:.3} Mrays/s{acc}{}",
+                "{head}: {:.1} ms (min {:.1}, max {:.1}), {} tests/ray, {:.3} Mrays/s{acc}{}",
                 t.median,
                 t.min,
                 t.max,
-                m.tests.per_ray,
+                m.tests.per_ray_text(),
                 m.mrays_per_s.get("overall").copied().unwrap_or(0.0),
                 if m.counters_equal_across_repeats {
                     ""

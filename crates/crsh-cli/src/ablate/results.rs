@@ -115,6 +115,17 @@ pub struct CellTests {
     pub uncounted: bool,
 }
 
+impl CellTests {
+    /// Tests per ray with one decimal, or "—" when they are [`CellTests::uncounted`].
+    pub fn per_ray_text(&self) -> String {
+        if self.uncounted {
+            "—".to_string()
+        } else {
+            format!("{:.1}", self.per_ray)
+        }
+    }
+}
+
 /// One ray kind's work per ray, from its [`KindStats`]: what seed 001's tables set against the
 /// baseline. Every figure is 0 when the kind traced no ray.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -441,6 +452,10 @@ pub struct Machine {
     /// it was recorded).
     #[serde(default)]
     pub allocator: String,
+    /// The instruction set the CPU backend's hot loops ran in ([`crsh::SetupTimes::isa`];
+    /// empty in results written before it was recorded).
+    #[serde(default)]
+    pub isa: String,
 }
 
 impl Machine {
@@ -485,6 +500,7 @@ impl Machine {
             started_utc: utc_now(),
             allocator: crate::allocator::description()
                 .unwrap_or_else(|| "not set by the program".into()),
+            isa: crsh_cpu::isa::description(),
         }
     }
 }
