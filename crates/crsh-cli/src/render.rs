@@ -193,10 +193,7 @@ fn run_frames(
     bar.set_prefix(cfg.name.clone());
     let mut report = FramesReport::new(&anim, &args.scene, cfg);
     report.allocator = crate::allocator::description();
-    let mut setup = SetupTimes {
-        scene_load_ms,
-        ..SetupTimes::default()
-    };
+    let mut setup = SetupTimes::new(scene_load_ms);
     crsh::render_frames(
         registries,
         &anim,

@@ -108,6 +108,12 @@ fn render_default_scene_writes_png_and_consistent_stats() {
     );
     assert_eq!(u(&s, "/threads"), 2);
     assert_eq!(s["version"], env!("CARGO_PKG_VERSION"));
+    // The instruction set the hot loops ran in, e.g. `x86-64-v1 (CPU: x86-64-v4)`.
+    let isa = s["setup"]["isa"].as_str().expect("setup.isa");
+    assert!(
+        isa.starts_with("x86-64-v") || isa.starts_with(std::env::consts::ARCH),
+        "{isa}"
+    );
 
     let tris = u(&s, "/scene/triangles");
     assert!(tris > 0 && u(&s, "/scene/lights") >= 1);

@@ -40,6 +40,7 @@
 //!   (seed 000 §3.2.3-3.2.8), and seed 004's screen tiles and tile cones ([`hash::tile`],
 //!   [`hierarchy::tile_cone`]); [`trim`]: head-flag scan compaction (fig. 3.10).
 //! - [`stress`]: runs the stability suite of `crsh_scene::stress` against pipelines.
+//! - [`isa`]: the instruction set the hot loops run in (`setup.isa` of the stats).
 //! - [`grid_timing`]: timed rebuilds of the uniform grid, pass by pass (seed 002 §5.1,
 //!   table 1; `crsh grid-build`).
 
@@ -50,6 +51,7 @@ pub mod grid_timing;
 pub mod hash;
 pub mod hierarchy;
 pub mod intersect;
+pub mod isa;
 pub mod kdtree;
 pub mod primary;
 pub mod raygen;

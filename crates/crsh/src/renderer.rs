@@ -203,9 +203,9 @@ impl Render {
                 max_depth: self.max_depth,
                 output: output.to_string(),
                 setup: SetupTimes {
-                    scene_load_ms,
                     build_stages_ms: self.build_stages_ms,
                     stage_table_bytes: self.stage_table_bytes,
+                    ..SetupTimes::new(scene_load_ms)
                 },
             },
             &self.stats,

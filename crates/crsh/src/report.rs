@@ -211,6 +211,22 @@ pub struct SetupTimes {
     /// seed 001's hemisphere set of `raygen.offsets`); 0 when none does.
     #[serde(default)]
     pub stage_table_bytes: u64,
+    /// The instruction set the CPU backend's hot loops ran in and, where it has more, what
+    /// the CPU offers ([`crsh_cpu::isa::description`], e.g. `x86-64-v1 (CPU: x86-64-v4)`).
+    #[serde(default)]
+    pub isa: String,
+}
+
+impl SetupTimes {
+    /// The setup of a run whose scene took `scene_load_ms` to load (the other times 0), with
+    /// this build's [`SetupTimes::isa`].
+    pub fn new(scene_load_ms: f64) -> SetupTimes {
+        SetupTimes {
+            scene_load_ms,
+            isa: crsh_cpu::isa::description(),
+            ..SetupTimes::default()
+        }
+    }
 }
 
 /// The whole `--stats` document.
@@ -558,14 +574,15 @@ impl StatsReport {
         s.push_str(&generation_lines(&self.generations, self.tests.uncounted()));
         let _ = writeln!(
             s,
-            "setup ms  scene load {:.1} | build stages {:.1}{}",
+            "setup ms  scene load {:.1} | build stages {:.1}{} | isa {}",
             self.setup.scene_load_ms,
             self.setup.build_stages_ms,
             if self.setup.stage_table_bytes > 0 {
                 format!(" | stage tables {} B", group(self.setup.stage_table_bytes))
             } else {
                 String::new()
-            }
+            },
+            self.setup.isa,
         );
         if let Some(a) = &self.adapter {
             let _ = writeln!(s, "adapter   {} ({}, {})", a.name, a.backend, a.device_type);
@@ -880,9 +897,8 @@ mod tests {
                 max_depth: 1,
                 output: "x.png".into(),
                 setup: SetupTimes {
-                    scene_load_ms: 1.5,
                     build_stages_ms: 2.5,
-                    stage_table_bytes: 0,
+                    ..SetupTimes::new(1.5)
                 },
             },
             &stats(),

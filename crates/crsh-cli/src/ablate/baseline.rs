@@ -669,6 +669,7 @@ mod tests {
                 wgpu_adapters: Vec::new(),
                 started_utc: "2026-01-01T00:00:00Z".into(),
                 allocator: String::new(),
+                isa: String::new(),
             },
             wall_s: 0.0,
             expansion: Expansion::default(),

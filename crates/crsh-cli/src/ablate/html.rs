@@ -125,6 +125,9 @@ pub fn report(results: &Results, charts: &[(String, Vec<ChartFile>)]) -> String 
     if !m.allocator.is_empty() {
         fact("allocator", &m.allocator);
     }
+    if !m.isa.is_empty() {
+        fact("instruction set", &m.isa);
+    }
     let has_wgpu = results.cells.iter().any(|c| c.backend == "wgpu");
     if has_wgpu {
         fact(
