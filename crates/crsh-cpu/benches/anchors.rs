@@ -12,7 +12,9 @@
 //!   crsh in the loop: `build_cwbvh_from_tris` with the preset, leaf triangles in primitive
 //!   order, `CwBvh::ray_traverse_miss` with `Triangle::intersect`, rayon over 64-ray chunks;
 //! - `bvh_{quality}`: the `bvh` intersector stage (`intersect.kind = bvh`) with the same
-//!   preset on the same rays, exact hits (brute force's), its counters included;
+//!   preset on the same rays, exact hits (brute force's), its counters included, into a
+//!   `Hit` buffer allocated once and reset to misses in every iteration (the stage merges
+//!   into the hits it is given);
 //! - `embree_{mode}` (with the `embree` feature): the `embree` stage in single rays and
 //!   16-wide coherent packets.
 //!
@@ -96,23 +98,23 @@ impl ObvhsDirect {
         n.into_inner()
     }
 
-    /// Whether each ray is occluded (any hit in its interval).
-    fn occluded(&self, rays: &[Ray]) -> Vec<bool> {
+    /// Sets `out[i]` to whether ray `i` is occluded (any hit in its interval).
+    fn occluded(&self, rays: &[Ray], out: &mut [bool]) {
         rays.par_chunks(64)
-            .flat_map_iter(|chunk| {
-                chunk.iter().map(|r| {
+            .zip(out.par_chunks_mut(64))
+            .for_each(|(rs, os)| {
+                for (r, o) in rs.iter().zip(os) {
                     let ray = obvhs::ray::Ray::new(
                         Vec3A::from(r.origin),
                         Vec3A::from(r.dir),
                         r.t_min,
                         r.t_max,
                     );
-                    !self
+                    *o = !self
                         .bvh
-                        .ray_traverse_miss(ray, |ray, id| self.hit_t(ray, id))
-                })
-            })
-            .collect()
+                        .ray_traverse_miss(ray, |ray, id| self.hit_t(ray, id));
+                }
+            });
     }
 }
 
@@ -174,16 +176,17 @@ fn benches(c: &mut Criterion) {
         let bvh = registry
             .build_intersector(&ctx, &spec)
             .expect("the bvh stage");
-        let traced = |rays: &Vec<Ray>, stats: &mut Stats| {
-            let mut hits = vec![Hit::MISS; rays.len()];
-            bvh.intersect(&Cpu, rays, Query::Scene, HitMode::Any, &mut hits, stats)
+        // Into the caller's buffer, which the stage's contract has start as misses.
+        let traced = |rays: &Vec<Ray>, hits: &mut Vec<Hit>, stats: &mut Stats| {
+            hits.fill(Hit::MISS);
+            bvh.intersect(&Cpu, rays, Query::Scene, HitMode::Any, hits, stats)
                 .expect("bvh");
-            hits
         };
-        let stage = |rays: &Vec<Ray>| traced(rays, &mut Stats::default());
         let mut counted = Stats::default();
-        let ours = traced(&rays, &mut counted);
-        let theirs = direct.occluded(&rays);
+        let mut ours = vec![Hit::MISS; rays.len()];
+        traced(&rays, &mut ours, &mut counted);
+        let mut theirs = vec![false; rays.len()];
+        direct.occluded(&rays, &mut theirs);
         let differ = ours
             .iter()
             .zip(&theirs)
@@ -199,14 +202,15 @@ fn benches(c: &mut Criterion) {
         );
         for (order, batch) in [("generation", &rays), ("shuffled", &shuffled)] {
             g.bench_function(format!("obvhs_direct_{q}/{order}/{tag}"), |b| {
-                b.iter(|| direct.occluded(batch))
+                b.iter(|| direct.occluded(batch, &mut theirs))
             });
             g.bench_function(format!("bvh_{q}/{order}/{tag}"), |b| {
-                b.iter(|| stage(batch))
+                b.iter(|| traced(batch, &mut ours, &mut Stats::default()))
             });
         }
     }
     if crsh_cpu::intersect::embree::AVAILABLE {
+        let mut hits = vec![Hit::MISS; rays.len()];
         for (mode, coherent) in [("single", false), ("packet16", true)] {
             let mut spec = StageSpec::new("embree");
             spec.params
@@ -219,7 +223,7 @@ fn benches(c: &mut Criterion) {
             for (order, batch) in [("generation", &rays), ("shuffled", &shuffled)] {
                 g.bench_function(format!("embree_{mode}/{order}/{tag}"), |b| {
                     b.iter(|| {
-                        let mut hits = vec![Hit::MISS; batch.len()];
+                        hits.fill(Hit::MISS);
                         embree
                             .intersect(
                                 &Cpu,
@@ -230,7 +234,6 @@ fn benches(c: &mut Criterion) {
                                 &mut Stats::default(),
                             )
                             .expect("embree");
-                        hits
                     })
                 });
             }

@@ -38,6 +38,10 @@
 //!   their triangle fragments, which would break the guarantee above. Everything else of the
 //!   preset (PLOC search distance, reinsertion, sort precision) is kept.
 //!
+//! With `exact = false` the same tree is traced with obvhs's own node and triangle tests
+//! instead (module `stock`): what obvhs called directly returns, uncounted, so that every
+//! ablation cell can set it beside the exact `bvh` and Embree.
+//!
 //! # Moving geometry (`update`)
 //!
 //! For a dynamic scene the pipeline is rebuilt every frame ([`crsh_core::Registry::rebuild`]).
@@ -176,6 +180,9 @@ pub struct CwBvh {
     /// The binary tree and its primitives' scene ids, kept for the next frame's refit
     /// (`update = "refit"`); taken by the refit that uses it.
     refit: Option<Box<std::sync::Mutex<Option<RefitState>>>>,
+    /// obvhs's triangles per primitive slot when the tree is traced with obvhs's own tests
+    /// (`exact = false`, `bvh::stock`); `None` for the exact traversal.
+    stock: Option<Vec<Triangle>>,
 }
 
 /// What a refit of the next frame needs: the binary tree before compression and the scene
@@ -242,6 +249,7 @@ impl std::fmt::Debug for CwBvh {
             .field("primitives", &self.leaves.ids.len())
             .field("quality", &self.quality)
             .field("test", &self.test())
+            .field("exact", &self.exact())
             .field("build_time", &self.build_time)
             .finish()
     }
@@ -261,6 +269,14 @@ pub fn info() -> StageVariantInfo {
          the first frame's tree (obvhs `Bvh2::refit_all`, then re-compression to 8-wide nodes)",
     ))
     .param(test_param())
+    .param(ParamInfo::bool(
+        "exact",
+        true,
+        "`true`: brute force's hits bit for bit, every test counted (the node test keeps the \
+         ray's interval and a rounding margin); `false`: obvhs's own node and triangle tests \
+         as obvhs ships them (the anchor of obvhs called directly), nothing counted, hits \
+         compared by the accuracy report; edge-width queries are always exact",
+    ))
     .scene_only()
 }
 
@@ -400,13 +416,31 @@ pub(crate) fn refit_bvh2(bvh2: &mut Bvh2, tris: &[Triangle]) {
 impl CwBvh {
     /// Builds the BVH of `scene` with `spec.build_quality` (`fast` | `medium` | `slow`), its
     /// leaves prepared for `spec.test` (`mt` | `watertight` | `projected`).
+    /// With `spec.exact = false` it traces with obvhs's own tests (`bvh::stock`).
     pub fn new(scene: &Arc<Scene>, spec: &StageSpec) -> Result<CwBvh, CoreError> {
         let (quality, refit, test) = build_params(spec, "bvh")?;
         let mut bvh = CwBvh::build_with_test(scene, quality, test);
         if !refit {
             bvh.refit = None;
         }
+        if !spec.bool("exact")? {
+            bvh.stock = Some(bvh.stock_triangles(scene));
+        }
         Ok(bvh)
+    }
+
+    /// obvhs's form of each primitive slot's triangle, for `bvh::stock`.
+    fn stock_triangles(&self, scene: &Scene) -> Vec<Triangle> {
+        self.leaves
+            .ids
+            .iter()
+            .map(|&t| obvhs_triangle(scene.triangle(t as usize)))
+            .collect()
+    }
+
+    /// Whether hits are brute force's (`exact = true`) rather than obvhs's own (`bvh::stock`).
+    pub fn exact(&self) -> bool {
+        self.stock.is_none()
     }
 
     /// The BVH of `scene` (the same triangles as the one this was built for, moved) from this
@@ -430,6 +464,9 @@ impl CwBvh {
             bvh2,
             ids,
         }))));
+        if !self.exact() {
+            out.stock = Some(out.stock_triangles(scene));
+        }
         Some(out)
     }
 
@@ -480,6 +517,7 @@ impl CwBvh {
             quality,
             build_time,
             refit: None,
+            stock: None,
         }
     }
 
@@ -568,6 +606,21 @@ impl LeafTracer for CwBvh {
 
     fn leaves(&self) -> &Leaves {
         &self.leaves
+    }
+
+    fn trace_uncounted(&self, rays: &[Ray], mode: HitMode, hits: &mut [Hit]) -> bool {
+        let Some(tris) = &self.stock else {
+            return false;
+        };
+        let ids = &self.leaves.ids;
+        rays.par_chunks(CHUNK)
+            .zip(hits.par_chunks_mut(CHUNK))
+            .for_each(|(rs, hs)| {
+                for (ray, h) in rs.iter().zip(hs) {
+                    stock::trace(&self.bvh, tris, ids, ray, mode, h);
+                }
+            });
+        true
     }
 
     #[inline]
@@ -762,6 +815,14 @@ pub(crate) trait LeafTracer: Sync {
     /// The tree's primitives.
     fn leaves(&self) -> &Leaves;
 
+    /// Traces the whole-scene batch `rays` (any or closest hit) its own uncounted way when the
+    /// tree is set to (`bvh.exact = false`, `bvh::stock`), returning `true`; `false` (the
+    /// default) leaves the batch to [`LeafTracer::trace`].
+    fn trace_uncounted(&self, rays: &[Ray], mode: HitMode, hits: &mut [Hit]) -> bool {
+        let _ = (rays, mode, hits);
+        false
+    }
+
     /// Traces `ray` with test `T` on `leaf_tris` (this tree's leaves, prepared for `T`),
     /// merging into `best` (any hit: skipped when `best` is a hit, stops at the first hit);
     /// returns its counts.
@@ -829,6 +890,10 @@ pub(crate) fn intersect_scene<X: LeafTracer>(
             LeafTriangles::Projected(t) => edges::<Projected, X>(x, t, rays, hits, pairing),
         };
         counts.record(stats);
+        return Ok(());
+    }
+    if x.trace_uncounted(rays, mode, hits) {
+        stats.mark_tests_uncounted();
         return Ok(());
     }
     fn all<T: TriangleTest, X: LeafTracer>(
@@ -1147,6 +1212,8 @@ macro_rules! obvhs_intersector {
 pub(crate) use obvhs_intersector;
 
 obvhs_intersector!(CwBvh, "bvh");
+
+mod stock;
 
 #[cfg(test)]
 pub(crate) mod tests;

@@ -87,6 +87,14 @@ impl CwBvh {
     /// Builds the tree on the host (the CPU twin's build) and uploads it.
     pub fn new(scene: &Arc<GpuScene>, spec: &StageSpec) -> Result<CwBvh> {
         super::require_mt(spec, "bvh")?;
+        if !spec.bool("exact")? {
+            return Err(CoreError::InvalidParam {
+                key: "bvh.exact".into(),
+                reason: "`false` (obvhs's own traversal) runs on the CPU backend only; the \
+                         wgpu `bvh` is the exact traversal"
+                    .into(),
+            });
+        }
         let cpu = CpuBvh::new(&scene.scene, spec)?;
         let refit = spec.str("update")? == "refit";
         CwBvh::upload(scene, cpu, refit)

@@ -260,10 +260,144 @@ fn candidates_are_unsupported_and_bad_params_rejected() {
     ));
     spec.params
         .insert("update".into(), ParamValue::Str("rebuild".into()));
+    assert!(CwBvh::new(&scene, &spec).is_err(), "no exact given");
+    spec.params.insert("exact".into(), ParamValue::Bool(true));
     let bvh = CwBvh::new(&scene, &spec).unwrap();
     assert_eq!(bvh.test(), TestKind::Watertight);
     assert_eq!(bvh.quality(), BuildQuality::Fast);
+    assert!(bvh.exact());
     rejects_candidates_and_bad_rays(&bvh, &scene);
+    spec.params.insert("exact".into(), ParamValue::Bool(false));
+    let stock = CwBvh::new(&scene, &spec).unwrap();
+    assert!(!stock.exact());
+    rejects_candidates_and_bad_rays(&stock, &scene);
+}
+
+/// `bvh` on `scene` with `exact = false` (obvhs's own tests), through the registry.
+fn stock_bvh(scene: &Arc<Scene>) -> Box<dyn Intersector<Cpu>> {
+    let ctx = StageContext::new(&Cpu, scene, crsh_core::FrameSize::new(8, 8).unwrap());
+    let mut spec = StageSpec::new("bvh");
+    spec.params.insert("exact".into(), ParamValue::Bool(false));
+    Registry::<Cpu>::builtin()
+        .build_intersector(&ctx, &spec)
+        .unwrap()
+}
+
+/// `exact = false` is obvhs's traversal: on the built-in scenes (rays hugging the walls'
+/// edges on purpose) it finds brute force's triangle on at least 90 % of the rays (93.75 %
+/// on `glass-sphere`), with `t`, `u`, `v` equal up to rounding (obvhs's arithmetic cancels on
+/// grazing rays: `t` within `1e-3` relative, `u`, `v` within `1e-2`), answers any-hit
+/// queries alike as often, and reports its tests as unknown, never as 0. The differences
+/// are obvhs's (the next two tests).
+#[test]
+fn stock_traversal_agrees_with_brute_force_up_to_obvhs_failures() {
+    for name in crsh_scene::builtin::STATIC_NAMES {
+        let scene = Arc::new(crsh_scene::builtin::build(name).unwrap());
+        let rays = builtin_rays(&scene, 61, 1200);
+        let brute = BruteForce::with_test(&scene, TestKind::MollerTrumbore);
+        let stock = stock_bvh(&scene);
+        for mode in [HitMode::Closest, HitMode::Any] {
+            let (want, _) = run(&brute, &rays, mode);
+            let (got, stats) = run(stock.as_ref(), &rays, mode);
+            assert!(stats.tests.uncounted, "{name}: counted");
+            let mut differ = 0;
+            for (g, w) in got.iter().zip(&want) {
+                if mode == HitMode::Any {
+                    differ += usize::from(g.is_hit() != w.is_hit());
+                } else if g.tri != w.tri {
+                    differ += 1;
+                } else if g.is_hit() {
+                    assert!(
+                        (g.t - w.t).abs() <= 1e-3 * w.t.max(1.0),
+                        "{name}: {g:?} {w:?}"
+                    );
+                    assert!((g.u - w.u).abs() <= 1e-2, "{name}: {g:?} {w:?}");
+                    assert!((g.v - w.v).abs() <= 1e-2, "{name}: {g:?} {w:?}");
+                }
+            }
+            assert!(
+                differ * 10 <= rays.len(),
+                "{name} {mode:?}: {differ} differ"
+            );
+        }
+    }
+}
+
+/// obvhs's triangle test where it fails: a ray parallel to the triangle's plane to `f32`
+/// precision (`n·d/|n| ≈ -2e-7`; one of `cornell-mirrors`' sphere triangles) gets a hit at
+/// `t = 0.5`, where crsh's Möller-Trumbore (and exact arithmetic) put the plane at `0.84` and
+/// the crossing far outside the triangle (`u ≈ -0.8`).
+#[test]
+fn obvhs_triangle_test_hits_a_triangle_the_ray_runs_beside() {
+    let [a, b, c] = [
+        Vec3::new(0.199_999_99, -0.723_606_8, -0.523_606_8),
+        Vec3::new(0.170_130_16, -0.835_114_1, -0.475_276_4),
+        Vec3::new(0.103_956_76, -0.773_555_46, -0.545_067_4),
+    ];
+    let (o, d) = (
+        Vec3::new(0.383_545_64, 0.094_621_48, -0.896_834_2),
+        Vec3::new(-0.238_676_86, -0.891_006_6, 0.386_187_08),
+    );
+    let t =
+        obvhs_triangle([a, b, c]).intersect(&obvhs::ray::Ray::new(o.into(), d.into(), 0.0, 100.0));
+    assert!(t.is_finite(), "obvhs reports a hit");
+    let ray = test_ray(o, d, 0.0, 100.0, 0);
+    let ours = MollerTrumbore::hit(
+        &MollerTrumbore::prepare(a, b, c),
+        &MollerTrumbore::ray_of(&ray),
+        0.0,
+        100.0,
+        0,
+    );
+    assert_eq!(ours, None);
+}
+
+/// Where obvhs's node test fails, `exact = false` fails with it, while the exact `bvh` (and
+/// brute force) hit: obvhs clamps the boxes' entry distance to `1e-4` whatever the ray's
+/// `t_min`, so a triangle `5e-5` ahead of the origin is lost; and a direction component of
+/// `-0.0` (as `-Vec3::Z` has) gets an inverse of `-1/ε` while the plane order takes it as
+/// positive, so the ray misses every box it crosses along that axis.
+#[test]
+fn stock_traversal_loses_hits_closer_than_obvhs_clamp() {
+    let scene = Arc::new(raw_scene(
+        vec![
+            Vec3::new(-1.0, -1.0, 0.0),
+            Vec3::new(1.0, -1.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+        ],
+        vec![Vec3::Z; 3],
+        vec![[0, 1, 2]],
+    ));
+    let rays = vec![test_ray(Vec3::new(0.0, 0.0, 5e-5), -Vec3::Z, 0.0, 10.0, 0)];
+    let exact = CwBvh::build(&scene, BuildQuality::Medium);
+    let stock = stock_bvh(&scene);
+    for mode in [HitMode::Closest, HitMode::Any] {
+        assert!(run(&exact, &rays, mode).0[0].is_hit(), "exact {mode:?}");
+        assert!(
+            !run(stock.as_ref(), &rays, mode).0[0].is_hit(),
+            "stock {mode:?}"
+        );
+    }
+    let signed_zero = vec![test_ray(Vec3::new(0.1, 0.2, 2.0), -Vec3::Z, 0.0, 10.0, 0)];
+    assert!(run(&exact, &signed_zero, HitMode::Closest).0[0].is_hit());
+    assert!(!run(stock.as_ref(), &signed_zero, HitMode::Closest).0[0].is_hit());
+    // The same ray with `+0.0` components, or tilted: both hit the same triangle alike.
+    let far = vec![test_ray(
+        Vec3::new(0.1, 0.2, 2.0),
+        Vec3::new(0.0, 0.0, -1.0),
+        0.0,
+        10.0,
+        0,
+    )];
+    let (a, b) = (
+        run(&exact, &far, HitMode::Closest).0[0],
+        run(stock.as_ref(), &far, HitMode::Closest).0[0],
+    );
+    assert_eq!(a.tri, b.tri);
+    assert!(
+        (a.t - b.t).abs() < 1e-6 && (a.u - b.u).abs() < 1e-6 && (a.v - b.v).abs() < 1e-6,
+        "{a:?} {b:?}"
+    );
 }
 
 /// `x` (built on `scene`) refuses candidate queries and batches with an invalid ray.
